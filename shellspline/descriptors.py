@@ -1,0 +1,266 @@
+"""LΘA descriptors: edge lengths L, signed dihedral angles Θ, triangle areas A.
+
+A descriptor vector is ``z = (L, Θ, A)`` of length ``e + i + m`` (all edges, interior edges,
+faces; see :meth:`Topology.descriptor_slices`). Everything here is vectorised over elements and
+batched over poses where it matters (a leading ``...`` axis on ``V``).
+
+Functions come in pairs: a value function (``edge_lengths``, ``dihedral_angles``,
+``face_areas``, ``lta_descriptors``) and the sparse Jacobian of the whole vector
+(:func:`lta_jacobian`), plus the reference-mesh weights of paper §7 (:func:`lta_weights`).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .topology import Topology
+
+__all__ = [
+    "edge_lengths",
+    "face_areas",
+    "dihedral_angles",
+    "lta_descriptors",
+    "lta_jacobian",
+    "lta_weights",
+    "unwrap_angles",
+    "wrap_angle",
+]
+
+_TWO_PI = 2.0 * np.pi
+
+
+def edge_lengths(V, T: Topology) -> np.ndarray:
+    """Edge lengths ``l_e``.
+
+    Parameters
+    ----------
+    V : (..., n, 3) float64 array
+        Vertex positions (one or a batch of poses).
+    T : Topology
+
+    Returns
+    -------
+    L : (..., e) float64 array
+    """
+    V = np.asarray(V, dtype=np.float64)
+    d = V[..., T.E[:, 1], :] - V[..., T.E[:, 0], :]
+    return np.sqrt(np.einsum("...i,...i->...", d, d))
+
+
+def _face_normals_unnormalized(V, F):
+    v0, v1, v2 = V[..., F[:, 0], :], V[..., F[:, 1], :], V[..., F[:, 2], :]
+    return np.cross(v1 - v0, v2 - v0)
+
+
+def face_areas(V, T: Topology) -> np.ndarray:
+    """Triangle areas ``a_t``.
+
+    Parameters
+    ----------
+    V : (..., n, 3) float64 array
+    T : Topology
+
+    Returns
+    -------
+    A : (..., m) float64 array
+    """
+    N = _face_normals_unnormalized(np.asarray(V, dtype=np.float64), T.F)
+    return 0.5 * np.sqrt(np.einsum("...i,...i->...", N, N))
+
+
+def _flap_geometry(V, flaps):
+    v0, v1 = V[..., flaps[:, 0], :], V[..., flaps[:, 1], :]
+    v2, v3 = V[..., flaps[:, 2], :], V[..., flaps[:, 3], :]
+    e = v1 - v0
+    n1 = np.cross(e, v2 - v0)          # normal of face (v0, v1, v2)
+    n2 = np.cross(v0 - v1, v3 - v1)    # normal of face (v1, v0, v3)
+    return v0, v1, v2, v3, e, n1, n2
+
+
+def dihedral_angles(V, T: Topology) -> np.ndarray:
+    """Signed dihedral angles of the interior edges.
+
+    ``θ_e = atan2(((n1 × n2) · ê), n1 · n2)`` for the flap ``(v0, v1, v2, v3)`` of edge ``e``
+    (see :class:`Topology`), so θ = 0 on a flat configuration, θ > 0 on a convex edge of an
+    outward-oriented surface, and θ is smooth through flat configurations (the unsigned
+    ``arccos`` form is not).
+
+    Parameters
+    ----------
+    V : (..., n, 3) float64 array
+    T : Topology
+
+    Returns
+    -------
+    Theta : (..., i) float64 array in (-π, π]
+
+    Examples
+    --------
+    Two faces folded to a right angle along the shared edge:
+
+    >>> import numpy as np
+    >>> from shellspline.topology import topology
+    >>> F = np.array([[0, 1, 2], [1, 0, 3]])
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, -1]])
+    >>> np.degrees(dihedral_angles(V, topology(F))).round(6).tolist()
+    [90.0]
+    """
+    V = np.asarray(V, dtype=np.float64)
+    _, _, _, _, e, n1, n2 = _flap_geometry(V, T.flaps)
+    el = np.sqrt(np.einsum("...i,...i->...", e, e))
+    y = np.einsum("...i,...i->...", np.cross(n1, n2), e) / el
+    x = np.einsum("...i,...i->...", n1, n2)
+    return np.arctan2(y, x)
+
+
+def lta_descriptors(V, T: Topology) -> np.ndarray:
+    """The LΘA vector ``z = (L, Θ, A)`` (paper §7).
+
+    Parameters
+    ----------
+    V : (..., n, 3) float64 array
+    T : Topology
+
+    Returns
+    -------
+    Z : (..., e + i + m) float64 array
+    """
+    return np.concatenate([edge_lengths(V, T), dihedral_angles(V, T), face_areas(V, T)], axis=-1)
+
+
+def wrap_angle(x):
+    """Map angles (differences) to ``[-π, π)``."""
+    return (np.asarray(x) + np.pi) % _TWO_PI - np.pi
+
+
+def unwrap_angles(Theta) -> np.ndarray:
+    """Unwrap dihedral angles across poses (axis 0) per edge.
+
+    Each pose's angle is moved by a multiple of 2π to the branch closest to the previous
+    pose's (already unwrapped) value, so a part that twists past ±π keeps a continuous
+    trajectory instead of jumping by 2π.
+
+    Parameters
+    ----------
+    Theta : (J, i) float64 array
+
+    Returns
+    -------
+    (J, i) float64 array
+    """
+    Theta = np.array(Theta, dtype=np.float64, copy=True)
+    for j in range(1, Theta.shape[0]):  # loop over keyframes only (J is small)
+        Theta[j] = Theta[j - 1] + wrap_angle(Theta[j] - Theta[j - 1])
+    return Theta
+
+
+class _JacobianPattern:
+    """CSR structure of ``∂z/∂V``; only the data array changes between evaluations."""
+
+    def __init__(self, T: Topology):
+        e, i, m = T.n_edges, T.n_interior, T.n_faces
+        xyz = np.arange(3)
+        colsL = (3 * T.E[:, :, None] + xyz).reshape(e, 6)
+        colsT = (3 * T.flaps[:, :, None] + xyz).reshape(i, 12)
+        colsA = (3 * T.F[:, :, None] + xyz).reshape(m, 9)
+        self.indices = np.concatenate([colsL.ravel(), colsT.ravel(), colsA.ravel()]).astype(np.int32)
+        nnz_row = np.concatenate([np.full(e, 6), np.full(i, 12), np.full(m, 9)])
+        self.indptr = np.concatenate([[0], np.cumsum(nnz_row)]).astype(np.int32)
+        self.shape = (e + i + m, 3 * T.n_vertices)
+
+
+def _pattern(T: Topology) -> _JacobianPattern:
+    p = T._cache.get("jacobian_pattern")
+    if p is None:
+        p = T._cache["jacobian_pattern"] = _JacobianPattern(T)
+    return p
+
+
+def lta_jacobian(V, T: Topology, *, return_values: bool = False):
+    """Sparse Jacobian ``J = ∂z/∂V`` of the LΘA vector w.r.t. the flattened vertex positions.
+
+    Closed-form per-element gradients (vectorised):
+
+    - length: ``∂l/∂v1 = -∂l/∂v0 = (v1 - v0)/l``;
+    - area: ``∂a/∂v0 = ½ ν × (v2 - v1)`` and cyclically, ``ν`` the unit normal;
+    - dihedral angle (flap ``v0 v1 | v2, v3``, ``q_f = |e| n_f / |n_f|²``,
+      ``t_f`` the edge parameter of the foot point of the flap vertex):
+      ``∂θ/∂v2 = -q_1``, ``∂θ/∂v3 = -q_2``, ``∂θ/∂v0 = (1-t_1) q_1 + (1-t_2) q_2``,
+      ``∂θ/∂v1 = t_1 q_1 + t_2 q_2``.
+
+    Parameters
+    ----------
+    V : (n,3) float64 array
+    T : Topology
+    return_values : bool
+        Also return the descriptor vector ``z`` computed on the way.
+
+    Returns
+    -------
+    J : (e+i+m, 3n) scipy.sparse.csr_matrix
+    z : (e+i+m,) float64 array, only if ``return_values``
+    """
+    V = np.asarray(V, dtype=np.float64)
+    P = _pattern(T)
+    # lengths
+    d = V[T.E[:, 1]] - V[T.E[:, 0]]
+    L = np.sqrt(np.einsum("ij,ij->i", d, d))
+    u = d / L[:, None]
+    gL = np.concatenate([-u, u], axis=1)
+    # dihedral angles
+    v0, v1, v2, v3, e, n1, n2 = _flap_geometry(V, T.flaps)
+    ee = np.einsum("ij,ij->i", e, e)
+    el = np.sqrt(ee)
+    n1n, n2n = np.einsum("ij,ij->i", n1, n1), np.einsum("ij,ij->i", n2, n2)
+    q1 = n1 * (el / n1n)[:, None]
+    q2 = n2 * (el / n2n)[:, None]
+    t1 = (np.einsum("ij,ij->i", v2 - v0, e) / ee)[:, None]
+    t2 = (np.einsum("ij,ij->i", v3 - v0, e) / ee)[:, None]
+    gT = np.concatenate([(1 - t1) * q1 + (1 - t2) * q2, t1 * q1 + t2 * q2, -q1, -q2], axis=1)
+    y = np.einsum("ij,ij->i", np.cross(n1, n2), e) / el
+    x = np.einsum("ij,ij->i", n1, n2)
+    Th = np.arctan2(y, x)
+    # areas
+    F = T.F
+    w0, w1, w2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    N = np.cross(w1 - w0, w2 - w0)
+    nn = np.sqrt(np.einsum("ij,ij->i", N, N))
+    nu = N / nn[:, None]
+    gA = 0.5 * np.concatenate([np.cross(nu, w2 - w1), np.cross(nu, w0 - w2), np.cross(nu, w1 - w0)],
+                              axis=1)
+    data = np.concatenate([gL.ravel(), gT.ravel(), gA.ravel()])
+    J = sp.csr_matrix((data, P.indices, P.indptr), shape=P.shape)
+    if return_values:
+        return J, np.concatenate([L, Th, 0.5 * nn])
+    return J
+
+
+def lta_weights(V_ref, T: Topology, *, mu: float = 1.0, lam: float = 1.0, eta: float = 1e-3):
+    """Weights of the quadratic LΘA energy at a reference mesh (paper eq. 10).
+
+    ``Ŵ(z, z̃) = Σ_i w_i (z_i - z̃_i)²`` with, at the reference mesh ŝ,
+    lengths ``w = μ d_e / l_e²``, angles ``w = η l_e² / d_e``, areas ``w = λ / a_t``, where
+    ``d_e = (a_t1 + a_t2)/3`` (one third of the single face's area on a boundary edge).
+
+    Parameters
+    ----------
+    V_ref : (..., n, 3) float64 array
+        Reference pose(s).
+    T : Topology
+    mu, lam, eta : float
+        Membrane (length, area) and bending weights; ``eta = thickness²``.
+
+    Returns
+    -------
+    w : (..., e+i+m) float64 array
+    """
+    V_ref = np.asarray(V_ref, dtype=np.float64)
+    L = edge_lengths(V_ref, T)
+    A = face_areas(V_ref, T)
+    ef = T.edge_faces
+    aef = np.where(ef >= 0, A[..., np.maximum(ef, 0)], 0.0)
+    de = aef.sum(axis=-1) / 3.0
+    wL = mu * de / L**2
+    wT = eta * L[..., T.interior] ** 2 / de[..., T.interior]
+    wA = lam / A
+    return np.concatenate([wL, wT, wA], axis=-1)
