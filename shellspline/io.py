@@ -1,0 +1,1068 @@
+"""Reading keyframe meshes and writing interpolated sequences.
+
+Everything that touches the file system lives here. Keyframes are validated once, at
+:func:`read_keyframes` / :func:`keyframes_from_arrays`; every problem is reported as a
+one-line :class:`~shellspline._errors.MeshError` that names the file (or the argument) and
+what was found, never as a traceback from inside numpy or trimesh.
+
+Formats
+-------
+* **OBJ** is parsed by a small vectorised reader of our own: ``v`` and ``f`` lines only,
+  ``f a/b/c`` and negative (relative) indices understood, texture coordinates, normals,
+  groups and materials ignored. trimesh's OBJ loader is not used because, even with
+  ``process=False``, it drops vertices no face uses (unless ``maintain_order=True``),
+  splits vertices at texture/normal seams, needs Pillow for any file with ``vt`` lines,
+  and silently triangulates polygons.
+* **PLY** (ASCII and binary) and **OFF** are read with
+  ``trimesh.load(path, process=False)``, which keeps the vertex order and merges nothing.
+  trimesh silently triangulates polygons in both (and reorders the faces of files that mix
+  triangles and polygons), so the face count declared in the file header is compared with
+  the number of triangles loaded, and any difference is reported as "non-triangle faces".
+
+Output: :func:`write_sequence` writes ``frame_0000.obj ... frame_K.obj`` (or binary
+little-endian PLY with ``double`` coordinates) and ``report.json`` atomically: all files go
+into a temporary sibling directory which is renamed into place at the end.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+import secrets
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import MeshError, ShellsplineError, tol
+from .topology import Topology, topology
+
+__all__ = [
+    "Keyframes",
+    "read_mesh",
+    "read_keyframes",
+    "keyframes_from_arrays",
+    "read_indices",
+    "read_frames",
+    "write_sequence",
+    "read_sequence",
+    "MESH_EXTENSIONS",
+]
+
+MESH_EXTENSIONS = (".obj", ".off", ".ply")
+"""File extensions :func:`read_mesh` understands (case-insensitive)."""
+
+_FRAME_RE = re.compile(r"^frame_(\d+)\.(obj|ply)$")
+
+
+# ----------------------------------------------------------------------------------------
+# Keyframes
+# ----------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class Keyframes:
+    """A validated set of keyframe poses of one triangle mesh.
+
+    Build it with :func:`read_keyframes` or :func:`keyframes_from_arrays`, which check
+    everything once; constructing it directly skips the checks.
+
+    Attributes
+    ----------
+    V : (J,n,3) float64 numpy array
+        Keyframe poses, one per keyframe on axis 0.
+    F : (m,3) int64 numpy array
+        Faces shared by all keyframes.
+    frames : (J,) int64 numpy array or None
+        Frame index of each keyframe, non-negative and strictly increasing; ``None`` lets
+        the caller choose later.
+    names : list of str
+        One name per keyframe (the file path as given, or ``"keyframe j"``); used in
+        messages.
+    pinned : (p,) int64 numpy array or None
+        Sorted, unique indices of vertices to hold fixed, or ``None``.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> m = trimesh.creation.icosphere(subdivisions=1)
+    >>> kf = keyframes_from_arrays([m.vertices, 2 * m.vertices], m.faces, frames=[0, 10])
+    >>> kf.J, kf.n, kf.m, kf.frames.tolist()
+    (2, 42, 80, [0, 10])
+    >>> kf.topology.n_edges
+    120
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    frames: np.ndarray | None
+    names: list[str]
+    pinned: np.ndarray | None = None
+    _topology: Topology | None = field(default=None, init=False, repr=False)
+
+    @property
+    def J(self) -> int:
+        """Number of keyframes."""
+        return int(self.V.shape[0])
+
+    @property
+    def n(self) -> int:
+        """Number of vertices."""
+        return int(self.V.shape[1])
+
+    @property
+    def m(self) -> int:
+        """Number of faces."""
+        return int(self.F.shape[0])
+
+    @property
+    def topology(self) -> Topology:
+        """Connectivity tables of ``F`` (built on first access, then cached)."""
+        if self._topology is None:
+            name = self.names[0] if self.names else "keyframes"
+            self._topology = topology(self.F, self.n, name=name)
+        return self._topology
+
+    def with_frames(self, frames) -> "Keyframes":
+        """A copy with validated ``frames`` (sharing arrays and the cached topology).
+
+        Parameters
+        ----------
+        frames : (J,) int array-like, str or path
+            As for :func:`read_keyframes`.
+
+        Returns
+        -------
+        Keyframes
+        """
+        new = dataclasses.replace(self, frames=_canonical_frames(frames, self.J))
+        new._topology = self._topology
+        return new
+
+    def __repr__(self) -> str:
+        frames = None if self.frames is None else self.frames.tolist()
+        pinned = None if self.pinned is None else f"<{self.pinned.size} vertices>"
+        return (f"Keyframes(J={self.J}, n={self.n}, m={self.m}, frames={frames}, "
+                f"names={self.names!r}, pinned={pinned})")
+
+
+# ----------------------------------------------------------------------------------------
+# Reading single meshes
+# ----------------------------------------------------------------------------------------
+class _Unreadable(Exception):
+    """Internal: a file cannot be parsed; the message is the reason."""
+
+
+def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a triangle mesh from an OBJ, PLY or OFF file, keeping the vertex order.
+
+    Nothing is merged, reordered or dropped (vertices no face uses are kept). Coordinates
+    are returned as float64 (float32 PLY data is converted exactly). Only parsing problems
+    are checked here; see :func:`read_keyframes` for the geometric checks.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``.obj``, ``.ply`` (ASCII or binary) or ``.off`` file.
+
+    Returns
+    -------
+    V : (n,3) float64 numpy array
+        Vertex positions.
+    F : (m,3) int64 numpy array
+        Triangles, zero-based vertex indices.
+
+    Raises
+    ------
+    MeshError
+        "cannot read '<path>': <reason>" if the file is missing, unreadable, malformed or
+        has an unknown extension; "<path>: non-triangle faces (...)" for quads or polygons;
+        "<path>: ... separate objects" for a multi-object scene.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> p = os.path.join(d, "tri.obj")
+    >>> _ = open(p, "w").write("v 0 0 0\\nv 1 0 0\\nv 0 1 0\\nf 1 2 3\\n")
+    >>> V, F = read_mesh(p)
+    >>> V.shape, F.tolist()
+    ((3, 3), [[0, 1, 2]])
+    """
+    name = str(path)
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in MESH_EXTENSIONS:
+        raise MeshError(f"cannot read '{name}': unknown extension '{p.suffix}' "
+                        f"(supported: {', '.join(MESH_EXTENSIONS)})")
+    try:
+        if not p.exists():
+            raise _Unreadable("no such file")
+        if p.is_dir():
+            raise _Unreadable("is a directory")
+        if ext == ".obj":
+            V, F = _parse_obj(p.read_bytes(), name)
+        else:
+            V, F = _read_with_trimesh(p, ext, name)
+    except MeshError:
+        raise
+    except _Unreadable as exc:
+        raise MeshError(f"cannot read '{name}': {exc}") from None
+    except OSError as exc:
+        raise MeshError(f"cannot read '{name}': {exc.strerror or exc}") from None
+    except Exception as exc:  # trimesh raises many kinds; report one line, no traceback
+        raise MeshError(f"cannot read '{name}': {_one_line(exc)}") from None
+    return V, F
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if len(text) > 200:
+        text = text[:197] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised OBJ reader: ``v`` and ``f`` lines, global vertex numbering."""
+    if b"\0" in data:
+        raise _Unreadable("binary data in a text OBJ file")
+    if b"\\\n" in data or b"\\\r\n" in data:  # line continuations
+        data = re.sub(rb"\\\r?\n", b" ", data)
+    lines = data.splitlines()
+    if b"#" in data:
+        lines = [ln[:ln.find(b"#")] if b"#" in ln else ln for ln in lines]
+    if b"\t" in data or b"\n " in data or b"\r " in data or data[:1] == b" ":
+        lines = [ln.strip().replace(b"\t", b" ") for ln in lines]
+    vlines = [ln for ln in lines if ln[:2] == b"v "]
+    flines = [ln for ln in lines if ln[:2] == b"f "]
+    V = _obj_vertices(vlines)
+    F = _obj_faces(flines, lines, name, slashes=b"/" in data)
+    return V, F
+
+
+def _regular_tokens(rows: list[bytes], width: int) -> list[bytes] | None:
+    """Tokens of ``rows`` if every row has exactly ``width`` tokens, else ``None``."""
+    tokens = b" ".join(rows).split()
+    if len(tokens) != width * len(rows):
+        return None
+    key = rows[0][:1] if rows else b""
+    # a row with a wrong token count shifts the keyword out of every later slot
+    if tokens[::width].count(key) != len(rows):
+        return None
+    return tokens
+
+
+def _obj_vertices(vlines: list[bytes]) -> np.ndarray:
+    if not vlines:
+        return np.zeros((0, 3))
+    tokens = _regular_tokens(vlines, 4)
+    if tokens is not None:
+        del tokens[::4]
+    else:
+        tokens = []
+        for i, ln in enumerate(vlines):
+            t = ln.split()
+            if len(t) < 4:
+                raise _Unreadable(f"vertex {i + 1} has {len(t) - 1} coordinates, expected 3")
+            tokens.extend(t[1:4])  # extra values (w, colours) are ignored
+    try:
+        return np.array(list(map(float, tokens)), dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        for i in range(0, len(tokens), 3):
+            try:
+                list(map(float, tokens[i:i + 3]))
+            except ValueError:
+                bad = b" ".join(tokens[i:i + 3]).decode("ascii", "replace")
+                raise _Unreadable(f"vertex {i // 3 + 1} has non-numeric coordinates "
+                                  f"'{bad}'") from None
+        raise  # pragma: no cover
+
+
+def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *,
+               slashes: bool) -> np.ndarray:
+    if not flines:
+        return np.zeros((0, 3), dtype=np.int64)
+    tokens = _regular_tokens(flines, 4)
+    if tokens is None:
+        sizes = np.array([len(ln.split()) - 1 for ln in flines])
+        bad = np.flatnonzero(sizes != 3)
+        t = int(bad[0])
+        line_no = _line_number(lines, t)
+        raise MeshError(f"{name}: non-triangle faces ({bad.size} such faces; face {t} on "
+                        f"line {line_no} has {sizes[t]} vertices); only triangle meshes are "
+                        "supported")
+    del tokens[::4]
+    if slashes:
+        tokens = [t.split(b"/", 1)[0] for t in tokens]
+    try:
+        idx = np.array(list(map(int, tokens)), dtype=np.int64).reshape(-1, 3)
+    except ValueError:
+        bad = next(t for t in tokens if not re.fullmatch(rb"[+-]?\d+", t))
+        raise _Unreadable(f"face index '{bad.decode('ascii', 'replace')}' is not an "
+                          "integer") from None
+    if (idx == 0).any():
+        t = int(np.flatnonzero((idx == 0).any(axis=1))[0])
+        raise _Unreadable(f"face {t} uses vertex index 0 (OBJ indices start at 1)")
+    neg = idx < 0
+    if neg.any():
+        # relative indices count back from the last vertex defined before the face line
+        kinds = [ln[:2] for ln in lines if ln[:2] in (b"v ", b"f ")]
+        is_v = np.array([k == b"v " for k in kinds])
+        v_before = np.cumsum(is_v)[~is_v]
+        idx = np.where(neg, idx + v_before[:, None], idx - 1)
+    else:
+        idx -= 1
+    return idx
+
+
+def _line_number(lines: list[bytes], occurrence: int) -> int:
+    """1-based number of the ``occurrence``-th face line (best effort, error path only)."""
+    seen = 0
+    for i, ln in enumerate(lines):
+        if ln[:2] == b"f ":
+            if seen == occurrence:
+                return i + 1
+            seen += 1
+    return -1  # pragma: no cover
+
+
+def _read_with_trimesh(p: Path, ext: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    declared = _ply_header_counts(p) if ext == ".ply" else _off_header_counts(p)
+    loaded = trimesh.load(str(p), file_type=ext[1:], process=False)
+    if isinstance(loaded, trimesh.Scene):
+        geoms = list(loaded.geometry.values())
+        if len(geoms) > 1:
+            raise MeshError(f"{name}: the file holds {len(geoms)} separate objects; expected "
+                            "a single mesh")
+        loaded = geoms[0] if geoms else None
+    if loaded is None:
+        V, F = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    else:
+        V = np.array(loaded.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = getattr(loaded, "faces", None)  # a PointCloud has none
+        F = (np.zeros((0, 3), dtype=np.int64) if faces is None or len(faces) == 0
+             else np.array(faces, dtype=np.int64).reshape(-1, 3))
+    if declared is not None:
+        nv, nf = declared
+        if nf is not None and F.shape[0] != nf:
+            if F.shape[0] > nf:
+                raise MeshError(f"{name}: non-triangle faces (the file declares {nf} "
+                                f"face{'s' if nf != 1 else ''}, "
+                                f"which triangulate to {F.shape[0]} triangles); only "
+                                "triangle meshes are supported")
+            raise _Unreadable(f"the file declares {nf} faces but {F.shape[0]} were found "
+                              "(truncated?)")
+        if nv is not None and V.shape[0] != nv:
+            raise _Unreadable(f"the file declares {nv} vertices but {V.shape[0]} were found "
+                              "(truncated?)")
+    return V, F
+
+
+def _ply_header_counts(p: Path) -> tuple[int | None, int | None] | None:
+    """Vertex and face counts declared in a PLY header (``None`` if not parseable)."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return None  # let trimesh report the problem
+    counts: dict[str, int] = {}
+    for ln in head[:end].decode("ascii", "replace").splitlines():
+        parts = ln.split()
+        if len(parts) == 3 and parts[0] == "element" and parts[2].isdigit():
+            counts[parts[1]] = int(parts[2])
+    return counts.get("vertex"), counts.get("face")
+
+
+def _off_header_counts(p: Path) -> tuple[int | None, int | None] | None:
+    """Vertex and face counts on the header line(s) of an OFF file."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16).decode("ascii", "replace")
+    tokens: list[str] = []
+    for ln in head.splitlines():
+        tokens.extend(ln.split("#", 1)[0].split())
+        if len(tokens) >= 4:
+            break
+    if not tokens or not tokens[0].upper().endswith("OFF") or len(tokens) < 3:
+        return None
+    if not (tokens[1].isdigit() and tokens[2].isdigit()):
+        return None
+    return int(tokens[1]), int(tokens[2])
+
+
+# ----------------------------------------------------------------------------------------
+# Keyframe sets: reading and validation
+# ----------------------------------------------------------------------------------------
+def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
+    """Read and validate the keyframe meshes of one animation.
+
+    Parameters
+    ----------
+    paths : sequence of str or path-like
+        One mesh file per keyframe (OBJ, PLY or OFF; formats may be mixed), in time order.
+    frames : (J,) int array-like, str or path, optional
+        Frame index of each keyframe: non-negative, strictly increasing integers. A string
+        or path is parsed by :func:`read_frames`. ``None`` leaves the choice to the caller.
+    pinned : (p,) int array-like, (n,) bool mask, str or path, optional
+        Vertices to hold fixed; a string or path is read with :func:`read_indices`.
+
+    Returns
+    -------
+    Keyframes
+        With ``names`` the paths as given and the topology already built.
+
+    Raises
+    ------
+    MeshError
+        With a one-line message naming the file and the problem: unreadable, missing or
+        malformed file, unknown extension, empty mesh, non-triangle faces, different vertex
+        counts or face lists between keyframes, non-manifold edges, inconsistent
+        orientation, degenerate (zero-area) faces, NaN/inf coordinates, fewer than two
+        keyframes, bad ``frames`` or ``pinned``.
+
+    Examples
+    --------
+    >>> import os, tempfile, trimesh
+    >>> d = tempfile.mkdtemp()
+    >>> m = trimesh.creation.icosphere(subdivisions=1)
+    >>> paths = []
+    >>> for j, s in enumerate([1.0, 1.5, 2.0]):
+    ...     paths.append(os.path.join(d, f"k{j}.ply"))
+    ...     _ = trimesh.Trimesh(m.vertices * s, m.faces, process=False).export(paths[-1])
+    >>> kf = read_keyframes(paths, frames="0,5,10")
+    >>> kf.V.shape, kf.F.shape, kf.frames.tolist()
+    ((3, 42, 3), (80, 3), [0, 5, 10])
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    paths = list(paths)
+    names = [str(p) for p in paths]
+    if len(paths) < 2:
+        got = f" ('{names[0]}')" if names else ""
+        raise MeshError(f"need at least 2 keyframes, got {len(paths)}{got}")
+    frames = _canonical_frames(frames, len(paths))
+    Vs: list[np.ndarray] = []
+    F0 = None
+    for j, p in enumerate(paths):
+        V, F = read_mesh(p)
+        _check_not_empty(V, F, names[j])
+        if j == 0:
+            F0 = F
+        else:
+            if V.shape[0] != Vs[0].shape[0]:
+                raise MeshError(f"{names[j]} has {V.shape[0]} vertices but {names[0]} has "
+                                f"{Vs[0].shape[0]}")
+            _check_same_faces(F, F0, names[j], names[0])
+        Vs.append(V)
+    return _validated(np.stack(Vs), F0, frames, names, pinned)
+
+
+def keyframes_from_arrays(V, F, frames=None, names=None, pinned=None) -> Keyframes:
+    """Validate in-memory keyframes exactly as :func:`read_keyframes` validates files.
+
+    Parameters
+    ----------
+    V : (J,n,3) float array-like, or sequence of J (n,3) arrays
+        Keyframe poses.
+    F : (m,3) int array-like
+        Shared triangles, zero-based.
+    frames : (J,) int array-like, str or path, optional
+        See :func:`read_keyframes`.
+    names : sequence of J str, optional
+        Names used in messages; default ``"keyframe 0"``, ``"keyframe 1"``, ...
+    pinned : (p,) int array-like, (n,) bool mask, str or path, optional
+        See :func:`read_keyframes`.
+
+    Returns
+    -------
+    Keyframes
+        Holding float64/int64 copies of the inputs.
+
+    Raises
+    ------
+    MeshError
+        As :func:`read_keyframes`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V0 = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> F = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
+    >>> keyframes_from_arrays([V0, 2 * V0], F, frames=[0, 4]).V.shape
+    (2, 4, 3)
+    >>> keyframes_from_arrays([V0, 2 * V0], F, frames=[4, 0])
+    Traceback (most recent call last):
+    ...
+    shellspline._errors.MeshError: frames must be strictly increasing, got [4, 0]
+    """
+    if isinstance(V, np.ndarray):
+        poses = list(V) if V.ndim == 3 else None
+        if poses is None and V.ndim == 2 and V.shape[-1] == 3:
+            raise MeshError(f"need at least 2 keyframes, got a single pose of shape {V.shape}")
+        if poses is None:
+            raise MeshError(f"V must be a (J,n,3) array of poses, got shape {V.shape}")
+    else:
+        poses = list(V)
+    J = len(poses)
+    if names is None:
+        names = [f"keyframe {j}" for j in range(J)]
+    else:
+        names = [str(s) for s in names]
+        if len(names) != J:
+            raise MeshError(f"names must have one entry per keyframe ({J}), got {len(names)}")
+    if J < 2:
+        got = f" ('{names[0]}')" if names else ""
+        raise MeshError(f"need at least 2 keyframes, got {J}{got}")
+    frames = _canonical_frames(frames, J)
+    try:
+        F = np.asarray(F)
+    except Exception as exc:
+        raise MeshError(f"F: cannot convert to an array: {_one_line(exc)}") from None
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise MeshError(f"F must be an (m,3) array of triangles, got shape {F.shape}")
+    if F.size and not np.issubdtype(F.dtype, np.integer):
+        raise MeshError(f"F must hold integer vertex indices, got dtype {F.dtype}")
+    F = F.astype(np.int64)
+    Vs = []
+    for j, X in enumerate(poses):
+        try:
+            X = np.array(X, dtype=np.float64)
+        except Exception as exc:
+            raise MeshError(f"{names[j]}: cannot convert the pose to a float array: "
+                            f"{_one_line(exc)}") from None
+        if X.ndim != 2 or X.shape[1] != 3:
+            raise MeshError(f"{names[j]}: a pose must be an (n,3) array, got shape {X.shape}")
+        _check_not_empty(X, F, names[j])
+        if j and X.shape[0] != Vs[0].shape[0]:
+            raise MeshError(f"{names[j]} has {X.shape[0]} vertices but {names[0]} has "
+                            f"{Vs[0].shape[0]}")
+        Vs.append(X)
+    return _validated(np.stack(Vs), F, frames, names, pinned)
+
+
+def _check_not_empty(V: np.ndarray, F: np.ndarray, name: str) -> None:
+    if V.shape[0] == 0:
+        raise MeshError(f"{name}: empty mesh (no vertices)")
+    if F.shape[0] == 0:
+        raise MeshError(f"{name}: empty mesh (no faces)")
+
+
+def _check_same_faces(F: np.ndarray, F0: np.ndarray, name: str, name0: str) -> None:
+    if F.shape != F0.shape:
+        raise MeshError(f"{name}: face list differs from {name0} ({name} has {F.shape[0]} "
+                        f"faces, {name0} has {F0.shape[0]})")
+    diff = (F != F0).any(axis=1)
+    if diff.any():
+        t = int(np.flatnonzero(diff)[0])
+        raise MeshError(f"{name}: face list differs from {name0} (first difference at face "
+                        f"{t}: {F[t].tolist()} vs {F0[t].tolist()})")
+
+
+def _validated(Vs: np.ndarray, F: np.ndarray, frames, names: list[str], pinned) -> Keyframes:
+    """Checks shared by both constructors; ``Vs`` (J,n,3) float64, shapes already agree."""
+    J, n = Vs.shape[:2]
+    for j in range(J):
+        finite = np.isfinite(Vs[j]).all(axis=1)
+        if not finite.all():
+            bad = np.flatnonzero(~finite)
+            raise MeshError(f"{names[j]}: {bad.size} vertices have NaN/inf coordinates "
+                            f"(first: vertex {int(bad[0])} = {Vs[j, bad[0]].tolist()})")
+    T = topology(F, n, name=names[0])
+    for j in range(J):
+        _check_degenerate(Vs[j], T.F, names[j])
+    kf = Keyframes(V=Vs, F=T.F, frames=frames, names=list(names),
+                   pinned=_canonical_pinned(pinned, n))
+    kf._topology = T
+    return kf
+
+
+def _check_degenerate(V: np.ndarray, F: np.ndarray, name: str) -> None:
+    """Raise for faces with area below ``tol.degenerate_area * mean_edge_length**2``."""
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    e1, e2 = b - a, c - a
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    mean_len = (np.linalg.norm(e1, axis=1).sum() + np.linalg.norm(e2, axis=1).sum()
+                + np.linalg.norm(c - b, axis=1).sum()) / (3 * F.shape[0])
+    bad = area <= tol.degenerate_area * mean_len ** 2
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        t = int(idx[0])
+        raise MeshError(f"{name}: {idx.size} degenerate (zero-area) faces, first is face {t} "
+                        f"{F[t].tolist()} (area {area[t]:.3g} <= {tol.degenerate_area:g} x "
+                        f"mean edge length^2 = {tol.degenerate_area * mean_len ** 2:.3g})")
+
+
+def _canonical_frames(frames, J: int) -> np.ndarray | None:
+    """Validate keyframe frames: ``None`` or (J,) int64, non-negative, strictly increasing."""
+    if frames is None:
+        return None
+    if isinstance(frames, (str, os.PathLike)):
+        frames = read_frames(frames)
+    try:
+        arr = np.asarray(frames)
+    except Exception as exc:
+        raise MeshError(f"frames: cannot convert to an array: {_one_line(exc)}") from None
+    if arr.ndim != 1:
+        raise MeshError(f"frames must be a 1-D sequence of integers, got shape {arr.shape}")
+    shown = arr.tolist()
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
+                                 or np.issubdtype(arr.dtype, np.floating)):
+        raise MeshError(f"frames must be integers, got {shown}")
+    if np.issubdtype(arr.dtype, np.floating):
+        if not np.isfinite(arr).all() or (arr != np.round(arr)).any():
+            raise MeshError(f"frames must be integers, got {shown}")
+    arr = arr.astype(np.int64)
+    if arr.shape[0] != J:
+        raise MeshError(f"frames must have one entry per keyframe ({J}), got {arr.shape[0]}: "
+                        f"{arr.tolist()}")
+    if (arr < 0).any():
+        raise MeshError(f"frames must be non-negative, got {arr.tolist()}")
+    if (np.diff(arr) <= 0).any():
+        raise MeshError(f"frames must be strictly increasing, got {arr.tolist()}")
+    return arr
+
+
+def _canonical_pinned(pinned, n: int) -> np.ndarray | None:
+    """Validate pinned vertices: ``None`` or sorted unique (p,) int64 in ``[0, n)``."""
+    if pinned is None:
+        return None
+    if isinstance(pinned, (str, os.PathLike)):
+        pinned = read_indices(pinned)
+    try:
+        arr = np.asarray(pinned)
+    except Exception as exc:
+        raise MeshError(f"pinned: cannot convert to an array: {_one_line(exc)}") from None
+    if arr.dtype == bool:
+        if arr.shape != (n,):
+            raise MeshError(f"a boolean pinned mask must have one entry per vertex ({n}), "
+                            f"got shape {arr.shape}")
+        return np.flatnonzero(arr).astype(np.int64)
+    arr = arr.ravel()
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if not np.issubdtype(arr.dtype, np.floating) or (arr != np.round(arr)).any():
+            raise MeshError(f"pinned vertex indices must be integers, got dtype {arr.dtype}")
+    arr = arr.astype(np.int64)
+    out = (arr < 0) | (arr >= n)
+    if out.any():
+        raise MeshError(f"pinned vertex indices must lie in [0, {n}), got {int(arr[out][0])} "
+                        f"({int(out.sum())} out of range)")
+    return np.unique(arr)
+
+
+# ----------------------------------------------------------------------------------------
+# Small text inputs
+# ----------------------------------------------------------------------------------------
+def read_indices(path) -> np.ndarray:
+    """Read a vertex-index file: integers separated by whitespace, newlines or commas.
+
+    ``#`` starts a comment that runs to the end of the line.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    (p,) int64 numpy array
+        The indices in file order (range checks happen in :func:`read_keyframes`).
+
+    Raises
+    ------
+    MeshError
+        If the file cannot be read or holds something other than integers.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> p = os.path.join(tempfile.mkdtemp(), "pins.txt")
+    >>> _ = open(p, "w").write("# base ring\\n3, 4 5\\n7  # last\\n")
+    >>> read_indices(p).tolist()
+    [3, 4, 5, 7]
+    """
+    return _read_integers(path, "vertex-index file")
+
+
+def read_frames(spec) -> np.ndarray:
+    """Parse keyframe frames from a string such as ``"0,10,20"`` or from a file of integers.
+
+    Parameters
+    ----------
+    spec : str, path-like or sequence of int
+        A comma/whitespace-separated list of integers, the path of a file holding them
+        (``#`` comments allowed), or a sequence of integers.
+
+    Returns
+    -------
+    (J,) int64 numpy array
+        The frames as given; monotonicity and length are checked by
+        :func:`read_keyframes`.
+
+    Raises
+    ------
+    MeshError
+        If ``spec`` is neither an integer list nor a readable file of integers.
+
+    Examples
+    --------
+    >>> read_frames("0, 10,20").tolist()
+    [0, 10, 20]
+    """
+    if isinstance(spec, os.PathLike):
+        return _read_integers(spec, "frames file")
+    if isinstance(spec, str):
+        if re.fullmatch(r"[\s,+\-0-9]*", spec) and re.search(r"\d", spec):
+            return _parse_integers(spec, f"frames '{spec}'")
+        if Path(spec).is_file():
+            return _read_integers(spec, "frames file")
+        raise MeshError(f"frames '{spec}' is neither a list of integers such as '0,10,20' nor "
+                        "an existing file")
+    try:
+        arr = np.asarray(spec)
+    except Exception as exc:
+        raise MeshError(f"frames: cannot convert to an array: {_one_line(exc)}") from None
+    if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+        raise MeshError(f"frames must be a 1-D sequence of integers, got {arr.tolist()}")
+    return arr.astype(np.int64)
+
+
+def _read_integers(path, what: str) -> np.ndarray:
+    name = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise MeshError(f"cannot read '{name}': {exc.strerror or exc}") from None
+    return _parse_integers(text, f"{what} '{name}'")
+
+
+def _parse_integers(text: str, what: str) -> np.ndarray:
+    values: list[int] = []
+    for line_no, line in enumerate(text.splitlines(), 1):
+        for tok in line.split("#", 1)[0].replace(",", " ").split():
+            try:
+                values.append(int(tok))
+            except ValueError:
+                raise MeshError(f"{what}: line {line_no}: '{tok}' is not an integer") from None
+    return np.array(values, dtype=np.int64)
+
+
+# ----------------------------------------------------------------------------------------
+# Writing sequences
+# ----------------------------------------------------------------------------------------
+def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: bool = False,
+                   protect=(), workers: int = 1) -> Path:
+    """Write a sequence of poses as ``frame_0000.obj ...`` plus ``report.json``, atomically.
+
+    Everything is written into a temporary sibling directory
+    (``.<out_dir>.tmp-<pid>-<random>``) that is renamed to ``out_dir`` at the end, so a crash
+    or an exception never leaves a half-written output; the temporary directory is removed
+    on any error. An existing output is replaced only with ``overwrite=True``, by renaming
+    it aside, renaming the new one into place and then deleting the old one.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+        Output directory; its parent is created if needed.
+    V : (K+1,n,3) float array
+        Poses of frames ``0..K``.
+    F : (m,3) int array
+        Faces, zero-based (written 1-based in OBJ).
+    report : dict, optional
+        Written as ``report.json`` (indent 2); numpy arrays and scalars, paths, tuples and
+        dataclasses are converted. Default ``{}``.
+    fmt : {"obj", "ply"}
+        ``"obj"``: text, coordinates with 17 significant digits (``%.17g``), so that every
+        float64 reads back bit-identically. ``"ply"``: binary little-endian PLY with
+        ``double`` coordinates (exact, smaller and faster).
+    overwrite : bool
+        Replace an existing ``out_dir``. Only a directory that is empty or holds a
+        ``report.json`` (i.e. looks like an earlier output) is ever replaced.
+    protect : iterable of str or path-like
+        Input paths (the keyframe files) that must survive: it is an error if ``out_dir``
+        resolves to one of them or contains one.
+    workers : int
+        Number of processes that format and write frames (``1``: in this process).
+        Formatting OBJ text is CPU bound, so more workers help on long sequences; uses the
+        ``fork`` start method where available.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path of the written directory.
+
+    Raises
+    ------
+    FileExistsError
+        If ``out_dir`` exists and ``overwrite`` is false, or it exists and is not a
+        directory.
+    ShellsplineError
+        For bad arguments, a non-serialisable report, an ``out_dir`` that contains a
+        protected input or the working directory, or one that does not look like an earlier
+        output when ``overwrite=True``.
+
+    Notes
+    -----
+    Frame files are named ``frame_{k:0{w}d}`` with ``w = max(4, len(str(K)))``. The face
+    block of an OBJ file is the same for every frame and is formatted once.
+
+    Examples
+    --------
+    >>> import tempfile, os, numpy as np
+    >>> V = np.random.default_rng(0).random((3, 4, 3))
+    >>> F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> out = write_sequence(os.path.join(tempfile.mkdtemp(), "out"), V, F, {"K": 2})
+    >>> sorted(p.name for p in out.iterdir())
+    ['frame_0000.obj', 'frame_0001.obj', 'frame_0002.obj', 'report.json']
+    >>> V2, F2, rep = read_sequence(out)
+    >>> bool((V2 == V).all()), rep
+    (True, {'K': 2})
+    """
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 3 or V.shape[2] != 3 or V.shape[0] == 0:
+        raise ShellsplineError(f"V must be a (K+1,n,3) array of poses, got shape {V.shape}")
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3 or (F.size and not np.issubdtype(F.dtype, np.integer)):
+        raise ShellsplineError(f"F must be an (m,3) integer array, got shape {F.shape} and "
+                               f"dtype {F.dtype}")
+    F = F.astype(np.int64)
+    n = V.shape[1]
+    if F.size and (F.min() < 0 or F.max() >= n):
+        raise ShellsplineError(f"F indexes vertices outside [0, {n}): range "
+                               f"[{F.min()}, {F.max()}]")
+    fmt = str(fmt).lower().lstrip(".")
+    if fmt not in ("obj", "ply"):
+        raise ShellsplineError(f"fmt must be 'obj' or 'ply', got {fmt!r}")
+    workers = int(workers)
+    if workers < 1:
+        raise ShellsplineError(f"workers must be >= 1, got {workers}")
+    report_text = json.dumps(_jsonable({} if report is None else report, "report"),
+                             indent=2) + "\n"
+
+    out = Path(out_dir)
+    target = out.resolve()
+    _check_destination(target, out, overwrite, protect)
+    parent = target.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = _fresh_sibling(parent, f".{target.name}.tmp-{os.getpid()}-")
+    try:
+        K = V.shape[0] - 1
+        width = max(4, len(str(K)))
+        paths = [tmp / f"frame_{k:0{width}d}.{fmt}" for k in range(K + 1)]
+        _write_frames(paths, V, F, fmt, workers)
+        (tmp / "report.json").write_text(report_text, encoding="utf-8")
+        _move_into_place(tmp, target, overwrite)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return target
+
+
+def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> None:
+    for p in protect:
+        rp = Path(p).resolve()
+        if rp == target or target in rp.parents:
+            raise ShellsplineError(f"refusing to write to '{out}': it would contain or "
+                                   f"replace the input '{p}'")
+    if not (target.exists() or target.is_symlink()):
+        return
+    if not target.is_dir():
+        raise FileExistsError(f"'{out}' exists and is not a directory")
+    if not overwrite:
+        raise FileExistsError(f"output directory '{out}' already exists (use overwrite=True "
+                              "to replace it)")
+    cwd = Path.cwd().resolve()
+    if cwd == target or target in cwd.parents:
+        raise ShellsplineError(f"refusing to replace '{out}': it contains the current working "
+                               "directory")
+    if any(target.iterdir()) and not (target / "report.json").is_file():
+        raise ShellsplineError(f"refusing to replace '{out}': it is not empty and has no "
+                               "report.json, so it does not look like an earlier output")
+
+
+def _fresh_sibling(parent: Path, prefix: str) -> Path:
+    while True:
+        p = parent / f"{prefix}{secrets.token_hex(4)}"
+        try:
+            p.mkdir()
+            return p
+        except FileExistsError:  # pragma: no cover - 32 random bits
+            continue
+
+
+def _move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
+    if target.exists() or target.is_symlink():
+        if not overwrite:  # created by someone else while we were writing
+            raise FileExistsError(f"output directory '{target}' already exists")
+        aside = target.parent / f".{target.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+        os.rename(target, aside)
+        try:
+            os.rename(tmp, target)
+        except BaseException:
+            os.rename(aside, target)
+            raise
+        shutil.rmtree(aside, ignore_errors=True)
+    else:
+        os.rename(tmp, target)
+
+
+def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
+                  workers: int) -> None:
+    block = _obj_faces_block(F) if fmt == "obj" else _ply_faces_bytes(F)
+    workers = min(workers, len(paths))
+    if workers <= 1:
+        for k, p in enumerate(paths):
+            if fmt == "obj":
+                _write_obj_frame(p, V[k], block)
+            else:
+                _write_ply_frame(p, V[k], block, F.shape[0])
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+    chunks = np.array_split(np.arange(len(paths)), workers)
+    with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
+        futures = [ex.submit(_write_frames_chunk, [paths[k] for k in c], V[c], block, fmt,
+                             F.shape[0]) for c in chunks]
+        try:
+            for fut in futures:
+                fut.result()
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+
+def _write_frames_chunk(paths, Vc, block, fmt, m) -> None:
+    for p, X in zip(paths, Vc):
+        if fmt == "obj":
+            _write_obj_frame(p, X, block)
+        else:
+            _write_ply_frame(p, X, block, m)
+
+
+def _obj_faces_block(F: np.ndarray) -> bytes:
+    """The ``f a b c`` lines (1-based) of every frame, formatted once."""
+    return (("f %d %d %d\n" * F.shape[0]) % tuple((F + 1).ravel().tolist())).encode("ascii")
+
+
+def _write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes) -> None:
+    """One OBJ frame; ``%.17g`` round-trips every float64 exactly."""
+    verts = ("v %.17g %.17g %.17g\n" * V.shape[0]) % tuple(V.ravel().tolist())
+    with open(path, "wb") as fh:
+        fh.write(verts.encode("ascii"))
+        fh.write(faces_block)
+
+
+def _ply_faces_bytes(F: np.ndarray) -> bytes:
+    rec = np.zeros(F.shape[0], dtype=[("count", "u1"), ("idx", "<i4", (3,))])
+    rec["count"] = 3
+    rec["idx"] = F
+    return rec.tobytes()
+
+
+def _write_ply_frame(path: Path, V: np.ndarray, faces_bytes: bytes, m: int) -> None:
+    header = ("ply\nformat binary_little_endian 1.0\ncomment written by shellspline\n"
+              f"element vertex {V.shape[0]}\nproperty double x\nproperty double y\n"
+              f"property double z\nelement face {m}\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(np.ascontiguousarray(V, dtype="<f8").tobytes())
+        fh.write(faces_bytes)
+
+
+def _jsonable(obj, where: str):
+    """Convert a report to JSON-native types; raise naming the offending entry."""
+    if obj is None or isinstance(obj, (str, bool, int)):
+        return obj
+    if isinstance(obj, float):
+        return obj
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if isinstance(obj, dict):
+        out = {}
+        for k, v in obj.items():
+            key = k.item() if isinstance(k, np.generic) else k
+            if isinstance(key, os.PathLike):
+                key = os.fspath(key)
+            if not isinstance(key, (str, int, float, bool)) and key is not None:
+                raise ShellsplineError(f"{where}: key {k!r} of type {type(k).__name__} cannot "
+                                       "be written to JSON")
+            out[key] = _jsonable(v, f"{where}[{k!r}]")
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, (set, frozenset)):
+        return [_jsonable(v, where) for v in sorted(obj, key=repr)]
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return _jsonable({f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)},
+                         where)
+    raise ShellsplineError(f"{where}: value of type {type(obj).__name__} cannot be written to "
+                           "JSON")
+
+
+def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Read a directory written by :func:`write_sequence`.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+
+    Returns
+    -------
+    V : (K+1,n,3) float64 numpy array
+        Poses, in frame order.
+    F : (m,3) int64 numpy array
+        Faces.
+    report : dict
+        The contents of ``report.json`` (``{}`` if there is none).
+
+    Raises
+    ------
+    MeshError
+        If the directory has no frame files, frames are missing, or the frames disagree in
+        vertex count or faces.
+    """
+    d = Path(out_dir)
+    if not d.is_dir():
+        raise MeshError(f"cannot read sequence '{d}': not a directory")
+    found = {}
+    for p in d.iterdir():
+        mt = _FRAME_RE.match(p.name)
+        if mt:
+            k = int(mt.group(1))
+            if k in found:
+                raise MeshError(f"{d}: frame {k} appears twice ({found[k].name}, {p.name})")
+            found[k] = p
+    if not found:
+        raise MeshError(f"{d}: no frame_*.obj or frame_*.ply files")
+    ks = sorted(found)
+    if ks != list(range(len(ks))):
+        missing = sorted(set(range(ks[-1] + 1)) - set(ks))
+        raise MeshError(f"{d}: frames are not numbered 0..{ks[-1]} without gaps (missing "
+                        f"{missing[:5]})")
+    Vs, F0 = [], None
+    for k in ks:
+        name = str(found[k])
+        V, F = read_mesh(found[k])
+        if F0 is None:
+            F0, name0 = F, name
+        else:
+            if V.shape[0] != Vs[0].shape[0]:
+                raise MeshError(f"{name} has {V.shape[0]} vertices but {name0} has "
+                                f"{Vs[0].shape[0]}")
+            _check_same_faces(F, F0, name, name0)
+        Vs.append(V)
+    report = {}
+    rp = d / "report.json"
+    if rp.is_file():
+        try:
+            report = json.loads(rp.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise MeshError(f"cannot read '{rp}': {_one_line(exc)}") from None
+    return np.stack(Vs), F0, report

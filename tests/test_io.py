@@ -1,0 +1,488 @@
+"""Tests for shellspline.io: reading, validation, atomic writing."""
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from shellspline import io as sio
+from shellspline._errors import MeshError, ShellsplineError
+
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+# ----------------------------------------------------------------------------------------
+# helpers: meshes built in code, files written by hand (independent of the module)
+# ----------------------------------------------------------------------------------------
+def sphere():
+    m = trimesh.creation.icosphere(subdivisions=1)
+    return np.array(m.vertices, dtype=np.float64), np.array(m.faces, dtype=np.int64)
+
+
+def write_obj(path, V, F, header=""):
+    lines = [header] if header else []
+    lines += ["v %r %r %r" % tuple(v) for v in V.tolist()]
+    lines += ["f %d %d %d" % tuple(f) for f in (np.asarray(F) + 1).tolist()]
+    Path(path).write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def write_off(path, V, F):
+    lines = ["OFF", f"{len(V)} {len(F)} 0"]
+    lines += ["%r %r %r" % tuple(v) for v in V.tolist()]
+    lines += [" ".join(map(str, [len(f)] + list(f))) for f in F]
+    Path(path).write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def write_ply_ascii(path, V, F, prop="double"):
+    head = ["ply", "format ascii 1.0", f"element vertex {len(V)}",
+            f"property {prop} x", f"property {prop} y", f"property {prop} z",
+            f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
+    body = ["%r %r %r" % tuple(v) for v in np.asarray(V).tolist()]
+    body += [" ".join(map(str, [len(f)] + list(f))) for f in F]
+    Path(path).write_text("\n".join(head + body) + "\n")
+    return str(path)
+
+
+def write_ply_binary(path, V, F, prop="double"):
+    head = ("ply\nformat binary_little_endian 1.0\n"
+            f"element vertex {len(V)}\nproperty {prop} x\nproperty {prop} y\n"
+            f"property {prop} z\nelement face {len(F)}\n"
+            "property list uchar int vertex_indices\nend_header\n")
+    rec = np.zeros(len(F), dtype=[("c", "u1"), ("i", "<i4", (3,))])
+    rec["c"], rec["i"] = 3, F
+    dtype = "<f8" if prop == "double" else "<f4"
+    Path(path).write_bytes(head.encode() + np.asarray(V, dtype).tobytes() + rec.tobytes())
+    return str(path)
+
+
+def keyframe_files(tmp_path, n_keys=3, ext="obj"):
+    V, F = sphere()
+    writer = {"obj": write_obj, "off": write_off, "ply": write_ply_ascii}[ext]
+    return [writer(tmp_path / f"k{j}.{ext}", V * (1 + 0.25 * j), F) for j in range(n_keys)]
+
+
+def bits(X):
+    return np.ascontiguousarray(X, dtype=np.float64).view(np.int64)
+
+
+def raises_mesh_error(fn, *phrases):
+    with pytest.raises(MeshError) as info:
+        fn()
+    msg = str(info.value)
+    assert "\n" not in msg
+    for p in phrases:
+        assert p in msg, (p, msg)
+    return msg
+
+
+# ----------------------------------------------------------------------------------------
+# reading
+# ----------------------------------------------------------------------------------------
+def test_formats_agree_and_keep_vertex_order(tmp_path):
+    V, F = sphere()
+    perm = np.random.default_rng(1).permutation(len(V))
+    V = V[perm]
+    F = np.argsort(perm)[F]  # same surface, permuted vertex numbering
+    # a vertex at the same position as vertex 0, used by one face, and an unused vertex
+    n = len(V)
+    V = np.vstack([V, V[0], [[7.0, 8.0, 9.0]]])
+    t = int(np.flatnonzero((F == 0).any(axis=1))[0])
+    F[t][F[t] == 0] = n
+    paths = [write_obj(tmp_path / "m.obj", V, F), write_off(tmp_path / "m.off", V, F),
+             write_ply_ascii(tmp_path / "m.ply", V, F), write_ply_binary(tmp_path / "b.ply", V, F)]
+    for p in paths:
+        V2, F2 = sio.read_mesh(p)
+        assert V2.dtype == np.float64 and F2.dtype == np.int64, p
+        assert V2.shape == (n + 2, 3) and F2.shape == F.shape, p
+        assert np.array_equal(bits(V2), bits(V)), p
+        assert np.array_equal(F2, F), p
+
+
+def test_float32_ply_converted_exactly(tmp_path):
+    V, F = sphere()
+    p = write_ply_binary(tmp_path / "f32.ply", V, F, prop="float")
+    V2, F2 = sio.read_mesh(p)
+    assert V2.dtype == np.float64
+    assert np.array_equal(V2, V.astype(np.float32).astype(np.float64))
+    assert np.array_equal(F2, F)
+
+
+def test_obj_dialects(tmp_path):
+    text = ("# comment line\r\n"
+            "o thing\r\n"
+            "v 0 0 0 1.0\r\n"          # optional w ignored
+            "  v\t1 0 0\r\n"           # leading whitespace and tab
+            "v 0 1 0  # trailing comment\r\n"
+            "v 0 0 1\r\n"
+            "vt 0 0\r\nvt 1 0\r\nvt 0 1\r\nvn 0 0 1\r\n"
+            "usemtl red\r\ng side\r\n"
+            "f 1/1/1 3/3/1 2/2/1\r\n"
+            "f 1//1 2//1 4//1\r\n"
+            "f -4 -1 -2\r\n"            # relative: vertices 1, 4, 3
+            "f 2/2 3/3 4/1\r\n")
+    p = tmp_path / "dialect.obj"
+    p.write_bytes(text.encode())
+    V, F = sio.read_mesh(p)
+    assert V.tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
+    assert F.tolist() == [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
+
+
+def test_read_shared_sphere_keyframes():
+    d = SHARED_DATA / "unit_sphere"
+    if not d.is_dir():
+        pytest.skip("../shared/data not present (a user's clone has no ../shared)")
+    paths = [d / f for f in ("unitSphere1.ply", "unitSphere1_defX.ply", "unitSphere1_defY.ply",
+                             "unitSphere1_defZ.ply")]
+    kf = sio.read_keyframes(paths, frames=[0, 3, 6, 9])
+    assert (kf.J, kf.n, kf.m) == (4, 162, 320)
+    assert kf.V.dtype == np.float64 and kf.F.dtype == np.int64
+    assert kf.names == [str(p) for p in paths]
+
+
+# ----------------------------------------------------------------------------------------
+# validation: every invalid input raises a one-line MeshError naming the file
+# ----------------------------------------------------------------------------------------
+def test_missing_file(tmp_path):
+    paths = keyframe_files(tmp_path, 2)
+    missing = str(tmp_path / "nope.obj")
+    raises_mesh_error(lambda: sio.read_keyframes(paths + [missing]), "nope.obj",
+                      "no such file")
+
+
+@pytest.mark.parametrize("ext", ["obj", "ply", "off"])
+def test_garbage_content(tmp_path, ext):
+    p = tmp_path / f"junk.{ext}"
+    p.write_bytes(b"\x00\x01\x02garbage\xff\xfe" * 10)
+    good = keyframe_files(tmp_path, 1)
+    raises_mesh_error(lambda: sio.read_keyframes(good + [p]), f"junk.{ext}", "cannot read")
+
+
+def test_unknown_extension(tmp_path):
+    p = tmp_path / "mesh.stl"
+    p.write_text("solid x\nendsolid x\n")
+    raises_mesh_error(lambda: sio.read_mesh(p), "mesh.stl", "unknown extension")
+
+
+def test_empty_mesh(tmp_path):
+    p = tmp_path / "empty.obj"
+    p.write_text("# nothing here\n")
+    good = keyframe_files(tmp_path, 1)
+    raises_mesh_error(lambda: sio.read_keyframes(good + [p]), "empty.obj", "empty mesh")
+
+
+def test_mismatched_vertex_count(tmp_path):
+    V, F = sphere()
+    a = write_obj(tmp_path / "a.obj", V, F)
+    b = write_obj(tmp_path / "b.obj", np.vstack([V, [[5.0, 5, 5]]]), F)
+    raises_mesh_error(lambda: sio.read_keyframes([a, b]), "b.obj has 43 vertices but",
+                      "a.obj has 42")
+
+
+def test_mismatched_faces(tmp_path):
+    V, F = sphere()
+    F2 = F.copy()
+    F2[17] = F2[17][[1, 2, 0]]  # same triangle, different listing
+    a = write_obj(tmp_path / "a.obj", V, F)
+    b = write_obj(tmp_path / "b.obj", V, F2)
+    raises_mesh_error(lambda: sio.read_keyframes([a, b]), "b.obj", "face list differs",
+                      "a.obj", "first difference at face 17")
+    c = write_obj(tmp_path / "c.obj", V, F[:-1])
+    raises_mesh_error(lambda: sio.read_keyframes([a, c]), "c.obj", "face list differs")
+
+
+@pytest.mark.parametrize("ext", ["obj", "off", "ply"])
+def test_quad_face(tmp_path, ext):
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]])
+    F = [[0, 1, 2, 3], [1, 4, 5]]
+    p = tmp_path / f"quad.{ext}"
+    if ext == "obj":
+        p.write_text("".join("v %r %r %r\n" % tuple(v) for v in V.tolist())
+                     + "f 1 2 3 4\nf 2 5 6\n")
+    elif ext == "off":
+        write_off(p, V, F)
+    else:
+        write_ply_ascii(p, V, F)
+    raises_mesh_error(lambda: sio.read_mesh(p), f"quad.{ext}", "non-triangle faces")
+
+
+def test_non_manifold_edge(tmp_path):
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]])
+    F = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])  # edge (0,1) has three faces
+    paths = [write_obj(tmp_path / f"nm{j}.obj", V * (j + 1), F) for j in range(2)]
+    raises_mesh_error(lambda: sio.read_keyframes(paths), "nm0.obj", "non-manifold edge")
+
+
+def test_inconsistent_orientation(tmp_path):
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0]])
+    F = np.array([[0, 1, 2], [0, 1, 3]])  # both traverse 0 -> 1
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([V, 2 * V], F), "keyframe 0",
+                      "consistently oriented")
+
+
+@pytest.mark.parametrize("kind", ["coincident", "collinear"])
+def test_degenerate_face(tmp_path, kind):
+    V, F = sphere()
+    a, b, c = F[5]
+    W = V.copy()
+    W[a] = W[b] if kind == "coincident" else 0.5 * (W[b] + W[c])
+    paths = [write_obj(tmp_path / "ok.obj", V, F), write_obj(tmp_path / "flat.obj", W, F)]
+    msg = raises_mesh_error(lambda: sio.read_keyframes(paths), "flat.obj", "degenerate")
+    assert "face 5" in msg or "degenerate (zero-area) faces" in msg
+
+
+def test_nan_coordinate(tmp_path):
+    V, F = sphere()
+    W = V.copy()
+    W[3, 1] = np.nan
+    paths = [write_obj(tmp_path / "a.obj", V, F), write_obj(tmp_path / "b.obj", W, F)]
+    raises_mesh_error(lambda: sio.read_keyframes(paths), "b.obj", "NaN", "vertex 3")
+    W[3, 1] = np.inf
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([V, W], F), "keyframe 1", "inf")
+
+
+def test_single_keyframe(tmp_path):
+    paths = keyframe_files(tmp_path, 1)
+    raises_mesh_error(lambda: sio.read_keyframes(paths), "at least 2 keyframes", "k0.obj")
+    raises_mesh_error(lambda: sio.read_keyframes(paths[0]), "at least 2 keyframes")
+    V, F = sphere()
+    raises_mesh_error(lambda: sio.keyframes_from_arrays(V, F), "at least 2 keyframes")
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([V], F), "at least 2 keyframes")
+
+
+@pytest.mark.parametrize("frames, phrase", [
+    ([0, 10], "one entry per keyframe (3)"),
+    ([0, 10, 10], "strictly increasing"),
+    ([0, 20, 10], "strictly increasing"),
+    ([-1, 10, 20], "non-negative"),
+    ([0, 2.5, 5], "integers"),
+    ("0,a,3", "frames '0,a,3'"),
+    ([[0, 1, 2]], "1-D"),
+])
+def test_bad_frames(tmp_path, frames, phrase):
+    paths = keyframe_files(tmp_path, 3)
+    raises_mesh_error(lambda: sio.read_keyframes(paths, frames=frames), phrase)
+    V, F = sphere()
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([V, 2 * V, 3 * V], F, frames=frames),
+                      phrase)
+
+
+def test_good_frames_are_canonical(tmp_path):
+    paths = keyframe_files(tmp_path, 3)
+    assert sio.read_keyframes(paths).frames is None
+    for spec in ([0, 5, 9], np.array([0.0, 5.0, 9.0]), "0, 5,9", (0, 5, 9)):
+        fr = sio.read_keyframes(paths, frames=spec).frames
+        assert fr.dtype == np.int64 and fr.tolist() == [0, 5, 9]
+    kf = sio.read_keyframes(paths)
+    kf2 = kf.with_frames([0, 1, 2])
+    assert kf2.frames.tolist() == [0, 1, 2] and kf2.topology is kf.topology
+    with pytest.raises(MeshError, match="strictly increasing"):
+        kf.with_frames([0, 2, 1])
+
+
+def test_pinned(tmp_path):
+    paths = keyframe_files(tmp_path, 2)
+    kf = sio.read_keyframes(paths, pinned=[5, 3, 3, 0])
+    assert kf.pinned.tolist() == [0, 3, 5] and kf.pinned.dtype == np.int64
+    raises_mesh_error(lambda: sio.read_keyframes(paths, pinned=[0, 42]), "[0, 42)", "42")
+    raises_mesh_error(lambda: sio.read_keyframes(paths, pinned=[-1]), "[0, 42)")
+    mask = np.zeros(42, dtype=bool)
+    mask[[1, 4]] = True
+    assert sio.read_keyframes(paths, pinned=mask).pinned.tolist() == [1, 4]
+    idx_file = tmp_path / "pins.txt"
+    idx_file.write_text("# pins\n7,8\n9\n")
+    assert sio.read_keyframes(paths, pinned=idx_file).pinned.tolist() == [7, 8, 9]
+
+
+def test_keyframes_from_arrays_copies_and_caches_topology():
+    V, F = sphere()
+    Vs = np.stack([V, 1.5 * V])
+    kf = sio.keyframes_from_arrays(Vs, F.astype(np.int32), frames=[0, 4])
+    assert kf.V.dtype == np.float64 and kf.F.dtype == np.int64
+    assert kf.names == ["keyframe 0", "keyframe 1"]
+    assert not np.shares_memory(kf.V, Vs)
+    assert kf.topology is kf.topology
+    assert (kf.J, kf.n, kf.m) == (2, 42, 80)
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([V, V[:-1]], F),
+                      "keyframe 1 has 41 vertices but keyframe 0 has 42")
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([V, V], F + 1), "keyframe 0",
+                      "face indices")
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([V, V], F, names=["a"]), "names")
+
+
+# ----------------------------------------------------------------------------------------
+# small text inputs
+# ----------------------------------------------------------------------------------------
+def test_read_indices(tmp_path):
+    p = tmp_path / "idx.txt"
+    p.write_text("# header\n1 2, 3\n\n4,5 # tail\n6\n")
+    out = sio.read_indices(p)
+    assert out.dtype == np.int64 and out.tolist() == [1, 2, 3, 4, 5, 6]
+    p.write_text("1 2\nx 3\n")
+    raises_mesh_error(lambda: sio.read_indices(p), "idx.txt", "line 2", "'x'")
+    raises_mesh_error(lambda: sio.read_indices(tmp_path / "none.txt"), "none.txt",
+                      "cannot read")
+
+
+def test_read_indices_shared_cactus_mask():
+    p = SHARED_DATA / "cactus" / "cactusBottomMask_indices.txt"
+    if not p.is_file():
+        pytest.skip("../shared/data not present (a user's clone has no ../shared)")
+    idx = sio.read_indices(p)
+    assert idx.size == 311 and idx.min() >= 0 and idx.max() < 5261
+
+
+def test_read_frames(tmp_path):
+    assert sio.read_frames("0,10,20").tolist() == [0, 10, 20]
+    assert sio.read_frames(" 0 10\t20 ").tolist() == [0, 10, 20]
+    p = tmp_path / "frames.txt"
+    p.write_text("0\n# middle\n7\n12\n")
+    assert sio.read_frames(str(p)).tolist() == [0, 7, 12]
+    assert sio.read_frames(p).tolist() == [0, 7, 12]
+    assert sio.read_frames([0, 3]).tolist() == [0, 3]
+    raises_mesh_error(lambda: sio.read_frames("0,1.5"), "neither")
+    raises_mesh_error(lambda: sio.read_frames("0,,x"), "neither")
+    raises_mesh_error(lambda: sio.read_frames([0.5, 1]), "integers")
+
+
+# ----------------------------------------------------------------------------------------
+# writing
+# ----------------------------------------------------------------------------------------
+def awkward_poses(K1=3):
+    V, F = sphere()
+    rng = np.random.default_rng(0)
+    Vs = V[None] + rng.standard_normal((K1, len(V), 3))
+    Vs[0, 0] = [0.1, 1.0 / 3.0, -0.0]
+    Vs[0, 1] = [5e-324, 1e-300, -1e300]
+    Vs[0, 2] = [2.0 ** -60, 123456789.123456789, np.nextafter(1.0, 2.0)]
+    return Vs, F
+
+
+@pytest.mark.parametrize("fmt", ["obj", "ply"])
+def test_round_trip_bit_exact(tmp_path, fmt):
+    Vs, F = awkward_poses()
+    report = {"K": np.int64(2), "res": np.array([1.5, 2.5]), "ok": np.bool_(True),
+              "path": tmp_path, "nested": {"t": (1, 2)}}
+    out = sio.write_sequence(tmp_path / "out", Vs, F, report, fmt=fmt)
+    assert out == (tmp_path / "out").resolve()
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [f"frame_000{k}.{fmt}" for k in range(3)] + ["report.json"]
+    V2, F2, rep = sio.read_sequence(out)
+    assert np.array_equal(bits(V2), bits(Vs))
+    assert np.array_equal(F2, F)
+    assert rep == {"K": 2, "res": [1.5, 2.5], "ok": True, "path": str(tmp_path),
+                   "nested": {"t": [1, 2]}}
+    assert json.loads((out / "report.json").read_text()) == rep
+
+
+def test_obj_output_is_plain_and_one_based(tmp_path):
+    V = np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]])
+    out = sio.write_sequence(tmp_path / "o", V, [[0, 1, 2]])
+    assert (out / "frame_0000.obj").read_text() == "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+    assert sio.read_sequence(out)[2] == {}
+
+
+def test_frame_name_width_grows(tmp_path, monkeypatch):
+    written = []
+    monkeypatch.setattr(sio, "_write_ply_frame", lambda p, *a: written.append(p.name))
+    V = np.zeros((12345, 3, 3))
+    sio.write_sequence(tmp_path / "w", V, [[0, 1, 2]], fmt="ply")
+    assert written[0] == "frame_00000.ply" and written[-1] == "frame_12344.ply"
+
+
+def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
+    Vs, F = awkward_poses(5)
+    calls = []
+    real = sio._write_obj_frame
+
+    def flaky(path, V, block):
+        calls.append(path)
+        if len(calls) == 3:
+            raise RuntimeError("disk on fire")
+        real(path, V, block)
+
+    monkeypatch.setattr(sio, "_write_obj_frame", flaky)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        sio.write_sequence(tmp_path / "out", Vs, F)
+    assert list(tmp_path.iterdir()) == []  # no out_dir, no temporary directory
+
+
+def test_unserialisable_report_fails_before_writing(tmp_path):
+    Vs, F = awkward_poses(2)
+    with pytest.raises(ShellsplineError, match=r"report\['bad'\]"):
+        sio.write_sequence(tmp_path / "out", Vs, F, {"bad": object()})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_output_without_overwrite(tmp_path):
+    Vs, F = awkward_poses(2)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    with pytest.raises(FileExistsError, match="out"):
+        sio.write_sequence(out, Vs, F)
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+    assert (out / "keep.txt").read_text() == "precious"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    # overwrite=True still refuses a directory that is not an earlier output
+    with pytest.raises(ShellsplineError, match="does not look like an earlier output"):
+        sio.write_sequence(out, Vs, F, overwrite=True)
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+
+
+def test_overwrite_replaces_earlier_output(tmp_path):
+    Vs, F = awkward_poses(3)
+    out = sio.write_sequence(tmp_path / "out", Vs, F, {"run": 1})
+    sio.write_sequence(tmp_path / "out", 2 * Vs[:2], F, {"run": 2}, overwrite=True)
+    V2, _, rep = sio.read_sequence(out)
+    assert rep == {"run": 2} and np.array_equal(V2, 2 * Vs[:2])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # nothing left aside
+
+
+def test_protect_inputs(tmp_path):
+    (tmp_path / "in").mkdir()
+    paths = keyframe_files(tmp_path / "in", 2)
+    Vs, F = awkward_poses(2)
+    for bad in (tmp_path / "in", tmp_path, Path(paths[0])):
+        with pytest.raises((ShellsplineError, FileExistsError)) as info:
+            sio.write_sequence(bad, Vs, F, protect=paths, overwrite=True)
+        assert isinstance(info.value, ShellsplineError), info.value
+        assert "k0.obj" in str(info.value)
+    assert sorted(p.name for p in (tmp_path / "in").iterdir()) == ["k0.obj", "k1.obj"]
+    out = sio.write_sequence(tmp_path / "out", Vs, F, protect=paths)
+    assert out.is_dir()
+
+
+def test_bad_write_arguments(tmp_path):
+    Vs, F = awkward_poses(2)
+    with pytest.raises(ShellsplineError, match="fmt"):
+        sio.write_sequence(tmp_path / "o", Vs, F, fmt="stl")
+    with pytest.raises(ShellsplineError, match=r"\(K\+1,n,3\)"):
+        sio.write_sequence(tmp_path / "o", Vs[0], F)
+    with pytest.raises(ShellsplineError, match="outside"):
+        sio.write_sequence(tmp_path / "o", Vs, F + 1)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif("fork" not in mp.get_all_start_methods(), reason="needs fork")
+def test_parallel_writer_matches_serial(tmp_path):
+    Vs, F = awkward_poses(5)
+    a = sio.write_sequence(tmp_path / "a", Vs, F)
+    b = sio.write_sequence(tmp_path / "b", Vs, F, workers=2)
+    for k in range(5):
+        name = f"frame_{k:04d}.obj"
+        assert (a / name).read_bytes() == (b / name).read_bytes()
+
+
+def test_read_sequence_errors(tmp_path):
+    Vs, F = awkward_poses(3)
+    out = sio.write_sequence(tmp_path / "out", Vs, F)
+    os.remove(out / "frame_0001.obj")
+    raises_mesh_error(lambda: sio.read_sequence(out), "missing [1]")
+    raises_mesh_error(lambda: sio.read_sequence(tmp_path / "none"), "not a directory")
