@@ -6,3 +6,22 @@ Turn a handful of keyframe poses of one triangle mesh into a smooth in-between s
 from __future__ import annotations
 
 __version__ = "0.1.0"
+
+from ._errors import MeshError, ShellsplineError
+from .descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
+                          lta_jacobian, lta_weights)
+from .io import (Keyframes, keyframes_from_arrays, read_frames, read_indices, read_keyframes,
+                 read_mesh, read_sequence, write_sequence)
+from .lta_spline import lta_spline
+from .pipeline import InterpolationResult, interpolate, linear_blend
+from .reconstruct import GaussNewton, ReconstructionResult, reconstruct, rigid_placement
+from .topology import Topology, topology
+
+__all__ = [
+    "__version__", "MeshError", "ShellsplineError", "Keyframes", "read_keyframes",
+    "keyframes_from_arrays", "read_mesh", "read_frames", "read_indices", "read_sequence",
+    "write_sequence", "interpolate", "InterpolationResult", "linear_blend", "lta_spline",
+    "lta_descriptors", "lta_jacobian", "lta_weights", "edge_lengths", "face_areas",
+    "dihedral_angles", "GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement",
+    "Topology", "topology",
+]

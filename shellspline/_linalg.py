@@ -61,21 +61,46 @@ class SparseCholesky:
         self._symbolic = None
         self.refactor(A)
 
+    def _scatter(self, A) -> np.ndarray:
+        """Values of ``A``'s lower triangle laid out on the pattern analysed at construction."""
+        Al = sp.tril(A, format="coo")
+        keys = Al.col.astype(np.int64) * A.shape[0] + Al.row
+        pos = np.searchsorted(self._keys, keys)
+        pos = np.minimum(pos, len(self._keys) - 1)
+        if not np.array_equal(self._keys[pos], keys):
+            raise ValueError("the matrix has entries outside the sparsity pattern analysed at "
+                             "construction (build it on a fixed structural pattern)")
+        data = np.zeros(len(self._keys))
+        np.add.at(data, pos, Al.data) if len(np.unique(pos)) != len(pos) else \
+            data.__setitem__(pos, Al.data)
+        return data
+
     def refactor(self, A) -> None:
-        """Numeric factorization of a matrix with the pattern analysed at construction."""
+        """Numeric factorization of ``A``.
+
+        ``A``'s nonzeros must lie within the pattern of the matrix given at construction
+        (explicit zeros there count as part of the pattern); the symbolic analysis is reused.
+        """
         A = sp.csc_matrix(A)
         if self.backend == "cholmod":
             import cvxopt
             import cvxopt.cholmod
 
-            Al = sp.tril(A, format="coo")
-            M = cvxopt.spmatrix(Al.data, Al.row.astype(np.int64).tolist(), Al.col.astype(np.int64).tolist(),
-                                size=A.shape)
+            if self._symbolic is None:
+                Al = sp.tril(A, format="csc")
+                Al.sort_indices()
+                cols = np.repeat(np.arange(A.shape[1]), np.diff(Al.indptr))
+                self._keys = cols.astype(np.int64) * A.shape[0] + Al.indices
+                order = np.argsort(self._keys)
+                self._keys = self._keys[order]
+                self._I = cvxopt.matrix((self._keys % A.shape[0]).astype(np.int64))
+                self._J = cvxopt.matrix((self._keys // A.shape[0]).astype(np.int64))
+            data = self._scatter(A)
+            M = cvxopt.spmatrix(cvxopt.matrix(data), self._I, self._J, size=A.shape)
             cvxopt.cholmod.options["supernodal"] = 2
             if self._symbolic is None:
                 self._symbolic = cvxopt.cholmod.symbolic(M, uplo="L")
             cvxopt.cholmod.numeric(M, self._symbolic)
-            self._M = M
         else:
             self._lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A",
                                  options={"SymmetricMode": True}, diag_pivot_thresh=0.0)

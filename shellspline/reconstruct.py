@@ -116,6 +116,7 @@ class GaussNewton:
         self._dof_pinned[(3 * self.pinned[:, None] + np.arange(3)).ravel()] = True
         self._free = ~self._dof_pinned
         self._chol: SparseCholesky | None = None
+        self._pattern = None
         self._stale = True
         sl = T.descriptor_slices()
         self._sL, self._sT, self._sA = sl
@@ -126,12 +127,27 @@ class GaussNewton:
         r[self._sT] = wrap_angle(r[self._sT])
         return r
 
+    def _structure(self, J):
+        """Fixed structural pattern of ``Jᵀ W J + D`` (no cancellation: all-ones values)."""
+        if self._pattern is None:
+            Jp = sp.csr_matrix((np.ones_like(J.data), J.indices, J.indptr), shape=J.shape)
+            P = (Jp.T @ Jp + sp.eye(J.shape[1])).tocsc()
+            P.sort_indices()
+            cols = np.repeat(np.arange(P.shape[1]), np.diff(P.indptr))
+            self._pattern = (P, cols.astype(np.int64) * P.shape[0] + P.indices)
+        return self._pattern
+
     def _gn_matrix(self, J, w):
-        H = (J.T @ sp.csr_matrix(J.multiply(w[:, None]))).tocsc()
+        """``Jᵀ W J + D`` on the fixed structural pattern (explicit zeros kept)."""
+        H = (J.T @ sp.csr_matrix(J.multiply(w[:, None]))).tocoo()
         diag = H.diagonal()
         scale = diag[self._free].mean() if self._free.any() else 1.0
         d = np.where(self._dof_pinned, max(scale, 1.0), self.damping * scale)
-        return (H + sp.diags(d)).tocsc(), self.damping * scale
+        P, keys = self._structure(J)
+        data = np.zeros(len(keys))
+        data[np.searchsorted(keys, H.col.astype(np.int64) * H.shape[0] + H.row)] = H.data
+        data[np.searchsorted(keys, np.arange(H.shape[0], dtype=np.int64) * (H.shape[0] + 1))] += d
+        return sp.csc_matrix((data, P.indices, P.indptr), shape=P.shape), self.damping * scale
 
     def _refresh(self, J, w):
         H, self._delta = self._gn_matrix(J, w)

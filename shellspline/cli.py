@@ -1,0 +1,200 @@
+"""Command-line front end: ``shellspline interpolate KEYFRAME... -o OUT``.
+
+Uses only the public API. Exit codes: 0 success, 1 finished but some frame did not converge
+or the quality check failed, 2 bad input or usage.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["main"]
+
+EXIT_OK, EXIT_WARN, EXIT_USAGE = 0, 1, 2
+
+
+class _Bar:
+    """A small stderr progress display fed by pipeline progress events."""
+
+    def __init__(self, stream=None, quiet: bool = False):
+        self.stream = stream or sys.stderr
+        self.quiet = quiet
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._t0 = None
+        self._last = 0.0
+
+    def __call__(self, ev) -> None:
+        if self.quiet:
+            return
+        kind = ev.get("kind")
+        if kind == "stage_start":
+            self._t0 = time.perf_counter()
+            if ev.get("total"):
+                self._draw(ev["stage"], 0, ev["total"])
+        elif kind == "advance":
+            now = time.perf_counter()
+            if self.tty and (now - self._last > 0.1 or ev["done"] == ev["total"]):
+                self._draw(ev["stage"], ev["done"], ev["total"])
+                self._last = now
+        elif kind == "stage_end":
+            if self.tty and ev.get("total"):
+                self.stream.write("\r\033[K")
+            self.stream.write(f"  {ev['stage']:<12s} {ev['seconds']:8.3f} s\n")
+            self.stream.flush()
+        elif kind == "message":
+            self.stream.write(f"  note: {ev['text']}\n")
+
+    def _draw(self, stage, done, total):
+        if not self.tty:
+            return
+        width = 30
+        fill = int(width * done / max(total, 1))
+        el = time.perf_counter() - (self._t0 or time.perf_counter())
+        eta = el / done * (total - done) if done else float("nan")
+        self.stream.write(f"\r  {stage:<12s} [{'#' * fill}{'.' * (width - fill)}] {done}/{total}"
+                          f"  {el:5.1f}s  eta {eta:5.1f}s")
+        self.stream.flush()
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="shellspline",
+                                description="Smooth in-betweens of triangle-mesh keyframes: "
+                                            "splines in the space of thin shells.")
+    p.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = p.add_subparsers(dest="command")
+    q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF)",
+                       description="Interpolate keyframes of one triangle mesh (same "
+                                   "connectivity) and write OUT/frame_0000.obj ... plus "
+                                   "OUT/report.json.")
+    q.add_argument("keyframes", nargs="+", help="keyframe mesh files, in time order")
+    q.add_argument("-o", "--out", required=True, help="output directory (created atomically)")
+    g = q.add_mutually_exclusive_group()
+    g.add_argument("--frames", help="keyframe frames, e.g. 0,10,20 (or a file of integers)")
+    q.add_argument("--K", "-K", type=int, dest="K", help="last frame index (K+1 frames)")
+    q.add_argument("--bc", default="natural", choices=["natural", "periodic", "hermite"],
+                   help="time boundary conditions (hermite: keyframes at frames 1 and K-1 fix "
+                        "the end velocities)")
+    q.add_argument("--method", default="lta", choices=["lta", "linear"],
+                   help="lta: LΘA shell spline (default); linear: per-vertex blending baseline")
+    q.add_argument("--eta", type=float, default=1e-3, help="bending weight η = thickness² "
+                                                           "(default 1e-3)")
+    q.add_argument("--mu", type=float, default=1.0, help="edge-length weight (default 1)")
+    q.add_argument("--lam", type=float, default=1.0, help="area weight (default 1)")
+    q.add_argument("--reference", default="constant",
+                   help="reference meshes for the weights: constant (first keyframe), "
+                        "keyframe (nearest keyframe per frame), or a keyframe index")
+    q.add_argument("--pinned", help="file of vertex indices held fixed (e.g. a base)")
+    q.add_argument("--fix-boundary", action="store_true",
+                   help="hold the mesh boundary vertices fixed")
+    q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
+    q.add_argument("--max-iter", type=int, default=None, help="Gauss–Newton iteration limit")
+    q.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    return p
+
+
+def _interpolate(args) -> int:
+    import numpy as np
+
+    import shellspline as ss
+
+    bar = _Bar(quiet=args.quiet)
+    frames = ss.read_frames(args.frames) if args.frames else None
+    kf = ss.read_keyframes(args.keyframes, frames=frames)
+    pinned = None
+    if args.pinned:
+        pinned = ss.read_indices(args.pinned)
+    if args.fix_boundary:
+        bv = kf.topology.boundary_vertices
+        if bv.size == 0:
+            raise ValueError("--fix-boundary: the mesh has no boundary")
+        pinned = bv if pinned is None else np.union1d(pinned, bv)
+    reference = args.reference
+    if str(reference).lstrip("-").isdigit():
+        reference = int(reference)
+    gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
+    if not args.quiet:
+        print(f"shellspline {ss.__version__}: {len(args.keyframes)} keyframes, "
+              f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)
+    res = ss.interpolate(kf, K=args.K, method=args.method, bc=args.bc, eta=args.eta, mu=args.mu,
+                         lam=args.lam, reference=reference, pinned=pinned,
+                         workers=args.workers, gn_options=gn_options, progress=bar)
+    t0 = time.perf_counter()
+    out = ss.write_sequence(args.out, res.V, res.F, res.report, overwrite=args.overwrite,
+                            protect=list(args.keyframes))
+    res.report["timings"]["write"] = time.perf_counter() - t0
+    # rewrite report with the write time (inside the now-complete output directory)
+    _rewrite_report(Path(out), res.report)
+    return _summary(res, Path(out), quiet=args.quiet)
+
+
+def _rewrite_report(out: Path, report: dict) -> None:
+    import os
+    import tempfile
+
+    fd, tmp = tempfile.mkstemp(dir=out, prefix=".report.", suffix=".json")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(report, fh, indent=2, default=_json_default)
+    os.replace(tmp, out / "report.json")
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+def _summary(res, out: Path, quiet: bool) -> int:
+    rep = res.report
+    q = rep["quality"]
+    gn = rep.get("gauss_newton")
+    lines = [f"wrote {res.K + 1} frames to {out}/ (report.json)"]
+    t = rep["timings"]
+    lines.append("time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
+    if gn:
+        lines.append(f"Gauss–Newton: {gn['converged']}/{gn['frames']} frames converged, "
+                     f"{gn['iterations_total']} iterations (max {gn['iterations_max']}), "
+                     f"{gn['factorizations_total']} factorizations")
+    lines.append(f"quality: keyframes exact={q['keyframes_exact']}, flipped faces "
+                 f"{q['flipped_faces']}, degenerate faces {q['degenerate_faces']}, "
+                 f"min area ratio {q['min_area_ratio']:.3g}")
+    ok = q["keyframes_exact"] and q["flipped_faces"] == 0 and q["degenerate_faces"] == 0 and \
+        (not gn or gn["converged"] == gn["frames"])
+    if not quiet:
+        print("\n".join(lines), file=sys.stderr)
+    return EXIT_OK if ok else EXIT_WARN
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``shellspline`` console script; returns the exit code."""
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    if args.version:
+        from . import __version__
+
+        print(__version__)
+        return EXIT_OK
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        if args.command == "interpolate":
+            return _interpolate(args)
+    except (ValueError, FileExistsError, FileNotFoundError, OSError) as exc:
+        print(f"shellspline: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("shellspline: interrupted; no output was written", file=sys.stderr)
+        return 130
+    return EXIT_USAGE
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

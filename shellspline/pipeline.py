@@ -1,0 +1,454 @@
+"""The interpolation pipeline: the only place that knows the order of the stages.
+
+``describe → solve → reconstruct → place`` for ``method="lta"`` (paper §7), or per-vertex
+linear blending for ``method="linear"`` (the naive baseline). See ``ARCHITECTURE.md``.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import platform
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import __version__
+from ._progress import Progress
+from .descriptors import lta_descriptors, lta_weights, unwrap_angles
+from .io import Keyframes, keyframes_from_arrays, read_keyframes
+from .lta_spline import lta_energy_per_frame, lta_spline
+from .reconstruct import GaussNewton, rigid_placement
+from .topology import Topology
+
+__all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
+           "canonical_frames", "linear_blend", "sequence_quality"]
+
+METHODS = ("lta", "linear")
+BOUNDARY_CONDITIONS = ("natural", "periodic", "hermite")
+REFERENCES = ("constant", "keyframe")
+DEFAULT_STEP = 10
+
+
+@dataclass
+class InterpolationResult:
+    """What :func:`interpolate` returns.
+
+    Attributes
+    ----------
+    V : (K+1,n,3) float64 array
+        The sequence; ``V[frames[j]]`` is keyframe ``j`` bit for bit.
+    F : (m,3) int64 array
+    frames : (J,) int64 array
+        Keyframe frames.
+    report : dict
+        JSON-friendly record: parameters, per-stage wall times, per-frame Gauss–Newton records,
+        energies and quality checks.
+    Z : (K+1,d) float64 array or None
+        Target LΘA descriptors of every frame (``method="lta"``).
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    frames: np.ndarray
+    report: dict = field(default_factory=dict)
+    Z: np.ndarray | None = None
+
+    @property
+    def K(self) -> int:
+        return int(self.V.shape[0] - 1)
+
+
+def _canonical_choice(value, name, choices):
+    v = str(value).strip().lower()
+    if v not in choices:
+        raise ValueError(f"`{name}` must be one of {', '.join(map(repr, choices))}, got {value!r}")
+    return v
+
+
+def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
+    """Canonical keyframe frames and last frame index ``K``.
+
+    Parameters
+    ----------
+    J : int
+        Number of keyframes.
+    frames : (J,) int array, optional
+        Keyframe frames; default: evenly spaced over ``[0, K]`` (``[0, K)`` when periodic),
+        or every ``10`` frames when ``K`` is not given either.
+    K : int, optional
+        Last frame; default: the last keyframe's frame (periodic: one keyframe gap later).
+    bc : str
+
+    Returns
+    -------
+    frames : (J,) int64 array
+    K : int
+
+    Examples
+    --------
+    >>> canonical_frames(3)
+    (array([ 0, 10, 20]), 20)
+    >>> canonical_frames(3, K=12, bc="periodic")
+    (array([0, 4, 8]), 12)
+    """
+    periodic = bc == "periodic"
+    if frames is None:
+        if bc == "hermite":
+            raise ValueError("bc='hermite' needs explicit `frames`: the poses at frames 1 and "
+                             "K-1 fix the end velocities")
+        if K is None:
+            frames = DEFAULT_STEP * np.arange(J)
+            K = int(frames[-1] + (DEFAULT_STEP if periodic else 0))
+        else:
+            K = int(K)
+            if periodic:
+                frames = np.round(np.arange(J) * K / J).astype(np.int64)
+            else:
+                frames = np.round(np.linspace(0, K, J)).astype(np.int64)
+            if len(np.unique(frames)) != J:
+                raise ValueError(f"`K`={K} is too small for {J} keyframes")
+    frames = np.asarray(frames)
+    if frames.ndim != 1 or len(frames) != J:
+        raise ValueError(f"`frames` must have one entry per keyframe ({J}), got {frames.tolist()}")
+    if not np.all(np.isfinite(frames)) or not np.all(frames == np.round(frames)):
+        raise ValueError(f"`frames` must be integers, got {frames.tolist()}")
+    frames = frames.astype(np.int64)
+    if np.any(np.diff(frames) <= 0):
+        raise ValueError(f"`frames` must be strictly increasing, got {frames.tolist()}")
+    if frames[0] != 0:
+        raise ValueError(f"`frames` must start at 0, got {frames.tolist()}")
+    if K is None:
+        K = int(frames[-1] + ((frames[-1] - frames[-2]) if periodic else 0))
+    K = int(K)
+    if periodic and frames[-1] >= K:
+        raise ValueError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K is "
+                         f"frame 0 again), got frames {frames.tolist()}")
+    if frames[-1] > K:
+        raise ValueError(f"`K`={K} is smaller than the last keyframe frame {int(frames[-1])}")
+    return frames, K
+
+
+def _bracketing(frames, K, periodic):
+    """For each frame k: indices (j0, j1) of the keyframes around it and blend parameter."""
+    k = np.arange(K + 1)
+    fr = frames.astype(np.float64)
+    J = len(frames)
+    if periodic:
+        fr_ext = np.concatenate([fr, [K]])
+        j_ext = np.concatenate([np.arange(J), [0]])
+        pos = np.clip(np.searchsorted(fr_ext, k, side="right") - 1, 0, J - 1)
+        j0, j1 = j_ext[pos], j_ext[pos + 1]
+        t = (k - fr_ext[pos]) / (fr_ext[pos + 1] - fr_ext[pos])
+    else:
+        pos = np.clip(np.searchsorted(fr, k, side="right") - 1, 0, max(J - 2, 0))
+        j0, j1 = pos, np.minimum(pos + 1, J - 1)
+        t = np.clip((k - fr[pos]) / np.maximum(fr[j1] - fr[j0], 1.0), 0.0, 1.0)
+    return j0, j1, t
+
+
+def linear_blend(Vkey, frames, K, bc: str = "natural"):
+    """Per-vertex linear blending of keyframes: the naive baseline.
+
+    Parameters
+    ----------
+    Vkey : (J,n,3) float64 array
+    frames : (J,) int array
+    K : int
+    bc : str
+        ``"periodic"`` blends the last keyframe back into the first at frame ``K``.
+
+    Returns
+    -------
+    (K+1,n,3) float64 array; keyframes are reproduced exactly. Frames after the last keyframe
+    (non-periodic) hold the last keyframe.
+    """
+    Vkey = np.asarray(Vkey, dtype=np.float64)
+    j0, j1, t = _bracketing(np.asarray(frames), K, bc == "periodic")
+    out = (1.0 - t)[:, None, None] * Vkey[j0] + t[:, None, None] * Vkey[j1]
+    for j, f in enumerate(frames):
+        out[f] = Vkey[j]
+    if bc == "periodic":
+        out[K] = Vkey[0]
+    return out
+
+
+def sequence_quality(V, T: Topology, frames) -> dict:
+    """Quality checks of a sequence: degenerate and flipped triangles, keyframe error.
+
+    A triangle is *flipped* in frame ``k`` when its normal points against its normal in frame
+    ``k-1`` (dot product < 0); *degenerate* when its area is below 1e-6 of its mean area over
+    the keyframes.
+    """
+    V = np.asarray(V)
+    F = T.F
+    N = np.cross(V[:, F[:, 1]] - V[:, F[:, 0]], V[:, F[:, 2]] - V[:, F[:, 0]])
+    A = 0.5 * np.linalg.norm(N, axis=-1)
+    a_ref = A[np.asarray(frames)].mean(axis=0)
+    ratio = A / np.maximum(a_ref, 1e-300)
+    dots = np.einsum("kij,kij->ki", N[1:], N[:-1])
+    return {
+        "min_area_ratio": float(ratio.min()),
+        "degenerate_faces": int((ratio < 1e-6).sum()),
+        "flipped_faces": int((dots < 0).sum()),
+        "max_area_ratio": float(ratio.max()),
+    }
+
+
+# -- parallel reconstruction -----------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _worker_init(F, n, pinned, gn_options):
+    from .topology import topology
+
+    T = topology(F, n)
+    _WORKER["gn"] = GaussNewton(T, pinned=pinned, **gn_options)
+
+
+def _worker_solve(task):
+    ks, Zs, Ws, Vinit = task
+    gn: GaussNewton = _WORKER["gn"]
+    out = []
+    for k, z, w, v in zip(ks, Zs, Ws, Vinit):
+        t0 = time.perf_counter()
+        r = gn.solve(z, w, v)
+        rec = r.summary()
+        rec["frame"] = int(k)
+        rec["seconds"] = time.perf_counter() - t0
+        out.append((int(k), r.V, rec))
+    return out
+
+
+def _chunks(idx, n_chunks):
+    n_chunks = max(1, min(n_chunks, len(idx)))
+    return [c for c in np.array_split(np.asarray(idx), n_chunks) if len(c)]
+
+
+def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress):
+    results = {}
+    total = len(ks)
+    if total == 0:
+        return results
+    if workers <= 1 or total == 1:
+        _worker_init(T.F, T.n_vertices, pinned, gn_options)
+        for i, k in enumerate(ks):
+            for kk, Vk, rec in _worker_solve(([k], [Z[k]], [W_of(k)], [Vinit[k]])):
+                results[kk] = (Vk, rec)
+            progress.advance("reconstruct", i + 1, total)
+        return results
+    # contiguous chunks keep neighbouring (similar) frames on one worker, so its cached
+    # preconditioner stays good; a few chunks per worker balance the load
+    chunks = _chunks(ks, 3 * workers)
+    method = "fork" if "fork" in mp.get_all_start_methods() and platform.system() == "Linux" \
+        else "spawn"
+    ctx = mp.get_context(method)
+    done = 0
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                             initargs=(T.F, T.n_vertices, pinned, gn_options)) as ex:
+        futs = [ex.submit(_worker_solve, (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c]))
+                for c in chunks]
+        for fut in futs:
+            for kk, Vk, rec in fut.result():
+                results[kk] = (Vk, rec)
+                done += 1
+                progress.advance("reconstruct", done, total)
+    return results
+
+
+def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta: float = 1e-3,
+                mu: float = 1.0, lam: float = 1.0, reference="constant", *, frames=None,
+                pinned=None, workers: int = 1, gn_options: dict | None = None,
+                progress=None) -> InterpolationResult:
+    """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
+
+    Parameters
+    ----------
+    keyframes : Keyframes, sequence of paths, or (J,n,3) array with ``F`` via ``(V, F)`` tuple
+        The keyframe poses (see :func:`shellspline.read_keyframes`).
+    K : int, optional
+        Last frame index; the result has ``K+1`` frames. Default from the keyframe frames.
+    method : {"lta", "linear"}
+        ``"lta"``: LΘA spline (paper §7): descriptors, time-discrete spline, Gauss–Newton
+        reconstruction. ``"linear"``: per-vertex linear blending (baseline).
+    bc : {"natural", "periodic", "hermite"}
+        Time boundary conditions (paper §8). ``"hermite"`` needs keyframes at frames 1 and
+        ``K-1`` (they fix the end velocities).
+    eta, mu, lam : float
+        Bending (``η = thickness²``), length and area weights (paper eq. 9–10).
+    reference : {"constant", "keyframe"} or int
+        Reference meshes for the LΘA weights: one keyframe for all frames (``"constant"`` = the
+        first keyframe, or an int keyframe index), or the nearest keyframe per frame.
+    frames : (J,) int array, optional
+        Keyframe frames (overrides ``keyframes.frames``).
+    pinned : (p,) int array, optional
+        Vertices fixed at their (common) keyframe position; else the frames are placed rigidly.
+    workers : int
+        Processes for the per-frame reconstructions.
+    gn_options : dict, optional
+        Options of :class:`shellspline.reconstruct.GaussNewton`.
+    progress : callable(ProgressEvent), optional
+        Receives stage/progress events (the CLI draws a bar with it).
+
+    Returns
+    -------
+    InterpolationResult
+
+    Examples
+    --------
+    >>> import numpy as np, trimesh
+    >>> m = trimesh.creation.icosphere(subdivisions=1)
+    >>> Vs = np.stack([m.vertices, m.vertices * [1.5, 1, 1], m.vertices * [1, 1.5, 1]])
+    >>> res = interpolate((Vs, m.faces), K=8)
+    >>> res.V.shape, bool((res.V[[0, 4, 8]] == Vs).all())
+    ((9, 42, 3), True)
+    """
+    t_start = time.perf_counter()
+    prog = Progress(progress)
+    method = _canonical_choice(method, "method", METHODS)
+    bc = _canonical_choice(bc, "bc", BOUNDARY_CONDITIONS)
+    for name, val in (("eta", eta), ("mu", mu), ("lam", lam)):
+        if not np.isfinite(val) or val < 0:
+            raise ValueError(f"`{name}` must be a finite non-negative number, got {val!r}")
+    if mu == 0 and lam == 0:
+        raise ValueError("`mu` and `lam` cannot both be zero (the membrane energy would vanish)")
+    workers = int(workers) if workers else 1
+    if workers < 1:
+        raise ValueError(f"`workers` must be >= 1, got {workers}")
+
+    with prog.stage("read"):
+        if isinstance(keyframes, Keyframes):
+            kf = keyframes
+        elif isinstance(keyframes, tuple) and len(keyframes) == 2:
+            kf = keyframes_from_arrays(keyframes[0], keyframes[1])
+        else:
+            kf = read_keyframes(keyframes)
+        T = kf.topology
+    if pinned is None:
+        pinned = kf.pinned
+    if pinned is not None:
+        pinned = np.asarray(pinned, dtype=np.int64).ravel()
+        if pinned.size and (pinned.min() < 0 or pinned.max() >= kf.V.shape[1]):
+            raise ValueError(f"`pinned` indices must lie in [0, {kf.V.shape[1]}), got range "
+                             f"[{pinned.min()}, {pinned.max()}]")
+        if pinned.size == 0:
+            pinned = None
+    frames, K = canonical_frames(kf.V.shape[0], kf.frames if frames is None else frames, K, bc)
+    if bc == "hermite" and (len(frames) < 4 or frames[1] != 1 or frames[-2] != K - 1
+                            or frames[-1] != K):
+        raise ValueError("bc='hermite' needs keyframes at frames 0, 1, K-1 and K (the poses at "
+                         f"1 and K-1 fix the end velocities); got frames {frames.tolist()} "
+                         f"with K={K}")
+    Vkey = kf.V
+    J, n = Vkey.shape[:2]
+    if pinned is not None:
+        spread = np.abs(Vkey[:, pinned] - Vkey[0, pinned]).max()
+        if spread > 0:
+            prog.message(f"pinned vertices move between keyframes (max {spread:.3g}); "
+                         "each frame pins them at their blended position")
+    report = {
+        "shellspline_version": __version__,
+        "parameters": {
+            "method": method, "bc": bc, "K": int(K), "frames": frames.tolist(), "eta": eta,
+            "mu": mu, "lam": lam, "reference": reference, "workers": workers,
+            "pinned_vertices": 0 if pinned is None else int(pinned.size),
+            "gn_options": dict(gn_options or {}),
+        },
+        "mesh": {"vertices": int(n), "faces": int(T.n_faces), "edges": int(T.n_edges),
+                 "keyframes": int(J), "names": list(kf.names)},
+    }
+    periodic = bc == "periodic"
+    blend = linear_blend(Vkey, frames, K, bc)
+    Z = None
+    if method == "linear":
+        V = blend
+        frame_records = []
+    else:
+        with prog.stage("describe"):
+            Zkey = lta_descriptors(Vkey, T)
+            sT = T.descriptor_slices()[1]
+            Zkey[:, sT] = unwrap_angles(Zkey[:, sT])
+            if isinstance(reference, (int, np.integer)) and not isinstance(reference, bool):
+                ref_idx, ref_kind = int(reference), "constant"
+                if not 0 <= ref_idx < J:
+                    raise ValueError(f"`reference` keyframe index must lie in [0, {J}), got "
+                                     f"{reference}")
+            else:
+                ref_kind = _canonical_choice(reference, "reference", REFERENCES)
+                ref_idx = 0
+            if ref_kind == "constant":
+                w_const = lta_weights(Vkey[ref_idx], T, mu=mu, lam=lam, eta=eta)
+                W_spline = None
+
+                def W_of(k):
+                    return w_const
+            else:
+                Wkey = lta_weights(Vkey, T, mu=mu, lam=lam, eta=eta)
+                j0, j1, t = _bracketing(frames, K, periodic)
+                nearest = np.where(t <= 0.5, j0, j1)
+                W_spline = Wkey[nearest]
+
+                def W_of(k):
+                    return Wkey[nearest[k]]
+        with prog.stage("solve"):
+            Z = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
+        is_key = np.zeros(K + 1, dtype=bool)
+        is_key[frames] = True
+        if periodic:
+            is_key[K] = True
+        ks = np.flatnonzero(~is_key)
+        Vinit = blend.copy()
+        with prog.stage("reconstruct", total=len(ks)):
+            results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, dict(gn_options or {}),
+                                          workers, prog)
+        with prog.stage("place"):
+            V = blend.copy()
+            for k in ks:
+                Vk = results[k][0]
+                V[k] = Vk if pinned is not None else rigid_placement(Vk, blend[k])
+            for j, f in enumerate(frames):
+                V[f] = Vkey[j]
+            if periodic:
+                V[K] = Vkey[0]
+        frame_records = [results[k][1] for k in ks]
+        with prog.stage("energies"):
+            Zout = lta_descriptors(V, T)
+            Zout[:, sT] = unwrap_angles(Zout[:, sT])
+            Wrep = None if W_spline is None else W_spline
+            report["energies"] = {
+                "lta_spline_energy_per_frame": lta_energy_per_frame(Z, bc=bc, weights=Wrep).tolist(),
+                "lta_output_energy_per_frame": lta_energy_per_frame(Zout, bc=bc, weights=Wrep).tolist(),
+                "reconstruction_energy_per_frame": [
+                    float(np.sum(W_of(k) * _wrapped_residual(Zout[k], Z[k], sT) ** 2))
+                    for k in range(K + 1)],
+            }
+    report["frames"] = frame_records
+    with prog.stage("quality"):
+        report["quality"] = sequence_quality(V, T, frames)
+        report["quality"]["keyframes_exact"] = bool(all(np.array_equal(V[f], Vkey[j])
+                                                        for j, f in enumerate(frames)))
+    if frame_records:
+        nits = [r["nit"] for r in frame_records]
+        report["gauss_newton"] = {
+            "frames": len(frame_records),
+            "converged": int(sum(r["success"] for r in frame_records)),
+            "iterations_total": int(sum(nits)),
+            "iterations_max": int(max(nits)),
+            "cg_iterations_total": int(sum(r["cg_iterations"] for r in frame_records)),
+            "factorizations_total": int(sum(r["factorizations"] for r in frame_records)),
+        }
+        failed = [r["frame"] for r in frame_records if not r["success"]]
+        if failed:
+            prog.message(f"Gauss–Newton did not converge on frames {failed[:10]}"
+                         f"{' …' if len(failed) > 10 else ''}")
+    report["timings"] = dict(prog.timings)
+    report["timings"]["total"] = time.perf_counter() - t_start
+    report["platform"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
+    return InterpolationResult(V=V, F=T.F, frames=frames, report=report, Z=Z)
+
+
+def _wrapped_residual(z, zt, sT):
+    r = z - zt
+    r[sT] = (r[sT] + np.pi) % (2 * np.pi) - np.pi
+    return r

@@ -1,0 +1,46 @@
+"""Shared fixtures: small meshes built in code, and the location of ../shared/data."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def shared_data(*parts) -> Path:
+    """Path under ../shared/data, or skip the test with a clear reason when it is absent."""
+    p = SHARED_DATA.joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"{p} not present: the real keyframe sets live in ../shared/data beside the "
+                    "repository (a user's clone has none)")
+    return p
+
+
+def icosphere(subdivisions: int = 1):
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions)
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def grid_sheet(nx: int = 5, ny: int = 4):
+    """A flat rectangular sheet with boundary, triangulated regularly."""
+    x, y = np.meshgrid(np.linspace(0, 1, nx), np.linspace(0, 0.8, ny), indexing="ij")
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return V, F
+
+
+@pytest.fixture
+def sphere():
+    return icosphere(1)
+
+
+@pytest.fixture
+def sheet():
+    return grid_sheet()
