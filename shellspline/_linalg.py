@@ -64,6 +64,7 @@ class SparseCholesky:
     def _scatter(self, A) -> np.ndarray:
         """Values of ``A``'s lower triangle laid out on the pattern analysed at construction."""
         Al = sp.tril(A, format="coo")
+        Al.sum_duplicates()
         keys = Al.col.astype(np.int64) * A.shape[0] + Al.row
         pos = np.searchsorted(self._keys, keys)
         pos = np.minimum(pos, len(self._keys) - 1)
@@ -71,8 +72,7 @@ class SparseCholesky:
             raise ValueError("the matrix has entries outside the sparsity pattern analysed at "
                              "construction (build it on a fixed structural pattern)")
         data = np.zeros(len(self._keys))
-        np.add.at(data, pos, Al.data) if len(np.unique(pos)) != len(pos) else \
-            data.__setitem__(pos, Al.data)
+        np.add.at(data, pos, Al.data)
         return data
 
     def refactor(self, A) -> None:
@@ -105,6 +105,51 @@ class SparseCholesky:
             self._lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A",
                                  options={"SymmetricMode": True}, diag_pivot_thresh=0.0)
         self.n_factorizations += 1
+
+    @classmethod
+    def from_lower_pattern(cls, indptr, indices, n: int, data, backend: str = "auto"):
+        """Factor a matrix given by its lower triangle in CSC form on a fixed pattern.
+
+        Later calls to :meth:`refactor_lower` pass new values for the same pattern (explicit
+        zeros included), so no pattern lookup is needed at all.
+        """
+        indptr, indices = np.asarray(indptr), np.asarray(indices)
+        backend = str(backend).lower()
+        if backend == "auto":
+            backend = available_backends()[0]
+        obj = cls.__new__(cls)
+        obj.backend, obj.n_factorizations, obj._symbolic = backend, 0, None
+        obj._lower = (indptr, indices, n)
+        if backend == "cholmod":
+            import cvxopt
+
+            cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+            obj._I = cvxopt.matrix(indices.astype(np.int64))
+            obj._J = cvxopt.matrix(cols)
+        elif backend != "splu":
+            raise ValueError(f"`backend` must be 'auto', 'cholmod' or 'splu', got {backend!r}")
+        obj.refactor_lower(data)
+        return obj
+
+    def refactor_lower(self, data) -> None:
+        """Numeric refactorization from lower-triangle values on the pattern of
+        :meth:`from_lower_pattern` (same order)."""
+        indptr, indices, n = self._lower
+        data = np.asarray(data, dtype=np.float64)
+        if self.backend == "cholmod":
+            import cvxopt
+            import cvxopt.cholmod
+
+            # the pattern's CSC order equals the sorted key order used at construction
+            M = cvxopt.spmatrix(cvxopt.matrix(data), self._I, self._J, size=(n, n))
+            if self._symbolic is None:
+                cvxopt.cholmod.options["supernodal"] = 2
+                self._symbolic = cvxopt.cholmod.symbolic(M, uplo="L")
+            cvxopt.cholmod.numeric(M, self._symbolic)
+            self.n_factorizations += 1
+        else:
+            L = sp.csc_matrix((data, indices, indptr), shape=(n, n))
+            self.refactor(L + sp.tril(L, -1).T)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """Solve ``A x = b`` for a vector or a column block ``b``."""

@@ -207,18 +207,32 @@ def _worker_init(F, n, pinned, gn_options):
     _WORKER["gn"] = GaussNewton(T, pinned=pinned, **gn_options)
 
 
-def _worker_solve(task):
-    ks, Zs, Ws, Vinit = task
-    gn: GaussNewton = _WORKER["gn"]
+def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vprev, warm, on_frame=None):
+    """Reconstruct a run of frames in time order.
+
+    With ``warm`` the initial guess of frame k is the solution of frame k-1 moved by the
+    blend's change ``Vinit[k] - Vprev[k]`` (``Vprev[k]`` = blend at k-1) when k-1 was solved
+    just before; that is much closer to the solution than the blend itself.
+    """
     out = []
-    for k, z, w, v in zip(ks, Zs, Ws, Vinit):
+    prev_k, prev_V = None, None
+    for i, (k, z, w, v) in enumerate(zip(ks, Zs, Ws, Vinit)):
         t0 = time.perf_counter()
+        if warm and prev_k is not None and prev_k == k - 1:
+            v = prev_V + (v - Vprev[i])
         r = gn.solve(z, w, v)
+        prev_k, prev_V = int(k), r.V
         rec = r.summary()
         rec["frame"] = int(k)
         rec["seconds"] = time.perf_counter() - t0
         out.append((int(k), r.V, rec))
+        if on_frame is not None:
+            on_frame(i + 1)
     return out
+
+
+def _worker_solve(task):
+    return _solve_run(_WORKER["gn"], *task)
 
 
 def _chunks(idx, n_chunks):
@@ -226,17 +240,17 @@ def _chunks(idx, n_chunks):
     return [c for c in np.array_split(np.asarray(idx), n_chunks) if len(c)]
 
 
-def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress):
+def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress, warm):
     results = {}
     total = len(ks)
     if total == 0:
         return results
     if workers <= 1 or total == 1:
-        _worker_init(T.F, T.n_vertices, pinned, gn_options)
-        for i, k in enumerate(ks):
-            for kk, Vk, rec in _worker_solve(([k], [Z[k]], [W_of(k)], [Vinit[k]])):
-                results[kk] = (Vk, rec)
-            progress.advance("reconstruct", i + 1, total)
+        gn = GaussNewton(T, pinned=pinned, **gn_options)
+        W = np.stack([W_of(k) for k in ks])
+        for kk, Vk, rec in _solve_run(gn, ks, Z[ks], W, Vinit[ks], Vinit[np.maximum(ks - 1, 0)],
+                                      warm, lambda i: progress.advance("reconstruct", i, total)):
+            results[kk] = (Vk, rec)
         return results
     # contiguous chunks keep neighbouring (similar) frames on one worker, so its cached
     # preconditioner stays good; a few chunks per worker balance the load
@@ -247,7 +261,8 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
     done = 0
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                              initargs=(T.F, T.n_vertices, pinned, gn_options)) as ex:
-        futs = [ex.submit(_worker_solve, (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c]))
+        futs = [ex.submit(_worker_solve, (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
+                                          Vinit[np.maximum(c - 1, 0)], warm))
                 for c in chunks]
         for fut in futs:
             for kk, Vk, rec in fut.result():
@@ -260,6 +275,7 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
 def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta: float = 1e-3,
                 mu: float = 1.0, lam: float = 1.0, reference="constant", *, frames=None,
                 pinned=None, workers: int = 1, gn_options: dict | None = None,
+                warm_start: bool = True,
                 progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
@@ -288,6 +304,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Processes for the per-frame reconstructions.
     gn_options : dict, optional
         Options of :class:`shellspline.reconstruct.GaussNewton`.
+    warm_start : bool
+        Start frame k's Gauss–Newton from frame k-1's solution moved by the change of the
+        keyframe blend (frames are solved in time order within each worker's run); otherwise
+        from the blend.
     progress : callable(ProgressEvent), optional
         Receives stage/progress events (the CLI draws a bar with it).
 
@@ -351,7 +371,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         "shellspline_version": __version__,
         "parameters": {
             "method": method, "bc": bc, "K": int(K), "frames": frames.tolist(), "eta": eta,
-            "mu": mu, "lam": lam, "reference": reference, "workers": workers,
+            "mu": mu, "lam": lam, "reference": reference, "workers": workers, "warm_start": bool(warm_start),
             "pinned_vertices": 0 if pinned is None else int(pinned.size),
             "gn_options": dict(gn_options or {}),
         },
@@ -401,7 +421,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Vinit = blend.copy()
         with prog.stage("reconstruct", total=len(ks)):
             results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, dict(gn_options or {}),
-                                          workers, prog)
+                                          workers, prog, warm_start)
         with prog.stage("place"):
             V = blend.copy()
             for k in ks:
