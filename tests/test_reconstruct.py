@@ -45,7 +45,7 @@ def test_backends_agree():
     z, w = lta_descriptors(V * [1, 1.3, 1], T), lta_weights(V, T)
     a = reconstruct(z, w, V, T, backend="cholmod", gtol=1e-10, ftol=1e-14)
     b = reconstruct(z, w, V, T, backend="splu", gtol=1e-10, ftol=1e-14)
-    assert np.abs(a.V - b.V).max() < 1e-6
+    assert np.abs(rigid_placement(a.V, b.V) - b.V).max() < 1e-6  # equal up to a rigid motion
 
 
 def test_pinned_vertices_stay_and_remove_the_kernel():
