@@ -161,12 +161,15 @@ def linear_blend(Vkey, frames, K, bc: str = "natural"):
 
     Returns
     -------
-    (K+1,n,3) float64 array; keyframes are reproduced exactly. Frames after the last keyframe
-    (non-periodic) hold the last keyframe.
+    (K+1,n,3) float64 array; keyframes are reproduced exactly, and so is any coordinate that is
+    equal in the two bracketing keyframes. Frames after the last keyframe (non-periodic) hold
+    the last keyframe.
     """
     Vkey = np.asarray(Vkey, dtype=np.float64)
     j0, j1, t = _bracketing(np.asarray(frames), K, bc == "periodic")
-    out = (1.0 - t)[:, None, None] * Vkey[j0] + t[:, None, None] * Vkey[j1]
+    A, B = Vkey[j0], Vkey[j1]
+    out = (1.0 - t)[:, None, None] * A + t[:, None, None] * B
+    out = np.where(A == B, A, out)  # a vertex that does not move stays bit-identical
     for j, f in enumerate(frames):
         out[f] = Vkey[j]
     if bc == "periodic":
@@ -333,7 +336,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             raise ValueError(f"`{name}` must be a finite non-negative number, got {val!r}")
     if mu == 0 and lam == 0:
         raise ValueError("`mu` and `lam` cannot both be zero (the membrane energy would vanish)")
-    workers = int(workers) if workers else 1
+    workers = 1 if workers is None else int(workers)
     if workers < 1:
         raise ValueError(f"`workers` must be >= 1, got {workers}")
 

@@ -151,9 +151,16 @@ class GaussNewton:
             self._chol.refactor_lower(data)
         self._stale = False
 
-    def _pcg(self, J, w, b, delta):
-        """Solve (JᵀWJ + δI) x = b on the free DOFs, preconditioned by the cached factor."""
+    def _pcg(self, J, w, b, delta, x_cur=None):
+        """Solve (JᵀWJ + δI) x = b on the free DOFs, preconditioned by the cached factor.
+
+        Without pinned vertices the search space is the complement of the rigid motions of the
+        current iterate ``x_cur``: a factorization from an earlier pose amplifies *its* rigid
+        modes by 1/δ, which are not rigid for the current pose, so preconditioned vectors are
+        projected on the complement of the current rigid modes.
+        """
         free = self._free
+        Q = _rigid_basis(x_cur) if (x_cur is not None and not self.pinned.size) else None
 
         def matvec(v):
             out = J.T @ (w * (J @ v)) + delta * v
@@ -163,6 +170,8 @@ class GaussNewton:
         def precond(v):
             out = self._chol.solve(v)
             out[~free] = 0.0
+            if Q is not None:
+                out -= Q @ (Q.T @ out)
             return out
 
         x = np.zeros_like(b)
@@ -230,7 +239,7 @@ class GaussNewton:
             fresh = self._stale or self._chol is None
             if fresh:
                 self._refresh(J, w)
-            p, ncg, ok = self._pcg(J, w, -g, self._delta)
+            p, ncg, ok = self._pcg(J, w, -g, self._delta, x)
             res.cg_iterations += ncg
             if not ok or ncg > self.refresh_cg:
                 self._stale = True
@@ -331,6 +340,21 @@ class _LowerAssembler:
             parts.append(outer.ravel()[sel])
         data = np.bincount(self._pos_all, weights=np.concatenate(parts), minlength=self.nnz)
         return data, data[self.diag_pos].copy()
+
+
+def _rigid_basis(x):
+    """Orthonormal basis (3n,6) of the infinitesimal rigid motions at positions ``x`` (3n,)."""
+    V = x.reshape(-1, 3)
+    c = V - V.mean(axis=0)
+    n = len(V)
+    B = np.zeros((n, 3, 6))
+    B[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    for a in range(3):
+        w = np.zeros(3)
+        w[a] = 1.0
+        B[:, :, 3 + a] = np.cross(w, c)
+    Q, _ = np.linalg.qr(B.reshape(3 * n, 6))
+    return Q
 
 
 def reconstruct(z_target, weights, V_init, T: Topology, **options) -> ReconstructionResult:

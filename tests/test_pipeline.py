@@ -1,0 +1,173 @@
+"""End-to-end properties of shellspline.interpolate on synthetic and real keyframes."""
+import numpy as np
+import pytest
+
+import data_synth
+import shellspline as ss
+from shellspline.pipeline import canonical_frames, linear_blend
+from conftest import shared_data
+
+
+@pytest.fixture(scope="module")
+def ellipsoids():
+    return data_synth.generate("ellipsoids", n_vertices=300)
+
+
+def _kink(V, f):
+    """Relative second difference at frame f: O(1/K) for a smooth curve, O(1) at a corner."""
+    return np.linalg.norm(V[f + 1] - 2 * V[f] + V[f - 1]) / np.linalg.norm(V[f + 1] - V[f - 1])
+
+
+def test_keyframes_exact_and_smooth_at_interior_keyframe(ellipsoids):
+    d = ellipsoids
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.1)
+    lin = ss.interpolate((d["V"], d["F"]), frames=d["frames"], method="linear")
+    assert res.V.shape == (13, d["V"].shape[1], 3)
+    for j, f in enumerate(d["frames"]):
+        assert np.array_equal(res.V[f], d["V"][j]) and np.array_equal(lin.V[f], d["V"][j])
+    q = res.report["quality"]
+    assert q["keyframes_exact"] and q["flipped_faces"] == 0 and q["degenerate_faces"] == 0
+    gn = res.report["gauss_newton"]
+    assert gn["converged"] == gn["frames"] == 10
+    # the linear blend has a corner at the middle keyframe, the spline does not
+    assert _kink(lin.V, 6) > 0.9
+    assert _kink(res.V, 6) < 0.5 * _kink(lin.V, 6)
+    # the same in descriptor space (velocity continuity of the descriptor trajectories)
+    T = ss.topology(d["F"])
+    Zs, Zl = ss.lta_descriptors(res.V, T), ss.lta_descriptors(lin.V, T)
+    assert _kink(Zs, 6) < 0.5 * _kink(Zl, 6)
+
+
+def test_reconstruction_follows_the_spline_targets(ellipsoids):
+    d = ellipsoids
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.1)
+    T = ss.topology(d["F"])
+    sL, sT, sA = T.descriptor_slices()
+    Z = ss.lta_descriptors(res.V, T)
+    rel = np.abs(Z[:, sL] - res.Z[:, sL]) / res.Z[:, sL]
+    assert rel.max() < 0.05  # lengths realised within 5 % (targets are not exactly realisable)
+    assert np.median(rel) < 0.01
+
+
+def test_rigid_keyframes_give_rigid_frames():
+    V, F = data_synth.generate("ellipsoids", n_vertices=200)["V"][0], \
+        data_synth.generate("ellipsoids", n_vertices=200)["F"]
+    Q, _ = np.linalg.qr(np.random.default_rng(0).standard_normal((3, 3)))
+    Q *= np.sign(np.linalg.det(Q))
+    Vs = np.stack([V, V @ Q.T + [1.0, 0, 0]])
+    res = ss.interpolate((Vs, F), K=6, gn_options={"gtol": 1e-10, "ftol": 1e-14})
+    T = ss.topology(F)
+    z0 = ss.lta_descriptors(V, T)
+    for k in range(7):
+        assert np.abs(ss.lta_descriptors(res.V[k], T) - z0).max() < 1e-6
+
+
+def test_rotating_the_input_rotates_the_output(ellipsoids):
+    d = ellipsoids
+    Q, _ = np.linalg.qr(np.random.default_rng(1).standard_normal((3, 3)))
+    Q *= np.sign(np.linalg.det(Q))
+    a = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.1)
+    b = ss.interpolate((d["V"] @ Q.T, d["F"]), frames=d["frames"], eta=0.1)
+    assert np.abs(a.V @ Q.T - b.V).max() < 1e-4
+
+
+@pytest.mark.parametrize("bc", ["natural", "periodic"])
+@pytest.mark.parametrize("reference", ["constant", "keyframe", 1])
+def test_boundary_conditions_and_references(ellipsoids, bc, reference):
+    d = ellipsoids
+    K = 12 if bc == "natural" else 18
+    res = ss.interpolate((d["V"], d["F"]), frames=[0, 6, 12], K=K, bc=bc, reference=reference)
+    for j, f in enumerate([0, 6, 12]):
+        assert np.array_equal(res.V[f], d["V"][j])
+    if bc == "periodic":
+        assert np.array_equal(res.V[K], d["V"][0])
+    q = res.report["quality"]
+    assert q["flipped_faces"] == 0 and q["degenerate_faces"] == 0
+
+
+def test_hermite_uses_the_velocity_poses(ellipsoids):
+    d = ellipsoids
+    V = d["V"]
+    # poses at frames 1 and K-1 from a linear blend: the end velocities point along it
+    K = 12
+    Vh = np.stack([V[0], V[0] + (V[1] - V[0]) / 6, V[1], V[2] + (V[1] - V[2]) / 6, V[2]])
+    res = ss.interpolate((Vh, d["F"]), frames=[0, 1, 6, K - 1, K], K=K, bc="hermite")
+    for j, f in enumerate([0, 1, 6, 11, 12]):
+        assert np.array_equal(res.V[f], Vh[j])
+    with pytest.raises(ValueError, match="hermite"):
+        ss.interpolate((V, d["F"]), frames=[0, 6, 12], bc="hermite")
+
+
+def test_workers_give_the_same_sequence(ellipsoids):
+    d = ellipsoids
+    a = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=1)
+    b = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=2)
+    assert np.abs(a.V - b.V).max() < 1e-5 * np.abs(a.V).max()
+
+
+def test_pinned_vertices_stay_put():
+    d = data_synth.generate("cactus", n_vertices=600)
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], pinned=d["pinned"])
+    assert np.array_equal(res.V[:, d["pinned"]], np.broadcast_to(d["V"][0, d["pinned"]],
+                                                                 res.V[:, d["pinned"]].shape))
+    q = res.report["quality"]
+    assert q["flipped_faces"] == 0 and q["degenerate_faces"] == 0
+
+
+def test_report_contents(ellipsoids):
+    d = ellipsoids
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"])
+    rep = res.report
+    assert set(rep["timings"]) >= {"describe", "solve", "reconstruct", "place", "total"}
+    assert len(rep["frames"]) == 10 and all("nit" in r and "success" in r for r in rep["frames"])
+    e = rep["energies"]
+    assert len(e["lta_spline_energy_per_frame"]) == 13
+    import json
+
+    json.dumps(rep)  # JSON-serialisable
+
+
+@pytest.mark.parametrize("kwargs, phrase", [
+    ({"method": "cubic"}, "method"), ({"bc": "clamped"}, "bc"), ({"eta": -1.0}, "eta"),
+    ({"reference": "geodesic"}, "reference"), ({"reference": 7}, "reference"),
+    ({"frames": [0, 5, 5]}, "strictly increasing"), ({"frames": [0, 5]}, "one entry per"),
+    ({"K": 3, "frames": [0, 6, 12]}, "smaller than"), ({"workers": 0}, "workers"),
+    ({"pinned": [10**6]}, "pinned"),
+])
+def test_invalid_arguments_raise(ellipsoids, kwargs, phrase):
+    d = ellipsoids
+    with pytest.raises(ValueError, match=phrase):
+        ss.interpolate((d["V"], d["F"]), **kwargs)
+
+
+def test_canonical_frames_defaults():
+    assert canonical_frames(3)[0].tolist() == [0, 10, 20] and canonical_frames(3)[1] == 20
+    assert canonical_frames(3, bc="periodic")[1] == 30
+    f, K = canonical_frames(4, K=9)
+    assert f.tolist() == [0, 3, 6, 9] and K == 9
+    assert canonical_frames(2, frames=[0, 7], bc="periodic")[1] == 14
+
+
+def test_linear_blend_closed_form():
+    V = np.zeros((2, 3, 3))
+    V[1] += 1.0
+    B = linear_blend(V, np.array([0, 4]), 4)
+    assert np.allclose(B[:, 0, 0], [0, 0.25, 0.5, 0.75, 1.0])
+    P = linear_blend(V, np.array([0, 2]), 4, bc="periodic")
+    assert np.allclose(P[:, 0, 0], [0, 0.5, 1.0, 0.5, 0.0])
+
+
+@pytest.mark.slow
+def test_real_cactus_is_clean():
+    D = shared_data("cactus")
+    kf = ss.read_keyframes([D / "cactus0.ply", D / "cactus5.ply", D / "cactus13.ply"],
+                           frames=[0, 4, 8], pinned=ss.read_indices(D / "cactusBottomMask_indices.txt"))
+    res = ss.interpolate(kf, workers=2)
+    q = res.report["quality"]
+    assert q["keyframes_exact"] and q["flipped_faces"] == 0 and q["degenerate_faces"] == 0
+    assert q["min_area_ratio"] > 0.5
+    gn = res.report["gauss_newton"]
+    assert gn["converged"] == gn["frames"]
+    # smooth through the middle keyframe, unlike the blend
+    lin = ss.interpolate(kf, method="linear")
+    assert _kink(res.V, 4) < 0.6 * _kink(lin.V, 4)
