@@ -203,8 +203,21 @@ def sequence_quality(V, T: Topology, frames) -> dict:
 _WORKER: dict = {}
 
 
+def _single_blas_thread():
+    """Limit BLAS thread pools to one thread in this process (our parallelism is the process
+    pool; BLAS threads on level-1/2 work only oversubscribe the cores). Returns the limiter
+    (keep a reference) or None when threadpoolctl is unavailable."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a required dependency
+        return None
+    return threadpool_limits(limits=1)
+
+
 def _worker_init(F, n, pinned, gn_options):
     from .topology import topology
+
+    _WORKER["blas"] = _single_blas_thread()
 
     T = topology(F, n)
     _WORKER["gn"] = GaussNewton(T, pinned=pinned, **gn_options)
@@ -249,11 +262,17 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
     if total == 0:
         return results
     if workers <= 1 or total == 1:
-        gn = GaussNewton(T, pinned=pinned, **gn_options)
-        W = np.stack([W_of(k) for k in ks])
-        for kk, Vk, rec in _solve_run(gn, ks, Z[ks], W, Vinit[ks], Vinit[np.maximum(ks - 1, 0)],
-                                      warm, lambda i: progress.advance("reconstruct", i, total)):
-            results[kk] = (Vk, rec)
+        limiter = _single_blas_thread()
+        try:
+            gn = GaussNewton(T, pinned=pinned, **gn_options)
+            W = np.stack([W_of(k) for k in ks])
+            for kk, Vk, rec in _solve_run(gn, ks, Z[ks], W, Vinit[ks],
+                                          Vinit[np.maximum(ks - 1, 0)], warm,
+                                          lambda i: progress.advance("reconstruct", i, total)):
+                results[kk] = (Vk, rec)
+        finally:
+            if limiter is not None:
+                limiter.restore_original_limits()
         return results
     # contiguous chunks keep neighbouring (similar) frames on one worker, so its cached
     # preconditioner stays good; a few chunks per worker balance the load

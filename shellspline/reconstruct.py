@@ -171,29 +171,29 @@ class GaussNewton:
             out = self._chol.solve(v)
             out[~free] = 0.0
             if Q is not None:
-                out -= Q @ (Q.T @ out)
+                out -= np.einsum("ij,j->i", Q, np.einsum("ij,i->j", Q, out))
             return out
 
         x = np.zeros_like(b)
         r = b.copy()
-        bn = np.linalg.norm(b)
+        bn = np.sqrt(_dot(b, b))
         if bn == 0.0:
             return x, 0, True
         zv = precond(r)
         p = zv.copy()
-        rz = r @ zv
+        rz = _dot(r, zv)
         for it in range(1, self.cg_max_iter + 1):
             Ap = matvec(p)
-            pAp = p @ Ap
+            pAp = _dot(p, Ap)
             if pAp <= 0:
                 return x, it, False
             a = rz / pAp
             x += a * p
             r -= a * Ap
-            if np.linalg.norm(r) <= self.cg_tol * bn:
+            if np.sqrt(_dot(r, r)) <= self.cg_tol * bn:
                 return x, it, True
             zv = precond(r)
-            rz_new = r @ zv
+            rz_new = _dot(r, zv)
             p = zv + (rz_new / rz) * p
             rz = rz_new
         return x, self.cg_max_iter, False
@@ -340,6 +340,11 @@ class _LowerAssembler:
             parts.append(outer.ravel()[sel])
         data = np.bincount(self._pos_all, weights=np.concatenate(parts), minlength=self.nnz)
         return data, data[self.diag_pos].copy()
+
+
+def _dot(a, b) -> float:
+    """Dot product without BLAS (no thread-pool start-up on small vectors)."""
+    return float(np.einsum("i,i->", a, b))
 
 
 def _rigid_basis(x):

@@ -1,0 +1,112 @@
+"""The command line end to end: synthetic data, shared data, and every bad input."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import data_synth
+import shellspline as ss
+from shellspline.cli import main
+from conftest import shared_data
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def ell_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ell")
+    data_synth.write("ellipsoids", d, n_vertices=200)
+    return d
+
+
+def _poses(d):
+    return sorted(str(p) for p in Path(d).glob("pose_*.obj"))
+
+
+def test_interpolate_end_to_end(ell_dir, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["interpolate", *_poses(ell_dir), "--frames", str(ell_dir / "frames.txt"),
+               "-o", str(out), "--eta", "0.1"])
+    assert rc == 0
+    files = sorted(out.glob("frame_*.obj"))
+    assert len(files) == 13 and files[0].name == "frame_0000.obj"
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["parameters"]["eta"] == 0.1 and rep["parameters"]["K"] == 12
+    assert rep["quality"]["keyframes_exact"] and rep["quality"]["flipped_faces"] == 0
+    assert "write" in rep["timings"] and "read" in rep["timings"]
+    # output keyframes are the input keyframes bit for bit
+    V, F, _ = ss.read_sequence(out)
+    for j, p in enumerate(_poses(ell_dir)):
+        Vin, Fin = ss.read_mesh(p)
+        assert np.array_equal(V[6 * j], Vin) and np.array_equal(F, Fin)
+    err = capsys.readouterr().err
+    assert "wrote 13 frames" in err and "Gauss–Newton" in err
+
+
+def test_linear_method_and_K(ell_dir, tmp_path):
+    out = tmp_path / "lin"
+    assert main(["interpolate", *_poses(ell_dir), "--K", "8", "--method", "linear", "-o", str(out),
+                 "-q"]) == 0
+    assert len(list(out.glob("frame_*.obj"))) == 9
+
+
+def test_existing_output_is_not_overwritten(ell_dir, tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    rc = main(["interpolate", *_poses(ell_dir), "-o", str(out), "--method", "linear", "-q"])
+    assert rc == 2 and (out / "keep.txt").read_text() == "precious"
+    assert str(out) in capsys.readouterr().err
+
+
+def test_refuses_to_write_into_inputs(ell_dir, capsys):
+    rc = main(["interpolate", *_poses(ell_dir), "-o", str(ell_dir), "--method", "linear", "-q",
+               "--overwrite"])
+    assert rc == 2
+    assert len(_poses(ell_dir)) == 3
+
+
+def test_bad_inputs_give_one_line_errors(ell_dir, tmp_path, capsys):
+    other = tmp_path / "other"
+    data_synth.write("ellipsoids", other, n_vertices=500)
+    bad = tmp_path / "bad.obj"
+    bad.write_text("this is not a mesh\n")
+    cases = [
+        ([_poses(ell_dir)[0], _poses(other)[1]], "vertices"),
+        ([_poses(ell_dir)[0], str(tmp_path / "missing.obj")], "missing.obj"),
+        ([_poses(ell_dir)[0], str(bad)], "bad.obj"),
+        ([_poses(ell_dir)[0]], "2"),
+    ]
+    for files, phrase in cases:
+        rc = main(["interpolate", *files, "-o", str(tmp_path / "x"), "-q"])
+        err = capsys.readouterr().err
+        assert rc == 2, files
+        assert phrase in err and "Traceback" not in err
+        assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+    rc = main(["interpolate", *_poses(ell_dir), "--frames", "0,5,5", "-o", str(tmp_path / "y")])
+    assert rc == 2 and "strictly increasing" in capsys.readouterr().err
+
+
+def test_console_script_runs_as_module(ell_dir, tmp_path):
+    out = tmp_path / "m"
+    r = subprocess.run([sys.executable, "-m", "shellspline", "interpolate", *_poses(ell_dir),
+                        "-o", str(out), "--method", "linear"], capture_output=True, text=True,
+                       cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    assert (out / "report.json").exists()
+
+
+def test_unit_sphere_shared_data(tmp_path):
+    D = shared_data("unit_sphere")
+    out = tmp_path / "sphere"
+    files = [D / "unitSphere1.ply", D / "unitSphere1_defX.ply", D / "unitSphere1_defY.ply"]
+    rc = main(["interpolate", *map(str, files), "--frames", "0,3,6", "--eta", "0.01", "-o",
+               str(out), "-q", "--workers", "2"])
+    assert rc == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["quality"]["flipped_faces"] == 0 and rep["quality"]["degenerate_faces"] == 0
+    assert rep["gauss_newton"]["converged"] == 4
