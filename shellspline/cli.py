@@ -175,19 +175,8 @@ def _summary(res, out: Path, quiet: bool) -> int:
     return EXIT_OK if ok else EXIT_WARN
 
 
-def _single_threaded_blas() -> None:
-    """Our hot loops are sparse and vectorised; BLAS thread pools only oversubscribe the cores
-    that the ``--workers`` processes use (measured: 4-5x slower Gauss–Newton on 2 busy cores).
-    Respect an explicit user setting."""
-    import os
-
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-
-
 def main(argv=None) -> int:
     """Entry point of the ``shellspline`` console script; returns the exit code."""
-    _single_threaded_blas()
     parser = _build_parser()
     args = parser.parse_args(argv)
     if args.version:
