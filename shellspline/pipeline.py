@@ -275,8 +275,9 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
                 limiter.restore_original_limits()
         return results
     # contiguous chunks keep neighbouring (similar) frames on one worker, so its cached
-    # preconditioner stays good; a few chunks per worker balance the load
-    chunks = _chunks(ks, 3 * workers)
+    # preconditioner and warm starts stay good (frames cost about the same, so one run per
+    # worker balances the load)
+    chunks = _chunks(ks, workers)
     method = "fork" if "fork" in mp.get_all_start_methods() and platform.system() == "Linux" \
         else "spawn"
     ctx = mp.get_context(method)
