@@ -360,14 +360,15 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     if workers < 1:
         raise ValueError(f"`workers` must be >= 1, got {workers}")
 
-    with prog.stage("read"):
-        if isinstance(keyframes, Keyframes):
-            kf = keyframes
-        elif isinstance(keyframes, tuple) and len(keyframes) == 2:
+    if isinstance(keyframes, Keyframes):
+        kf = keyframes
+    elif isinstance(keyframes, tuple) and len(keyframes) == 2:
+        with prog.stage("validate"):
             kf = keyframes_from_arrays(keyframes[0], keyframes[1])
-        else:
+    else:
+        with prog.stage("read"):
             kf = read_keyframes(keyframes)
-        T = kf.topology
+    T = kf.topology
     if pinned is None:
         pinned = kf.pinned
     if pinned is not None:
