@@ -423,7 +423,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 ref_idx = 0
             if ref_kind == "constant":
                 w_const = lta_weights(Vkey[ref_idx], T, mu=mu, lam=lam, eta=eta)
-                W_spline = None
+                W_spline, W_report = None, w_const
 
                 def W_of(k):
                     return w_const
@@ -431,7 +431,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 Wkey = lta_weights(Vkey, T, mu=mu, lam=lam, eta=eta)
                 j0, j1, t = _bracketing(frames, K, periodic)
                 nearest = np.where(t <= 0.5, j0, j1)
-                W_spline = Wkey[nearest]
+                W_spline = W_report = Wkey[nearest]
 
                 def W_of(k):
                     return Wkey[nearest[k]]
@@ -456,17 +456,9 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             if periodic:
                 V[K] = Vkey[0]
         frame_records = [results[k][1] for k in ks]
-        with prog.stage("energies"):
-            Zout = lta_descriptors(V, T)
-            Zout[:, sT] = unwrap_angles(Zout[:, sT])
-            Wrep = None if W_spline is None else W_spline
-            report["energies"] = {
-                "lta_spline_energy_per_frame": lta_energy_per_frame(Z, bc=bc, weights=Wrep).tolist(),
-                "lta_output_energy_per_frame": lta_energy_per_frame(Zout, bc=bc, weights=Wrep).tolist(),
-                "reconstruction_energy_per_frame": [
-                    float(np.sum(W_of(k) * _wrapped_residual(Zout[k], Z[k], sT) ** 2))
-                    for k in range(K + 1)],
-            }
+    with prog.stage("energies"):
+        report["energies"] = _energies(V, Z, T, bc, W_report if method == "lta" else
+                                       lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta))
     report["frames"] = frame_records
     with prog.stage("quality"):
         report["quality"] = sequence_quality(V, T, frames)
@@ -492,7 +484,17 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     return InterpolationResult(V=V, F=T.F, frames=frames, report=report, Z=Z)
 
 
-def _wrapped_residual(z, zt, sT):
-    r = z - zt
-    r[sT] = (r[sT] + np.pi) % (2 * np.pi) - np.pi
-    return r
+def _energies(V, Z, T: Topology, bc: str, W) -> dict:
+    """Per-frame LΘA energies (paper Figs. 11–12) of the output and, when given, of the spline
+    targets ``Z``, plus the reconstruction misfit of every frame; ``W`` is (d,) or (K+1,d)."""
+    sT = T.descriptor_slices()[1]
+    Zout = lta_descriptors(V, T)
+    Zout[:, sT] = unwrap_angles(Zout[:, sT])
+    out = {"lta_output_energy_per_frame": lta_energy_per_frame(Zout, bc=bc, weights=W).tolist()}
+    if Z is not None:
+        Wk = np.broadcast_to(W, Z.shape)
+        r = Zout - Z
+        r[:, sT] = (r[:, sT] + np.pi) % (2 * np.pi) - np.pi
+        out["lta_spline_energy_per_frame"] = lta_energy_per_frame(Z, bc=bc, weights=W).tolist()
+        out["reconstruction_energy_per_frame"] = np.einsum("kd,kd->k", Wk, r * r).tolist()
+    return out

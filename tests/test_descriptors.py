@@ -112,3 +112,16 @@ def test_weights_closed_form():
     assert np.allclose(w[sL], 2.0 * de / L**2)
     assert np.allclose(w[sA], 3.0 / a)
     assert np.allclose(w[sT], 5.0 * 2.0 / (2 * a / 3))  # diagonal: l² = 2
+
+
+def test_unwrap_keeps_a_flap_folding_through_pi_continuous():
+    # one flap folded past the fully-closed configuration: θ goes 150°, 175°, -160° (= 200°)
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    T = topology(F)
+    poses = []
+    for deg in (150.0, 175.0, 200.0):
+        phi = np.radians(deg)
+        poses.append([[0, 0, 0], [1, 0, 0], [0.3, 1, 0], [0.6, -np.cos(phi), -np.sin(phi)]])
+    th = dihedral_angles(np.array(poses, dtype=float), T)
+    assert th[2, 0] < 0  # the raw angle jumped to the other branch
+    assert np.allclose(np.degrees(unwrap_angles(th))[:, 0], [150, 175, 200])

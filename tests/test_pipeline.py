@@ -171,3 +171,14 @@ def test_real_cactus_is_clean():
     # smooth through the middle keyframe, unlike the blend
     lin = ss.interpolate(kf, method="linear")
     assert _kink(res.V, 4) < 0.6 * _kink(lin.V, 4)
+
+
+def test_energy_has_no_spike_at_keyframes_unlike_linear_blend(ellipsoids):
+    # paper Figs. 11-12: the spline's per-frame energy varies continuously through a keyframe,
+    # a piecewise interpolation concentrates energy there
+    d = ellipsoids
+    e = {m: np.array(ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.1, method=m)
+                     .report["energies"]["lta_output_energy_per_frame"]) for m in ("lta", "linear")}
+    spike = {m: v[6] / max(v[5], v[7]) for m, v in e.items()}
+    assert spike["linear"] > 50
+    assert spike["lta"] < 2
