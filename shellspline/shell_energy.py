@@ -1,0 +1,639 @@
+"""The Discrete Shells energy W[s, s̃] and its exact first and second derivatives.
+
+``W[s, s̃] = μ W_L + λ W_A + η W_Θ`` (Heeren et al. 2016, eq. 9; Grinspun et al. 2003) measures
+the elastic energy needed to deform the *undeformed* shell ``s`` (first argument, vertex
+positions ``V``) into the *deformed* shell ``s̃`` (second argument, ``Vt``)::
+
+    W_L = Σ_e d_e[s] ((l_e[s] − l_e[s̃]) / l_e[s])²
+    W_A = Σ_t (a_t[s] − a_t[s̃])² / a_t[s]
+    W_Θ = Σ_{e interior} l_e[s]² (θ_e[s] − θ_e[s̃])² / d_e[s]
+
+with ``d_e = (a_t1 + a_t2)/3`` (one face on a boundary edge).
+
+Every term is a function ``Φ(q, r)`` of the LΘA descriptors ``q = z[s]`` and ``r = z[s̃]``
+(:func:`~shellspline.descriptors.lta_descriptors`), so all derivatives follow from the chain
+rule with the descriptor Jacobian ``J = ∂z/∂V`` (:func:`~shellspline.descriptors.lta_jacobian`)
+and the per-element Hessians of the descriptors (edge length 6×6, triangle area 9×9,
+dihedral angle 12×12, closed forms below)::
+
+    ∇_1 W = J[s]ᵀ Φ_q              ∇_2 W = J[s̃]ᵀ Φ_r
+    W,11 = J[s]ᵀ Φ_qq J[s] + Σ_i (Φ_q)_i ∇²q_i
+    W,22 = J[s̃]ᵀ Φ_rr J[s̃] + Σ_i (Φ_r)_i ∇²r_i
+    W,12 = J[s]ᵀ Φ_qr J[s̃]         W,21 = W,12ᵀ
+
+Block ``"ab"`` is ``∂²W / ∂(argument a) ∂(argument b)`` with rows indexed by argument ``a``.
+All Hessians share one fixed sparsity pattern (:attr:`DiscreteShells.pattern`: the 3×3 blocks
+of vertex pairs that share a flap or a face), so a solver can analyse it once.
+
+:class:`DiscreteShells` is the precompute object (index tables, pattern); the functions
+:func:`shell_energy`, :func:`shell_energy_gradient` and :func:`shell_energy_hessian` are
+one-shot wrappers. :class:`EuclideanEnergy` (``W = ‖s − s̃‖²``) has the same interface and is
+the Euclidean oracle of the nonlinear solvers.
+"""
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+import scipy.sparse as sp
+
+from ._errors import ShellsplineError
+from .descriptors import lta_jacobian, wrap_angle
+from .topology import Topology
+
+__all__ = ["DiscreteShells", "EuclideanEnergy", "shell_energy", "shell_energy_gradient",
+           "shell_energy_hessian", "dihedral_angle_hessians", "face_area_hessians",
+           "edge_length_hessians"]
+
+_BLOCKS = ("11", "22", "12", "21")
+
+# Levi-Civita symbol
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+
+
+def _skew(v):
+    """``[v]_×`` for ``v (..., 3)``: matrices ``(..., 3, 3)`` with ``[v]_× w = v × w``."""
+    return -np.einsum("abc,...c->...ab", _EPS, v)
+
+
+# --------------------------------------------------------------------------------------
+# Per-element second derivatives of the descriptors
+# --------------------------------------------------------------------------------------
+def edge_length_hessians(V, E) -> np.ndarray:
+    """Hessians of the edge lengths w.r.t. their two end points.
+
+    ``∇²l = [[P, −P], [−P, P]]`` with ``P = (I − u uᵀ)/l``, ``u`` the unit edge vector.
+
+    Parameters
+    ----------
+    V : (n,3) float64 array
+    E : (e,2) int array
+
+    Returns
+    -------
+    (e,6,6) float64 array, coordinates ordered ``(v0x, v0y, v0z, v1x, v1y, v1z)``.
+    """
+    d = V[E[:, 1]] - V[E[:, 0]]
+    l = np.sqrt(np.einsum("ij,ij->i", d, d))
+    u = d / l[:, None]
+    P = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / l[:, None, None]
+    H = np.zeros((len(E), 6, 6))
+    H[:, :3, :3] = H[:, 3:, 3:] = P
+    H[:, :3, 3:] = H[:, 3:, :3] = -P
+    return H
+
+
+def face_area_hessians(V, F) -> np.ndarray:
+    """Hessians of the triangle areas w.r.t. their three corners.
+
+    With ``N = Σ_i v_i × v_{i+1}``, ``e_i = v_{i+2} − v_{i+1}``, ``ν = N/|N|``,
+    ``dN = Σ_i e_i × δ_i`` and ``a = |N|/2``:
+    ``∂²a/∂v_i∂v_j = ½ ([e_i]_×ᵀ (I − ννᵀ) [e_j]_× / |N| + B_ij)``, where
+    ``B_01 = B_12 = B_20 = −[ν]_×`` and ``B_ji = B_ijᵀ``, ``B_ii = 0``.
+
+    Parameters
+    ----------
+    V : (n,3) float64 array
+    F : (m,3) int array
+
+    Returns
+    -------
+    (m,9,9) float64 array, coordinates ordered by corner then ``x, y, z``.
+    """
+    X = V[F]                                     # (m,3,3) corners
+    N = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+    nN = np.sqrt(np.einsum("ij,ij->i", N, N))
+    nu = N / nN[:, None]
+    e = X[:, [2, 0, 1]] - X[:, [1, 2, 0]]        # e_i = v_{i+2} - v_{i+1}
+    M = _skew(e)                                 # (m,3,3,3): corner, 3x3
+    Pn = np.eye(3)[None] - nu[:, :, None] * nu[:, None, :]
+    H = np.einsum("miba,mbc,mjcd->miajd", M, Pn, M) / nN[:, None, None, None, None]
+    S = _skew(nu)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        H[:, i, :, j, :] -= S
+        H[:, j, :, i, :] += S
+    return 0.5 * H.reshape(-1, 9, 9)
+
+
+def _flap_selectors():
+    """Constant 3×12 selection matrices of the flap vertices and the normals' factors."""
+    S = [np.zeros((3, 12)) for _ in range(4)]
+    for v in range(4):
+        S[v][:, 3 * v:3 * v + 3] = np.eye(3)
+    P1, Q1 = S[1] - S[0], S[2] - S[0]            # n1 = (v1 - v0) × (v2 - v0)
+    P2, Q2 = S[0] - S[1], S[3] - S[1]            # n2 = (v0 - v1) × (v3 - v1)
+    De = S[1] - S[0]                             # e = v1 - v0
+    T1 = np.einsum("abc,bp,cq->apq", _EPS, P1, Q1)
+    T1 = T1 + T1.transpose(0, 2, 1)
+    T2 = np.einsum("abc,bp,cq->apq", _EPS, P2, Q2)
+    T2 = T2 + T2.transpose(0, 2, 1)
+    return P1, Q1, P2, Q2, De, T1, T2
+
+
+_FLAP = _flap_selectors()
+
+
+def _cross_cols(a, B):
+    """``a × B[:, :, p]`` for every column ``p``: ``a (i,3)``, ``B (i,3,12)`` → ``(i,3,12)``."""
+    return np.cross(a[:, :, None], B, axisa=1, axisb=1, axisc=1)
+
+
+def dihedral_angle_hessians(V, flaps, *, return_gradients: bool = False):
+    """Hessians of the signed dihedral angles w.r.t. the four flap vertices.
+
+    ``θ = atan2(y, x)`` with ``x = n1·n2``, ``y = (n1 × n2)·e / |e|``, ``n1 = e × (v2 − v0)``,
+    ``n2 = (v0 − v1) × (v3 − v1)``, ``e = v1 − v0`` (the convention of
+    :func:`~shellspline.descriptors.dihedral_angles`). ``n1``, ``n2`` are bilinear in the
+    positions, so their first derivatives are linear and their second derivatives constant;
+    ``x``, ``y`` and ``θ`` follow by the product and chain rules::
+
+        ∇²θ = θ_x ∇²x + θ_y ∇²y + θ_xx ∇x∇xᵀ + θ_yy ∇y∇yᵀ + θ_xy (∇x∇yᵀ + ∇y∇xᵀ),
+        θ_x = −y/r², θ_y = x/r², θ_xx = −θ_yy = 2xy/r⁴, θ_xy = (y² − x²)/r⁴, r² = x² + y².
+
+    The atan2 form is smooth through flat flaps (θ = 0).
+
+    Parameters
+    ----------
+    V : (n,3) float64 array
+    flaps : (i,4) int array
+        Flap stencils ``(v0, v1, v2, v3)`` (:attr:`Topology.flaps`).
+    return_gradients : bool
+        Also return the gradients ``(i,12)``.
+
+    Returns
+    -------
+    H : (i,12,12) float64 array, coordinates ordered by flap vertex then ``x, y, z``.
+    G : (i,12) float64 array, only if ``return_gradients``.
+    """
+    P1, Q1, P2, Q2, De, T1, T2 = _FLAP
+    X = V[flaps].reshape(-1, 12)
+    a1, b1, a2, b2, e = X @ P1.T, X @ Q1.T, X @ P2.T, X @ Q2.T, X @ De.T
+    n1, n2 = np.cross(a1, b1), np.cross(a2, b2)
+    # first derivatives of the normals (i,3,12): dn = a × Qδ − b × Pδ
+    Dn1 = _cross_cols(a1, np.broadcast_to(Q1, (len(X), 3, 12))) - \
+        _cross_cols(b1, np.broadcast_to(P1, (len(X), 3, 12)))
+    Dn2 = _cross_cols(a2, np.broadcast_to(Q2, (len(X), 3, 12))) - \
+        _cross_cols(b2, np.broadcast_to(P2, (len(X), 3, 12)))
+    # x = n1·n2
+    x = np.einsum("ia,ia->i", n1, n2)
+    gx = np.einsum("iap,ia->ip", Dn1, n2) + np.einsum("iap,ia->ip", Dn2, n1)
+    Hx = np.einsum("iap,iaq->ipq", Dn1, Dn2)
+    Hx = Hx + Hx.transpose(0, 2, 1) + np.einsum("ia,apq->ipq", n2, T1) + \
+        np.einsum("ia,apq->ipq", n1, T2)
+    # w = (n1 × n2)·e
+    z = np.cross(n1, n2)
+    w = np.einsum("ia,ia->i", z, e)
+    Dz = -_cross_cols(n2, Dn1) + _cross_cols(n1, Dn2)
+    gw = np.einsum("iap,ia->ip", Dz, e) + z @ De
+    G = -_cross_cols(e, Dn2)                     # G[:, b, q] = (Dn2_q × e)_b
+    M = np.einsum("ibp,ibq->ipq", Dn1, G)
+    DzDe = np.einsum("iap,aq->ipq", Dz, De)
+    Hw = (np.einsum("ib,bpq->ipq", np.cross(n2, e), T1) + M + M.transpose(0, 2, 1)
+          + np.einsum("ic,cpq->ipq", np.cross(e, n1), T2) + DzDe + DzDe.transpose(0, 2, 1))
+    # h = 1/|e|
+    ee = np.einsum("ia,ia->i", e, e)
+    el = np.sqrt(ee)
+    h = 1.0 / el
+    eDe = e @ De                                 # (i,12) = Deᵀ e
+    gh = -eDe / (el ** 3)[:, None]
+    Hh = -(De.T @ De)[None] / (el ** 3)[:, None, None] + \
+        3.0 * eDe[:, :, None] * eDe[:, None, :] / (el ** 5)[:, None, None]
+    # y = w h
+    y = w * h
+    gy = h[:, None] * gw + w[:, None] * gh
+    gwgh = gw[:, :, None] * gh[:, None, :]
+    Hy = h[:, None, None] * Hw + gwgh + gwgh.transpose(0, 2, 1) + w[:, None, None] * Hh
+    # θ = atan2(y, x)
+    r2 = x * x + y * y
+    tx, ty = -y / r2, x / r2
+    txx = 2.0 * x * y / r2 ** 2
+    txy = (y * y - x * x) / r2 ** 2
+    gxgy = gx[:, :, None] * gy[:, None, :]
+    H = (tx[:, None, None] * Hx + ty[:, None, None] * Hy
+         + txx[:, None, None] * (gx[:, :, None] * gx[:, None, :] - gy[:, :, None] * gy[:, None, :])
+         + txy[:, None, None] * (gxgy + gxgy.transpose(0, 2, 1)))
+    if return_gradients:
+        return H, tx[:, None] * gx + ty[:, None] * gy
+    return H
+
+
+# --------------------------------------------------------------------------------------
+# Validation helpers
+# --------------------------------------------------------------------------------------
+def _checked_param(value, name: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ShellsplineError(f"`{name}` must be a non-negative real number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v) or v < 0:
+        raise ShellsplineError(f"`{name}` must be a non-negative real number, got {value!r}")
+    return v
+
+
+def _checked_pose(V, n: int, name: str) -> np.ndarray:
+    try:
+        A = np.asarray(V, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ShellsplineError(f"`{name}` must be a float array, got {type(V).__name__}") from None
+    if A.shape == (3 * n,):
+        A = A.reshape(n, 3)
+    if A.shape != (n, 3):
+        raise ShellsplineError(f"`{name}` must have shape (n,3) = ({n},3) or (3n,), got {A.shape}")
+    if not np.all(np.isfinite(A)):
+        raise ShellsplineError(f"`{name}` must be finite")
+    return A
+
+
+def _checked_block(block) -> str:
+    b = str(block)
+    if b not in _BLOCKS:
+        raise ShellsplineError(f"`block` must be one of {', '.join(map(repr, _BLOCKS))}, "
+                               f"got {block!r}")
+    return b
+
+
+def _checked_wrt(wrt) -> int:
+    if wrt not in (0, 1) or isinstance(wrt, bool):
+        raise ShellsplineError(f"`wrt` must be 0 (undeformed shell) or 1 (deformed shell), "
+                               f"got {wrt!r}")
+    return int(wrt)
+
+
+# --------------------------------------------------------------------------------------
+# Fixed sparsity pattern
+# --------------------------------------------------------------------------------------
+class HessianPattern:
+    """A fixed structural sparsity pattern ``(N,N)`` and the scatter of matrices onto it.
+
+    Parameters
+    ----------
+    rows, cols : int arrays
+        Structural entries (duplicates allowed).
+    N : int
+
+    Attributes
+    ----------
+    indptr, indices : CSR structure (sorted indices).
+    nnz : int
+    """
+
+    def __init__(self, rows, cols, N: int):
+        keys = np.unique(np.asarray(rows, np.int64) * N + np.asarray(cols, np.int64))
+        self.N, self.keys, self.nnz = int(N), keys, int(keys.size)
+        r, c = keys // N, keys % N
+        self.indices = c.astype(np.int32)
+        self.indptr = np.searchsorted(r, np.arange(N + 1)).astype(np.int32)
+
+    def positions(self, rows, cols) -> np.ndarray:
+        """Positions in the CSR data array of entries ``(rows, cols)`` (must be in the pattern)."""
+        keys = np.asarray(rows, np.int64) * self.N + np.asarray(cols, np.int64)
+        pos = np.minimum(np.searchsorted(self.keys, keys), self.nnz - 1)
+        if not np.array_equal(self.keys[pos], keys):
+            raise ValueError("entries outside the fixed sparsity pattern")
+        return pos
+
+    def data_of(self, A) -> np.ndarray:
+        """Data array on this pattern of a sparse matrix ``A`` whose entries lie in it."""
+        A = sp.coo_matrix(A)
+        return np.bincount(self.positions(A.row, A.col), weights=A.data, minlength=self.nnz)
+
+    def matrix(self, data) -> sp.csr_matrix:
+        """CSR matrix on this pattern with the given data (explicit zeros kept)."""
+        return sp.csr_matrix((np.asarray(data, np.float64), self.indices, self.indptr),
+                             shape=(self.N, self.N))
+
+    def lower(self):
+        """``(indptr, indices, sel)`` of the lower triangle in CSC order, and the selection
+        ``sel`` of the full data array that gives its values (pattern is symmetric)."""
+        r, c = self.keys // self.N, self.keys % self.N
+        # lower triangle entry (r >= c) in CSC order = sorted by (c, r); its value equals the
+        # symmetric entry (c, r), which is the full CSR data at key c*N + r
+        low = r >= c
+        order = np.lexsort((r[low], c[low]))
+        rr, cc = r[low][order], c[low][order]
+        sel = self.positions(rr, cc)
+        indptr = np.searchsorted(cc, np.arange(self.N + 1)).astype(np.int64)
+        return indptr, rr.astype(np.int64), sel
+
+
+def _block_stencil_coo(dofs):
+    """COO index arrays of the dense blocks ``dofs (k,s)`` × ``dofs``: each ``(k*s*s,)``."""
+    k, s = dofs.shape
+    return (np.repeat(dofs, s, axis=1).ravel(), np.tile(dofs, (1, s)).ravel())
+
+
+# --------------------------------------------------------------------------------------
+# The energies
+# --------------------------------------------------------------------------------------
+class DiscreteShells:
+    """The Discrete Shells deformation energy ``W[s, s̃]`` (paper eq. 9) on a fixed mesh.
+
+    Parameters
+    ----------
+    T : Topology
+        Connectivity shared by both shells.
+    mu, lam, eta : float
+        Non-negative weights of the length (membrane), area (membrane) and bending terms;
+        ``eta = thickness²``. Paper defaults ``mu = lam = 1``.
+
+    Attributes
+    ----------
+    n_vertices : int
+    pattern : HessianPattern
+        Fixed ``(3n,3n)`` structure containing every Hessian block.
+    rigid_invariant : bool
+        ``True``: ``W`` is invariant under rigid motions of either argument, so its Hessians
+        have the infinitesimal rigid motions in their kernel.
+
+    Notes
+    -----
+    ``W_L = Σ_e d_e ((l_e − l̃_e)/l_e)²``, ``W_A = Σ_t (a_t − ã_t)²/a_t``,
+    ``W_Θ = Σ_{e interior} l_e² (θ_e − θ̃_e)²/d_e`` with ``d_e = (a_t1 + a_t2)/3`` evaluated
+    on the undeformed shell (first argument). The angle difference is wrapped to ``[-π, π)``.
+    Derivatives: see the module docstring; the dihedral-angle Hessian is
+    :func:`dihedral_angle_hessians`.
+
+    Examples
+    --------
+    >>> import numpy as np, trimesh
+    >>> from shellspline.topology import topology
+    >>> m = trimesh.creation.icosphere(subdivisions=1)
+    >>> V, T = np.asarray(m.vertices), topology(m.faces)
+    >>> W = DiscreteShells(T, eta=0.1)
+    >>> W.energy(V, V), round(W.energy(V, 1.1 * V), 6) > 0
+    (0.0, True)
+    >>> W.hessian(V, V, "22").shape
+    (126, 126)
+    """
+
+    rigid_invariant = True
+
+    def __init__(self, T: Topology, mu: float = 1.0, lam: float = 1.0, eta: float = 1e-3):
+        if not isinstance(T, Topology):
+            raise ShellsplineError(f"`T` must be a Topology, got {type(T).__name__}")
+        self.T = T
+        self.mu = _checked_param(mu, "mu")
+        self.lam = _checked_param(lam, "lam")
+        self.eta = _checked_param(eta, "eta")
+        self.n_vertices = n = T.n_vertices
+        e, i, m = T.n_edges, T.n_interior, T.n_faces
+        self._sl = T.descriptor_slices()
+        xyz = np.arange(3)
+        dofE = (3 * T.E[:, :, None] + xyz).reshape(e, 6)
+        dofF = (3 * T.F[:, :, None] + xyz).reshape(m, 9)
+        dofP = (3 * T.flaps[:, :, None] + xyz).reshape(i, 12)
+        rows, cols = zip(*[_block_stencil_coo(d) for d in (dofE, dofP, dofF)])
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        self.pattern = HessianPattern(rows, cols, 3 * n)
+        self._local_pos = self.pattern.positions(rows, cols)
+        # descriptor-space index tables
+        ef = T.edge_faces
+        self._has2 = ef[:, 1] >= 0
+        self._f0, self._f1 = ef[:, 0], np.where(self._has2, ef[:, 1], ef[:, 0])
+        self._iL = np.arange(e)
+        self._iT = e + np.arange(i)
+        self._iA0, self._iA1 = e + i + self._f0, e + i + self._f1
+        self._d = e + i + m
+
+    # -- descriptor-space terms ---------------------------------------------------------
+    def _split(self, z):
+        sL, sT, sA = self._sl
+        return z[sL], z[sT], z[sA]
+
+    def _terms(self, zX, zY):
+        """Per-term quantities shared by value and derivatives."""
+        T = self.T
+        L, Th, A = self._split(zX)
+        Lt, Tht, At = self._split(zY)
+        d = (A[self._f0] + np.where(self._has2, A[self._f1], 0.0)) / 3.0
+        rho = (L - Lt) / L
+        li, di = L[T.interior], d[T.interior]
+        dl = wrap_angle(Th - Tht)
+        return L, A, Lt, At, d, rho, li, di, dl
+
+    def _value_from(self, zX, zY) -> float:
+        L, A, Lt, At, d, rho, li, di, dl = self._terms(zX, zY)
+        return float(self.mu * np.sum(d * rho ** 2) + self.lam * np.sum((A - At) ** 2 / A)
+                     + self.eta * np.sum(li ** 2 * dl ** 2 / di))
+
+    def _grad_desc(self, zX, zY, wrt: int) -> np.ndarray:
+        """``Φ_q`` (wrt=0) or ``Φ_r`` (wrt=1), shape ``(e+i+m,)``."""
+        mu, lam, eta, T = self.mu, self.lam, self.eta, self.T
+        L, A, Lt, At, d, rho, li, di, dl = self._terms(zX, zY)
+        g = np.zeros(self._d)
+        sL, sT, sA = self._sl
+        if wrt == 1:
+            g[sL] = -2 * mu * d * rho / L
+            g[sT] = -2 * eta * li ** 2 * dl / di
+            g[sA] = -2 * lam * (A - At) / A
+            return g
+        gL = 2 * mu * d * rho * Lt / L ** 2
+        gL[T.interior] += 2 * eta * li * dl ** 2 / di
+        g[sL] = gL
+        g[sT] = 2 * eta * li ** 2 * dl / di
+        # area derivatives: own term, and through d_e of the length and bending terms
+        cd = mu * rho ** 2 / 3.0                         # ∂/∂a_t per adjacent face
+        cd[T.interior] += -eta * li ** 2 * dl ** 2 / (3 * di ** 2)
+        gA = lam * (1 - At ** 2 / A ** 2)
+        gA = gA + np.bincount(self._f0, cd, minlength=len(A)) + \
+            np.bincount(self._f1[self._has2], cd[self._has2], minlength=len(A))
+        g[sA] = gA
+        return g
+
+    def _hess_desc(self, zX, zY, block: str):
+        """Descriptor-space second derivatives as a sparse ``(d,d)`` matrix."""
+        mu, lam, eta, T = self.mu, self.lam, self.eta, self.T
+        L, A, Lt, At, d, rho, li, di, dl = self._terms(zX, zY)
+        iL, iT, A0, A1, has2 = self._iL, self._iT, self._iA0, self._iA1, self._has2
+        e, i = T.n_edges, T.n_interior
+        intr = T.interior
+        iLi = iL[intr]
+        A0i, A1i = A0[intr], A1[intr]
+        if block == "22":
+            diag = np.concatenate([2 * mu * d / L ** 2, 2 * eta * li ** 2 / di, 2 * lam / A])
+            return sp.diags(diag)
+        if block == "11":
+            r, c, v = [], [], []
+
+            def add(rr, cc, vv, sym=True):
+                r.append(rr), c.append(cc), v.append(vv)
+                if sym:
+                    r.append(cc), c.append(rr), v.append(vv)
+
+            vLL = 2 * mu * d * (Lt ** 2 / L ** 4 - 2 * rho * Lt / L ** 3)
+            vLL[intr] += 2 * eta * dl ** 2 / di
+            add(iL, iL, vLL, False)
+            vLa = (2.0 / 3.0) * mu * rho * Lt / L ** 2
+            vLa[intr] += -2 * eta * li * dl ** 2 / (3 * di ** 2)
+            add(iL, A0, vLa)
+            add(iL[has2], A1[has2], vLa[has2])
+            add(iT, iT, 2 * eta * li ** 2 / di, False)
+            add(iT, iLi, 4 * eta * li * dl / di)
+            vTa = -2 * eta * li ** 2 * dl / (3 * di ** 2)
+            add(iT, A0i, vTa)
+            add(iT, A1i, vTa)
+            vaa = 2 * eta * li ** 2 * dl ** 2 / (9 * di ** 3)
+            add(A0i, A0i, vaa, False)
+            add(A1i, A1i, vaa, False)
+            add(A0i, A1i, vaa)
+            add(e + i + np.arange(len(A)), e + i + np.arange(len(A)), 2 * lam * At ** 2 / A ** 3,
+                False)
+            return sp.coo_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                                 shape=(self._d, self._d))
+        # block "12": rows descriptors of s, columns descriptors of s̃
+        iA = e + i + np.arange(len(A))
+        r = [iL, A0, A1[has2], iA, iT, iLi, A0i, A1i]
+        c = [iL, iL, iL[has2], iA, iT, iT, iT, iT]
+        vLa = -(2.0 / 3.0) * mu * rho / L
+        vTa = 2 * eta * li ** 2 * dl / (3 * di ** 2)
+        v = [2 * mu * d * (1 - 2 * Lt / L) / L ** 2, vLa, vLa[has2], -2 * lam * At / A ** 2,
+             -2 * eta * li ** 2 / di, -4 * eta * li * dl / di, vTa, vTa]
+        return sp.coo_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                             shape=(self._d, self._d))
+
+    # -- vertex-space helpers ------------------------------------------------------------
+    def _local_second(self, V, coef) -> np.ndarray:
+        """Pattern data of ``Σ_i coef_i ∇²z_i(V)`` (per-element closed forms)."""
+        sL, sT, sA = self._sl
+        T = self.T
+        parts = [(coef[sL][:, None, None] * edge_length_hessians(V, T.E)).ravel()]
+        if T.n_interior:
+            parts.append((coef[sT][:, None, None] * dihedral_angle_hessians(V, T.flaps)).ravel())
+        parts.append((coef[sA][:, None, None] * face_area_hessians(V, T.F)).ravel())
+        return np.bincount(self._local_pos, weights=np.concatenate(parts),
+                           minlength=self.pattern.nnz)
+
+    def _prep(self, V, Vt):
+        V = _checked_pose(V, self.n_vertices, "V")
+        Vt = _checked_pose(Vt, self.n_vertices, "Vt")
+        return V, Vt
+
+    # -- public methods ------------------------------------------------------------------
+    def energy(self, V, Vt) -> float:
+        """``W[s, s̃]`` for undeformed ``V (n,3)`` and deformed ``Vt (n,3)``."""
+        from .descriptors import lta_descriptors
+
+        V, Vt = self._prep(V, Vt)
+        return self._value_from(lta_descriptors(V, self.T), lta_descriptors(Vt, self.T))
+
+    def gradient(self, V, Vt, wrt: int = 1) -> np.ndarray:
+        """Gradient ``(3n,)`` of ``W[s, s̃]`` w.r.t. ``s`` (``wrt=0``) or ``s̃`` (``wrt=1``)."""
+        wrt = _checked_wrt(wrt)
+        V, Vt = self._prep(V, Vt)
+        JX, zX = lta_jacobian(V, self.T, return_values=True)
+        JY, zY = lta_jacobian(Vt, self.T, return_values=True)
+        J = JX if wrt == 0 else JY
+        return J.T @ self._grad_desc(zX, zY, wrt)
+
+    def hessian(self, V, Vt, block: str = "22") -> sp.csr_matrix:
+        """Hessian block ``W,ab`` as a ``(3n,3n)`` CSR matrix on :attr:`pattern`.
+
+        ``block="11"``: ``∂²W/∂s²``; ``"22"``: ``∂²W/∂s̃²``; ``"12"``: ``∂²W/∂s∂s̃`` (rows
+        ``s``, columns ``s̃``); ``"21"``: its transpose.
+        """
+        return self.pattern.matrix(self.hessian_data(V, Vt, block))
+
+    def hessian_data(self, V, Vt, block: str = "22") -> np.ndarray:
+        """Data array ``(pattern.nnz,)`` of :meth:`hessian` (no matrix construction)."""
+        block = _checked_block(block)
+        V, Vt = self._prep(V, Vt)
+        if block == "21":
+            return self.pattern.data_of(self.hessian(V, Vt, "12").T)
+        JX, zX = lta_jacobian(V, self.T, return_values=True)
+        JY, zY = lta_jacobian(Vt, self.T, return_values=True)
+        Phi = self._hess_desc(zX, zY, block)
+        if block == "12":
+            return self.pattern.data_of(JX.T @ (Phi.tocsr() @ JY))
+        J, P = (JX, V) if block == "11" else (JY, Vt)
+        data = self.pattern.data_of(J.T @ (Phi.tocsr() @ J))
+        return data + self._local_second(P, self._grad_desc(zX, zY, 0 if block == "11" else 1))
+
+    def scale(self, V) -> float:
+        """A gradient scale ``Σ a_t / mean l_e`` of the shell ``V`` (for tolerances)."""
+        from .descriptors import edge_lengths, face_areas
+
+        V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
+        return float(face_areas(V, self.T).sum() / edge_lengths(V, self.T).mean())
+
+
+class EuclideanEnergy:
+    """``W[s, s̃] = ‖s − s̃‖²`` with the interface of :class:`DiscreteShells`.
+
+    With this energy, discrete geodesics are straight lines and the nonlinear spline is the
+    Euclidean time-discrete cubic spline of the vertex coordinates (paper §5), which makes it
+    an oracle for the nonlinear solvers.
+
+    Parameters
+    ----------
+    n_vertices : int
+    """
+
+    rigid_invariant = False
+
+    def __init__(self, n_vertices: int):
+        self.n_vertices = n = int(n_vertices)
+        k = np.arange(3 * n)
+        self.pattern = HessianPattern(k, k, 3 * n)
+
+    def energy(self, V, Vt) -> float:
+        d = _checked_pose(V, self.n_vertices, "V") - _checked_pose(Vt, self.n_vertices, "Vt")
+        return float(np.sum(d * d))
+
+    def gradient(self, V, Vt, wrt: int = 1) -> np.ndarray:
+        wrt = _checked_wrt(wrt)
+        d = (_checked_pose(V, self.n_vertices, "V")
+             - _checked_pose(Vt, self.n_vertices, "Vt")).ravel()
+        return 2 * d if wrt == 0 else -2 * d
+
+    def hessian_data(self, V, Vt, block: str = "22") -> np.ndarray:
+        block = _checked_block(block)
+        return np.full(3 * self.n_vertices, 2.0 if block in ("11", "22") else -2.0)
+
+    def hessian(self, V, Vt, block: str = "22") -> sp.csr_matrix:
+        return self.pattern.matrix(self.hessian_data(V, Vt, block))
+
+    def scale(self, V) -> float:
+        V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
+        return float(np.sqrt(np.sum((V - V.mean(axis=0)) ** 2)) + 1e-300)
+
+
+def _energy_for(T, mu, lam, eta) -> DiscreteShells:
+    key = ("discrete_shells", float(mu), float(lam), float(eta))
+    W = T._cache.get(key) if isinstance(T, Topology) else None
+    if W is None:
+        W = DiscreteShells(T, mu, lam, eta)
+        T._cache[key] = W
+    return W
+
+
+def shell_energy(V, Vt, T: Topology, mu: float = 1.0, lam: float = 1.0,
+                 eta: float = 1e-3) -> float:
+    """Discrete Shells energy ``W[s, s̃]`` (paper eq. 9); see :class:`DiscreteShells`.
+
+    Parameters
+    ----------
+    V : (n,3) float64 array
+        Undeformed shell ``s``.
+    Vt : (n,3) float64 array
+        Deformed shell ``s̃``.
+    T : Topology
+    mu, lam, eta : float
+
+    Returns
+    -------
+    float
+    """
+    return _energy_for(T, mu, lam, eta).energy(V, Vt)
+
+
+def shell_energy_gradient(V, Vt, T: Topology, mu: float = 1.0, lam: float = 1.0,
+                          eta: float = 1e-3, wrt: int = 1) -> np.ndarray:
+    """Gradient ``(3n,)`` of ``W[s, s̃]`` w.r.t. ``s`` (``wrt=0``) or ``s̃`` (``wrt=1``)."""
+    return _energy_for(T, mu, lam, eta).gradient(V, Vt, wrt)
+
+
+def shell_energy_hessian(V, Vt, T: Topology, mu: float = 1.0, lam: float = 1.0,
+                         eta: float = 1e-3, block: str = "22") -> sp.csr_matrix:
+    """Hessian block ``W,ab`` ``(3n,3n)`` (``block`` in ``"11", "22", "12", "21"``)."""
+    return _energy_for(T, mu, lam, eta).hessian(V, Vt, block)
