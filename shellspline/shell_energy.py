@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._errors import ShellsplineError
-from .descriptors import lta_jacobian, wrap_angle
+from .descriptors import lta_descriptors, lta_jacobian, wrap_angle
 from .topology import Topology
 
 __all__ = ["DiscreteShells", "EuclideanEnergy", "shell_energy", "shell_energy_gradient",
@@ -179,19 +179,19 @@ def dihedral_angle_hessians(V, flaps, *, return_gradients: bool = False):
     # x = n1·n2
     x = np.einsum("ia,ia->i", n1, n2)
     gx = np.einsum("iap,ia->ip", Dn1, n2) + np.einsum("iap,ia->ip", Dn2, n1)
-    Hx = np.einsum("iap,iaq->ipq", Dn1, Dn2)
-    Hx = Hx + Hx.transpose(0, 2, 1) + np.einsum("ia,apq->ipq", n2, T1) + \
-        np.einsum("ia,apq->ipq", n1, T2)
+    Hx = np.matmul(Dn1.transpose(0, 2, 1), Dn2)
+    Hx = Hx + Hx.transpose(0, 2, 1) + (n2 @ T1.reshape(3, 144) + n1 @ T2.reshape(3, 144)
+                                        ).reshape(-1, 12, 12)
     # w = (n1 × n2)·e
     z = np.cross(n1, n2)
     w = np.einsum("ia,ia->i", z, e)
     Dz = -_cross_cols(n2, Dn1) + _cross_cols(n1, Dn2)
     gw = np.einsum("iap,ia->ip", Dz, e) + z @ De
     G = -_cross_cols(e, Dn2)                     # G[:, b, q] = (Dn2_q × e)_b
-    M = np.einsum("ibp,ibq->ipq", Dn1, G)
-    DzDe = np.einsum("iap,aq->ipq", Dz, De)
-    Hw = (np.einsum("ib,bpq->ipq", np.cross(n2, e), T1) + M + M.transpose(0, 2, 1)
-          + np.einsum("ic,cpq->ipq", np.cross(e, n1), T2) + DzDe + DzDe.transpose(0, 2, 1))
+    M = np.matmul(Dn1.transpose(0, 2, 1), G)
+    M += np.matmul(Dz.transpose(0, 2, 1), De)
+    Hw = M + M.transpose(0, 2, 1) + (np.cross(n2, e) @ T1.reshape(3, 144)
+                                     + np.cross(e, n1) @ T2.reshape(3, 144)).reshape(-1, 12, 12)
     # h = 1/|e|
     ee = np.einsum("ia,ia->i", e, e)
     el = np.sqrt(ee)
@@ -279,7 +279,8 @@ class HessianPattern:
     """
 
     def __init__(self, rows, cols, N: int):
-        keys = np.unique(np.asarray(rows, np.int64) * N + np.asarray(cols, np.int64))
+        keys = np.sort(np.asarray(rows, np.int64) * N + np.asarray(cols, np.int64))
+        keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if keys.size else keys
         self.N, self.keys, self.nnz = int(N), keys, int(keys.size)
         r, c = keys // N, keys % N
         self.indices = c.astype(np.int32)
@@ -368,6 +369,9 @@ class DiscreteShells:
     """
 
     rigid_invariant = True
+    #: Number of poses whose descriptors, Jacobians and element Hessians are kept (solvers
+    #: raise it to the number of shells they touch per iteration).
+    cache_size = 8
 
     def __init__(self, T: Topology, mu: float = 1.0, lam: float = 1.0, eta: float = 1e-3):
         if not isinstance(T, Topology):
@@ -395,6 +399,7 @@ class DiscreteShells:
         self._iT = e + np.arange(i)
         self._iA0, self._iA1 = e + i + self._f0, e + i + self._f1
         self._d = e + i + m
+        self._cache: dict = {}
 
     # -- descriptor-space terms ---------------------------------------------------------
     def _split(self, z):
@@ -493,14 +498,31 @@ class DiscreteShells:
                              shape=(self._d, self._d))
 
     # -- vertex-space helpers ------------------------------------------------------------
-    def _local_second(self, V, coef) -> np.ndarray:
+    def _geometry(self, V) -> dict:
+        """Descriptors, Jacobian and (lazily) element Hessians of pose ``V``, cached for the
+        last few poses (Newton solvers evaluate several blocks at the same pose)."""
+        key = V.tobytes()
+        g = self._cache.get(key)
+        if g is None:
+            J, z = lta_jacobian(V, self.T, return_values=True)
+            g = {"J": J, "z": z, "V": V.copy()}
+            if len(self._cache) >= self.cache_size:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = g
+        return g
+
+    def _local_second(self, g, coef) -> np.ndarray:
         """Pattern data of ``Σ_i coef_i ∇²z_i(V)`` (per-element closed forms)."""
+        if "H" not in g:
+            T, V = self.T, g["V"]
+            H = [edge_length_hessians(V, T.E).reshape(T.n_edges, -1)]
+            if T.n_interior:
+                H.append(dihedral_angle_hessians(V, T.flaps).reshape(T.n_interior, -1))
+            H.append(face_area_hessians(V, T.F).reshape(T.n_faces, -1))
+            g["H"] = H
         sL, sT, sA = self._sl
-        T = self.T
-        parts = [(coef[sL][:, None, None] * edge_length_hessians(V, T.E)).ravel()]
-        if T.n_interior:
-            parts.append((coef[sT][:, None, None] * dihedral_angle_hessians(V, T.flaps)).ravel())
-        parts.append((coef[sA][:, None, None] * face_area_hessians(V, T.F)).ravel())
+        coefs = [coef[sL]] + ([coef[sT]] if self.T.n_interior else []) + [coef[sA]]
+        parts = [(c[:, None] * H).ravel() for c, H in zip(coefs, g["H"])]
         return np.bincount(self._local_pos, weights=np.concatenate(parts),
                            minlength=self.pattern.nnz)
 
@@ -509,22 +531,22 @@ class DiscreteShells:
         Vt = _checked_pose(Vt, self.n_vertices, "Vt")
         return V, Vt
 
+    def _geometries(self, V, Vt):
+        V, Vt = self._prep(V, Vt)
+        return self._geometry(V), self._geometry(Vt)
+
     # -- public methods ------------------------------------------------------------------
     def energy(self, V, Vt) -> float:
         """``W[s, s̃]`` for undeformed ``V (n,3)`` and deformed ``Vt (n,3)``."""
-        from .descriptors import lta_descriptors
-
         V, Vt = self._prep(V, Vt)
         return self._value_from(lta_descriptors(V, self.T), lta_descriptors(Vt, self.T))
 
     def gradient(self, V, Vt, wrt: int = 1) -> np.ndarray:
         """Gradient ``(3n,)`` of ``W[s, s̃]`` w.r.t. ``s`` (``wrt=0``) or ``s̃`` (``wrt=1``)."""
         wrt = _checked_wrt(wrt)
-        V, Vt = self._prep(V, Vt)
-        JX, zX = lta_jacobian(V, self.T, return_values=True)
-        JY, zY = lta_jacobian(Vt, self.T, return_values=True)
-        J = JX if wrt == 0 else JY
-        return J.T @ self._grad_desc(zX, zY, wrt)
+        gX, gY = self._geometries(V, Vt)
+        J = (gX if wrt == 0 else gY)["J"]
+        return J.T @ self._grad_desc(gX["z"], gY["z"], wrt)
 
     def hessian(self, V, Vt, block: str = "22") -> sp.csr_matrix:
         """Hessian block ``W,ab`` as a ``(3n,3n)`` CSR matrix on :attr:`pattern`.
@@ -537,17 +559,41 @@ class DiscreteShells:
     def hessian_data(self, V, Vt, block: str = "22") -> np.ndarray:
         """Data array ``(pattern.nnz,)`` of :meth:`hessian` (no matrix construction)."""
         block = _checked_block(block)
-        V, Vt = self._prep(V, Vt)
         if block == "21":
             return self.pattern.data_of(self.hessian(V, Vt, "12").T)
-        JX, zX = lta_jacobian(V, self.T, return_values=True)
-        JY, zY = lta_jacobian(Vt, self.T, return_values=True)
-        Phi = self._hess_desc(zX, zY, block)
+        gX, gY = self._geometries(V, Vt)
+        zX, zY = gX["z"], gY["z"]
+        Phi = self._hess_desc(zX, zY, block).tocsr()
         if block == "12":
-            return self.pattern.data_of(JX.T @ (Phi.tocsr() @ JY))
-        J, P = (JX, V) if block == "11" else (JY, Vt)
-        data = self.pattern.data_of(J.T @ (Phi.tocsr() @ J))
-        return data + self._local_second(P, self._grad_desc(zX, zY, 0 if block == "11" else 1))
+            return self.pattern.data_of(gX["J"].T @ (Phi @ gY["J"]))
+        g = gX if block == "11" else gY
+        data = self.pattern.data_of(g["J"].T @ (Phi @ g["J"]))
+        return data + self._local_second(g, self._grad_desc(zX, zY, 0 if block == "11" else 1))
+
+    def mixed_product(self, V, Vt, v, block: str = "12") -> np.ndarray:
+        """Mixed Hessian times a vector without forming the matrix.
+
+        ``block="12"``: ``W,12 v = J[s]ᵀ Φ_qr J[s̃] v`` (``v`` over ``s̃``, result over ``s``);
+        ``block="21"``: ``W,21 v = J[s̃]ᵀ Φ_qrᵀ J[s] v`` (``v`` over ``s``, result over ``s̃``).
+
+        Parameters
+        ----------
+        V, Vt : (n,3) float arrays
+        v : (3n,) float array
+        block : {"12", "21"}
+
+        Returns
+        -------
+        (3n,) float64 array
+        """
+        if block not in ("12", "21"):
+            raise ShellsplineError(f"`block` must be '12' or '21', got {block!r}")
+        gX, gY = self._geometries(V, Vt)
+        Phi = self._hess_desc(gX["z"], gY["z"], "12").tocsr()
+        v = np.asarray(v, dtype=np.float64).ravel()
+        if block == "12":
+            return gX["J"].T @ (Phi @ (gY["J"] @ v))
+        return gY["J"].T @ (Phi.T @ (gX["J"] @ v))
 
     def scale(self, V) -> float:
         """A gradient scale ``Σ a_t / mean l_e`` of the shell ``V`` (for tolerances)."""
@@ -592,6 +638,11 @@ class EuclideanEnergy:
 
     def hessian(self, V, Vt, block: str = "22") -> sp.csr_matrix:
         return self.pattern.matrix(self.hessian_data(V, Vt, block))
+
+    def mixed_product(self, V, Vt, v, block: str = "12") -> np.ndarray:
+        if block not in ("12", "21"):
+            raise ShellsplineError(f"`block` must be '12' or '21', got {block!r}")
+        return -2.0 * np.asarray(v, dtype=np.float64).ravel()
 
     def scale(self, V) -> float:
         V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
