@@ -339,6 +339,13 @@ class PathSolver:
                               grad_norms=norms)
 
 
+def _lerp(A, B, K):
+    """Inner shells ``(K-1,n,3)`` of the linear blend; coordinates equal in ``A`` and ``B``
+    stay bit-identical (pinned vertices)."""
+    t = (np.arange(1, K) / K)[:, None, None]
+    return np.where(A == B, A, (1 - t) * A + t * B)
+
+
 def _valid(X) -> bool:
     return bool(np.all(np.isfinite(X)))
 
@@ -415,8 +422,7 @@ def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 
         return GeodesicResult(V=np.stack([VA, VB]), energy=W.energy(VA, VB), success=True,
                               nit=0, message="no inner shells")
     if init is None:
-        t = (np.arange(1, K) / K)[:, None, None]
-        init = (1 - t) * VA + t * VB
+        init = _lerp(VA, VB, K)
     init = np.asarray(init, dtype=np.float64)
     if init.shape != (K - 1, n, 3):
         raise ShellsplineError(f"`init` must have shape (K-1,n,3) = ({K - 1},{n},3), "
@@ -514,8 +520,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
         if steps >= 2:
             if steps not in solvers:
                 solvers[steps] = PathSolver(W, steps - 1, pinned=pinned, backend=backend)
-            t = (np.arange(1, steps) / steps)[:, None, None]
-            X0 = (1 - t) * Vkey[ja] + t * Vkey[jb]
+            X0 = _lerp(Vkey[ja], Vkey[jb], steps)
             res = solvers[steps].solve(Vkey[ja], Vkey[jb], X0, tol=tol, max_iter=max_iter)
             V[fa + 1:fb] = res.V[1:-1]
         else:

@@ -1,0 +1,118 @@
+"""Discrete geodesics: rigid end shells, (approximate) symmetry, Euclidean straight lines."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import icosphere
+
+import data_synth
+from shellspline.descriptors import edge_lengths
+from shellspline.geodesic import PathSolver, discrete_geodesic, geodesic_interpolation
+from shellspline.shell_energy import DiscreteShells, EuclideanEnergy
+from shellspline.topology import topology
+
+
+@pytest.fixture(scope="module")
+def ellipsoids():
+    return data_synth.generate("ellipsoids", n_vertices=100)
+
+
+def _rotation(angle, axis):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def test_geodesic_to_rigidly_moved_copy_has_zero_energy():
+    V, F = icosphere(1)
+    V = V * [1.5, 1.0, 0.8]
+    T = topology(F)
+    VB = V @ _rotation(0.4, [1, 2, 3]).T + [0.3, -0.2, 0.1]
+    res = discrete_geodesic(V, VB, 4, T, eta=0.05)
+    assert res.success
+    assert res.energy < 1e-12
+    # every inner shell is a rigid copy of the end shells
+    L = edge_lengths(res.V, T)
+    assert np.abs(L - L[0]).max() < 1e-7
+
+
+def test_geodesic_converges_and_is_nearly_symmetric(ellipsoids):
+    d = ellipsoids
+    T = topology(d["F"])
+    A, B = d["V"][0], d["V"][1]
+    fwd = discrete_geodesic(A, B, 4, T, eta=0.1)
+    bwd = discrete_geodesic(B, A, 4, T, eta=0.1)
+    assert fwd.success and bwd.success
+    assert fwd.grad_norms[-1] < 1e-9 * fwd.grad_norms[0] or fwd.grad_norms[-1] < 1e-8
+    # quadratic convergence at the end
+    assert len(fwd.grad_norms) <= 8
+    # W is not symmetric (W = dist² + O(dist³)), so reversing the end shells reverses the path
+    # only up to a small deviation, far below the motion along the path
+    L, Lr = edge_lengths(fwd.V, T), edge_lengths(bwd.V[::-1], T)
+    motion = np.abs(L[-1] - L[0]).max()
+    assert np.abs(L - Lr).max() < 0.01 * motion
+    # the geodesic beats the linear blend
+    t = (np.arange(1, 4) / 4)[:, None, None]
+    S = PathSolver(DiscreteShells(T, eta=0.1), 3)
+    assert fwd.energy < 4 * S.path_energy(A, (1 - t) * A + t * B, B)
+    # translations are fixed exactly: centroids stay where the linear blend put them
+    c = fwd.V.mean(axis=1)
+    assert np.abs(c - ((1 - np.linspace(0, 1, 5))[:, None] * A.mean(0)
+                       + np.linspace(0, 1, 5)[:, None] * B.mean(0))).max() < 1e-12
+
+
+def test_euclidean_geodesic_is_straight_and_exactly_symmetric():
+    rng = np.random.default_rng(0)
+    A, B = rng.standard_normal((2, 7, 3))
+    E = EuclideanEnergy(7)
+    fwd = discrete_geodesic(A, B, 5, energy=E)
+    bwd = discrete_geodesic(B, A, 5, energy=E)
+    t = np.linspace(0, 1, 6)[:, None, None]
+    assert np.allclose(fwd.V, (1 - t) * A + t * B, atol=1e-10)
+    assert np.allclose(bwd.V[::-1], fwd.V, atol=1e-10)
+    assert np.isclose(fwd.energy, np.sum((A - B) ** 2), rtol=1e-10)  # K Σ |Δ|² = |B-A|²
+
+
+def test_pinned_vertices_stay_fixed(ellipsoids):
+    d = ellipsoids
+    T = topology(d["F"])
+    A = d["V"][1]
+    B = A * [1.0, 1.0, 1.4]   # stretch in z; vertices with z = min stay
+    pinned = np.argsort(A[:, 2])[:4]
+    B[pinned] = A[pinned]
+    res = discrete_geodesic(A, B, 3, T, eta=0.1, pinned=pinned)
+    assert res.success
+    assert np.array_equal(res.V[:, pinned], np.broadcast_to(A[pinned], res.V[:, pinned].shape))
+
+
+def test_piecewise_geodesic_interpolation(ellipsoids):
+    d = ellipsoids
+    T = topology(d["F"])
+    seen = []
+    res = geodesic_interpolation(d["V"], [0, 3, 6], 6, T, eta=0.1,
+                                 callback=lambda s, r: seen.append(s))
+    assert res.success and seen == [0, 1]
+    assert res.V.shape == (7, d["V"].shape[1], 3)
+    for j, f in enumerate([0, 3, 6]):
+        assert np.array_equal(res.V[f], d["V"][j])
+    assert len(res.segment_energies) == 2 and all(e > 0 for e in res.segment_energies)
+    per = geodesic_interpolation(d["V"][:2], [0, 2], 4, T, eta=0.1, bc="periodic")
+    assert per.success and len(per.segment_energies) == 2
+    assert np.array_equal(per.V[4], d["V"][0])
+    # the closing segment B -> A is (nearly) the reverse of A -> B
+    assert np.abs(per.V[3] - per.V[1]).max() < 0.05 * np.abs(d["V"][1] - d["V"][0]).max()
+
+
+def test_validation(ellipsoids):
+    d = ellipsoids
+    T = topology(d["F"])
+    with pytest.raises(ValueError, match="`frames`"):
+        geodesic_interpolation(d["V"], [0, 4, 3], 6, T)
+    with pytest.raises(ValueError, match="`Vkey`"):
+        geodesic_interpolation(d["V"][:, :-1], [0, 3, 6], 6, T)
+    with pytest.raises(ValueError, match="`K`"):
+        discrete_geodesic(d["V"][0], d["V"][1], 0, T)
+    with pytest.raises(ValueError, match="`init`"):
+        discrete_geodesic(d["V"][0], d["V"][1], 3, T, init=d["V"][:1])
+    with pytest.raises(ValueError, match="`pinned`"):
+        discrete_geodesic(d["V"][0], d["V"][1], 3, T, pinned=[10 ** 6])
