@@ -254,53 +254,161 @@ class _Graph:
         return y
 
 
-def _independent_collapses(g: _Graph, us, vs, key, max_sweeps=40):
-    """Greedy-by-key set of collapses ``us -> vs`` that can be performed simultaneously.
+def _scatter_min(n, idx, key, big):
+    """``out[x] = min(key[idx == x])``, ``big`` where none (keys are non-negative)."""
+    out = np.full(n, big, dtype=np.int64)
+    if idx.size:
+        o = np.argsort(idx * (int(key.max()) + 1) + key, kind="stable")
+        first = np.r_[True, idx[o][1:] != idx[o][:-1]]
+        out[idx[o][first]] = key[o][first]
+    return out
 
+
+def _conflict_free_winners(g: _Graph, us, vs, key, big):
+    """Positions of the collapses ``us -> vs`` whose key is the smallest among all collapses
+    they conflict with (see :func:`_select_collapses`)."""
+    mu = g.closed_min(_scatter_min(g.n, us, key, big))
+    mv = g.closed_min(_scatter_min(g.n, vs, key, big))
+    return np.flatnonzero((mu[us] == key) & (mu[vs] == key) & (mv[us] == key))
+
+
+_N_BINS = 32      # cost bins of the round's priority (random order inside a bin)
+_SLACK = 2.0      # competitors per round: the _SLACK * budget cheapest u
+_MAX_SWEEPS = 64
+
+
+def _select_collapses(g: _Graph, ckey, on_boundary, iu, iv, cost, budget, face_ok, rng,
+                      max_alternatives):
+    """One round's set of simultaneous collapses: valid, conflict-free, cheap first.
+
+    Parameters
+    ----------
+    g : _Graph
+        Vertex adjacency of the current mesh.
+    ckey : (h,) int64 array
+        Sorted directed-edge keys ``src * n + dst`` of ``g``.
+    on_boundary, iu, iv, cost : (c,) arrays
+        The candidate halfedges ``iu -> iv`` (sorted by ``iu``), whether each lies on the
+        boundary, and their costs.
+    budget : int
+        At most this many collapses.
+    face_ok : callable(us, vs) -> (k,) bool array
+        The geometric checks (flips, slivers in every pose).
+    rng : numpy Generator
+    max_alternatives : int
+        Targets tried per ``u`` (cheapest first) when the cheaper ones fail the checks.
+
+    Returns
+    -------
+    us, vs : (k,) int64 arrays, ``k <= budget``
+
+    Notes
+    -----
     Two collapses ``i, j`` conflict when ``u_i ∈ N[u_j]``, ``v_i ∈ N[u_j]`` or
-    ``v_j ∈ N[u_i]`` (``N[x]``: closed one-ring). Without conflicts no face contains two
-    removed vertices and no collapse changes the one-rings of ``u_i`` or ``v_i`` nor the faces
-    around ``u_i``, so every check made on the current mesh stays valid (positions do not
-    move in a halfedge collapse). ``us`` must be distinct.
-
-    Luby-style sweeps: a collapse wins when its key is the smallest among all still-active
-    collapses it conflicts with; winners deactivate their conflicts. Returns the positions
-    (into ``us``) of the winners.
+    ``v_j ∈ N[u_i]`` (``N[x]``: closed one-ring). A conflict-free set touches no face twice
+    and changes neither the one-rings of any ``u_i, v_i`` nor the faces around any ``u_i``,
+    so all checks made on the current mesh hold for the simultaneous collapse (a halfedge
+    collapse moves no vertex). The set is built by Luby-style sweeps: a candidate is a
+    tentative winner when its priority (cost bin, then random) is the smallest among the
+    active candidates it conflicts with; tentative winners are checked (link condition, then
+    ``face_ok``); valid ones are accepted and deactivate their conflicts, invalid ones move
+    on to their next cheapest target. Only the ``_SLACK * budget`` ``u`` with the cheapest
+    best target compete, so that no expensive collapse is made while cheap ones wait.
     """
-    n = g.n
+    brk = np.r_[True, iu[1:] != iu[:-1]]
+    gstart = np.flatnonzero(brk)
+    gid = np.cumsum(brk) - 1
+    work = cost.copy()
+    gmin = np.minimum.reduceat(work, gstart)
+    # the first halfedge of each group attaining its minimum
+    im = np.flatnonzero(work == gmin[gid])[::-1]
+    first_min = np.empty(gstart.shape[0], dtype=np.int64)
+    first_min[gid[im]] = im
+    order = np.argsort(gmin, kind="stable")
+    lim = int(math.ceil(_SLACK * budget))
+    while True:
+        us, vs = _sweeps(g, ckey, on_boundary, iu, iv, work, gstart, gmin, first_min,
+                         order[:lim], budget, face_ok, rng, max_alternatives)
+        if us.shape[0] or lim >= order.shape[0]:
+            return us, vs
+        lim *= 4          # every competitor failed: let more compete
+
+
+def _sweeps(g, ckey, on_boundary, iu, iv, work, gstart, gmin, first_min, comp, budget,
+            face_ok, rng, max_alternatives):
+    """Luby-style sweeps of :func:`_select_collapses` among the competing groups ``comp``."""
     big = np.iinfo(np.int64).max
-    active = np.ones(us.shape[0], dtype=bool)
-    won = np.zeros(us.shape[0], dtype=bool)
-    for _ in range(max_sweeps):
+    gend = np.r_[gstart[1:], iu.shape[0]]
+    U = comp.shape[0]
+    cur = first_min[comp]
+    sorted_best = gmin[comp]                               # increasing
+    nb = max(1, min(_N_BINS, U))
+    tie = rng.permutation(U)
+    prio = (np.arange(U) * nb // U) * U + tie
+    tries = np.ones(U, dtype=np.int64)
+    active = np.ones(U, dtype=bool)
+    accepted = []
+    blocked_u = np.zeros(g.n, dtype=bool)     # closed one-rings of accepted u's
+    for _ in range(_MAX_SWEEPS):
         ai = np.flatnonzero(active)
         if ai.size == 0:
             break
-        val_u = np.full(n, big, dtype=np.int64)
-        val_u[us[ai]] = key[ai]
-        val_v = np.full(n, big, dtype=np.int64)
-        o = ai[np.argsort(key[ai])[::-1]]
-        val_v[vs[o]] = key[o]          # smallest key per v written last
-
-        mu = g.closed_min(val_u)
-        mv = g.closed_min(val_v)
-        k = key[ai]
-        win = (mu[us[ai]] == k) & (mu[vs[ai]] == k) & (mv[us[ai]] == k)
-        wi = ai[win]
-        if wi.size == 0:
+        w = ai[_conflict_free_winners(g, iu[cur[ai]], iv[cur[ai]], prio[ai], big)]
+        if w.size == 0:
             break
-        won[wi] = True
-        mark_u = np.zeros(n, dtype=bool)
-        mark_u[us[wi]] = True
-        mark_v = np.zeros(n, dtype=bool)
-        mark_v[vs[wi]] = True
-        ru = g.closed_any(mark_u)
-        rv = g.closed_any(mark_v)
-        active &= ~(ru[us] | rv[us] | ru[vs])
-    return np.flatnonzero(won)
+        ci = cur[w]
+        us, vs = iu[ci], iv[ci]
+        good = _link_ok(g, ckey, us, vs, on_boundary[ci])
+        good[good] = face_ok(us[good], vs[good])
+        ok_w, bad_w = w[good], w[~good]
+        if ok_w.size:
+            accepted.append(ok_w)
+            active[ok_w] = False
+            mark_u = np.zeros(g.n, dtype=bool)
+            mark_u[iu[cur[ok_w]]] = True
+            mark_v = np.zeros(g.n, dtype=bool)
+            mark_v[iv[cur[ok_w]]] = True
+            ru, rv = g.closed_any(mark_u), g.closed_any(mark_v)
+            blocked_u |= ru
+            ca, cb = iu[cur], iv[cur]
+            active &= ~(ru[ca] | rv[ca] | ru[cb])
+        if bad_w.size:
+            work[cur[bad_w]] = np.inf
+            retry = active[bad_w] & (tries[bad_w] < max_alternatives)
+            active[bad_w[~retry]] = False
+            bad_w = bad_w[retry]
+        if bad_w.size:
+            # next cheapest target of each failed u
+            grp = comp[bad_w]
+            lo, hi = gstart[grp], gend[grp]
+            h = _ranges(lo, hi)
+            who = np.repeat(np.arange(bad_w.shape[0]), hi - lo)
+            wv = work[h]
+            m = np.minimum.reduceat(wv, np.r_[0, np.cumsum(hi - lo)][:-1])
+            isn = np.flatnonzero(wv == m[who])[::-1]
+            nxt = np.empty(bad_w.shape[0], dtype=np.int64)
+            nxt[who[isn]] = h[isn]
+            fin = np.isfinite(m)
+            active[bad_w[~fin]] = False
+            bw = bad_w[fin]
+            cur[bw] = nxt[fin]
+            tries[bw] += 1
+            # the new target must not touch an accepted collapse's one-ring
+            active[bw] &= ~blocked_u[iv[cur[bw]]]
+            bins = np.clip(np.searchsorted(sorted_best, m[fin], side="right") - 1, 0, U - 1)
+            prio[bw] = (bins * nb // U) * U + tie[bw]
+    if not accepted:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    acc = np.concatenate(accepted)
+    acc = acc[np.argsort(work[cur[acc]], kind="stable")][:budget]
+    return iu[cur[acc]], iv[cur[acc]]
 
 
-_N_BINS = 32
-_SLACK = 2.0
+def _ranges(lo, hi):
+    """Concatenation of ``arange(lo[i], hi[i])``."""
+    ln = hi - lo
+    return np.repeat(lo - np.r_[0, np.cumsum(ln)][:-1], ln) + np.arange(int(ln.sum()))
+
 
 # -- the decimation ----------------------------------------------------------------------------
 
@@ -524,50 +632,11 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
         vf_ptr = np.zeros(n + 1, dtype=np.int64)
         np.cumsum(np.bincount(corner_v, minlength=n), out=vf_ptr[1:])
 
-        # iu is sorted: groups of halfedges per u. Only the ~_SLACK*budget u with the
-        # cheapest best target compete this round (keeps the sequential greedy order: no
-        # expensive collapse while cheap ones wait); a u whose best target fails the checks
-        # tries its next cheapest, up to max_alternatives.
         budget = max(1, int(math.ceil(round_fraction * (n_cur - nt))))
-        gstart = np.flatnonzero(np.r_[True, iu[1:] != iu[:-1]])
-        gid = np.cumsum(np.r_[False, iu[1:] != iu[:-1]])
-        work = cost.copy()
-        chosen = np.full(gstart.shape[0], -1, dtype=np.int64)
-        pending = None
-        for level in range(max_alternatives):
-            gmin = np.minimum.reduceat(work, gstart)
-            if pending is None:
-                lim = min(gstart.shape[0], int(math.ceil(_SLACK * budget)))
-                pending = np.argsort(gmin, kind="stable")[:lim]
-            pending = pending[np.isfinite(gmin[pending])]
-            if pending.size == 0:
-                break
-            # first halfedge of each pending group attaining the group minimum
-            is_min = work == gmin[gid]
-            first_min = np.full(gstart.shape[0], -1, dtype=np.int64)
-            im = np.flatnonzero(is_min)[::-1]
-            first_min[gid[im]] = im
-            ci = first_min[pending]
-            us, vs, bd = iu[ci], iv[ci], cbnd[idx_ok[ci]]
-            good = _link_ok(g, ckey, us, vs, bd)
-            good[good] = _face_checks(X, Fc, geom, vf_ptr, vf_idx, us[good], vs[good],
-                                      min_cos, min_q)
-            chosen[pending[good]] = ci[good]
-            work[ci[~good]] = np.inf
-            pending = pending[~good]
-        vp = chosen[chosen >= 0]
-        if vp.shape[0] == 0:
-            break
-        # priority: cost quantised into bins (cheaper bins first), random order inside a bin
-        # (an exact cost order has few local minima on a smooth cost field and would make
-        # the independent-set sweeps nearly sequential)
-        crank = np.empty(vp.shape[0], dtype=np.int64)
-        crank[np.argsort(cost[vp], kind="stable")] = np.arange(vp.shape[0])
-        nb = max(1, min(_N_BINS, vp.shape[0]))
-        prio = (crank * nb // vp.shape[0]) * vp.shape[0] + rng.permutation(vp.shape[0])
-        won = _independent_collapses(g, iu[vp], iv[vp], prio)
-        won = won[np.argsort(crank[won], kind="stable")][:budget]
-        us, vs = iu[vp[won]], iv[vp[won]]
+        us, vs = _select_collapses(g, ckey, cbnd[idx_ok], iu, iv, cost, budget,
+                                   lambda u, v: _face_checks(X, Fc, geom, vf_ptr, vf_idx, u, v,
+                                                             min_cos, min_q),
+                                   rng, int(max_alternatives))
         if us.shape[0] == 0:
             break
 
