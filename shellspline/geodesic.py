@@ -250,18 +250,27 @@ class PathSolver:
         converges to the pseudo-inverse solution ``H⁺ rhs`` (the adjoint equation 16 of the
         paper).
         """
+        return self.solve_factored(self.factor_at(A, X, B, data=data), rhs, refine=refine)
+
+    def factor_at(self, A, X, B, *, data=None) -> dict:
+        """Assemble and factor the Hessian at the path ``(A, X, B)`` for
+        :meth:`solve_factored` (several right-hand sides, one factorization)."""
         if data is None:
             data = self.hessian_data(A, X, B)
-        H = self.gpattern.matrix(data)
         scale = float(np.abs(data).max())
         tau = self._damped_factor(data, scale, from_zero=True)
-        modes = self._modes(X)
+        return {"H": self.gpattern.matrix(data), "tau": tau, "modes": self._modes(X),
+                "chol": self._chol}
+
+    def solve_factored(self, ctx: dict, rhs, *, refine: int = 3) -> np.ndarray:
+        """Solve with the factorization of :meth:`factor_at` (must be the latest one)."""
+        H, modes = ctx["H"], ctx["modes"]
         b = self._project(np.asarray(rhs, np.float64).reshape(self.n_inner, -1)[:, self.free].copy(),
                           modes)
         p = np.zeros_like(b)
-        for _ in range(1 + (refine if tau == 0.0 else 0)):
+        for _ in range(1 + (refine if ctx["tau"] == 0.0 else 0)):
             r = b - (H @ p.ravel()).reshape(b.shape)
-            p += self._project(self._chol.solve(r.ravel()).reshape(b.shape), modes)
+            p += self._project(ctx["chol"].solve(r.ravel()).reshape(b.shape), modes)
         out = np.zeros((self.n_inner, 3 * self.n))
         out[:, self.free] = p
         return out
