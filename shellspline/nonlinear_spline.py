@@ -273,7 +273,8 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
                      mu: float = 1.0, lam: float = 1.0, eta: float = 1e-3, pinned=None,
                      init=None, energy=None, max_iter: int = 500, gtol: float = 1e-6,
                      midpoint_tol: float = 1e-10, memory: int = 20, backend: str = "auto",
-                     precondition: bool = False, callback=None) -> NonlinearSplineResult:
+                     precondition: bool = False, max_time_s: float | None = None,
+                     callback=None) -> NonlinearSplineResult:
     """Nonlinear time-discrete spline through keyframe shells (paper eqs. 7, 8, 17).
 
     Parameters
@@ -307,6 +308,8 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         Tolerance of the midpoint Newton solves (relative gradient max-norm).
     memory : int
         L-BFGS memory.
+    max_time_s : float, optional
+        Stop (unconverged, with a warning) after this many seconds of optimisation.
     precondition : bool
         Use the (experimental) metric preconditioner of the Notes; default plain L-BFGS
         with the usual ``sᵀy/yᵀy`` scaling, which was faster in our measurements.
@@ -407,6 +410,9 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         if gn <= gtol * g0n:
             state["done"] = True
             raise StopIteration
+        if max_time_s is not None and time.perf_counter() - t0 > max_time_s:
+            state["timeout"] = True
+            raise StopIteration
 
     x = x0
     if state["done"]:
@@ -416,6 +422,8 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         x, message = _lbfgs(prob, fun, x0, F0, g0, S0, precond, cb, max_iter, memory)
         if state["done"]:
             message = "converged: gradient norm reduced by gtol"
+        elif state.get("timeout"):
+            message = f"not converged: time limit of {max_time_s} s reached"
     S = prob.nodes_of(x, S0)
     if "x" not in last or not np.array_equal(last["x"], x):
         fun(x)
