@@ -440,12 +440,14 @@ def _face_geometry(X, F):
     return N, nn, 2.0 * math.sqrt(3.0) * nn / np.maximum(l2, 1e-300)
 
 
-def _face_checks(X, F_cur, geom, vf_ptr, vf_idx, us, vs, min_cos, min_quality):
+def _face_checks(X, F_cur, geom, vnormals, vf_ptr, vf_idx, us, vs, min_cos, min_quality):
     """Validity of the collapses ``us -> vs`` w.r.t. the faces around ``u``, in every pose.
 
-    A collapse is rejected when a face around ``u`` that survives it turns its normal by more
-    than ``arccos(min_cos)`` (this includes flips) or becomes a sliver (quality
-    ``4√3 a / Σ l²`` below ``min_quality`` and below its quality before), in any pose.
+    A collapse is rejected when, in any pose, a face around ``u`` that survives it turns its
+    normal by more than ``arccos(min_cos)`` (this includes flips), makes an angle of more than
+    ``arccos(min_cos)`` with the fine surface's normal at one of its corners (so that faces
+    cannot drift away from the surface over many collapses), or becomes a sliver (quality
+    ``4√3 a / Σ l²`` below ``min_quality`` and below its quality before).
     """
     f, owner = _expand(vf_ptr, vf_idx, us)
     corners = F_cur[f]
@@ -464,6 +466,8 @@ def _face_checks(X, F_cur, geom, vf_ptr, vf_idx, us, vs, min_cos, min_quality):
         N1 = np.cross(e1, e2)
         n1 = np.sqrt((N1 * N1).sum(1))
         ok &= (N0[j, f] * N1).sum(1) > min_cos * n0[j, f] * n1
+        for w in (v, a, b):
+            ok &= (vnormals[j, w] * N1).sum(1) > min_cos * n1
         l2 = (e1 * e1).sum(1) + (e2 * e2).sum(1) + ((xb - xa) ** 2).sum(1)
         q1 = 2.0 * math.sqrt(3.0) * n1 / np.maximum(l2, 1e-300)
         ok &= (q1 >= min_quality) | (q1 >= q0[j, f])
@@ -537,8 +541,9 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     * boundary vertices stay on the boundary: a boundary ``u`` only collapses along a
       boundary edge into its boundary neighbour (the boundary polygon loses a vertex),
       interior vertices may collapse onto boundary vertices;
-    * no face around ``u`` flips, turns by more than ``arccos(min_normal_cos)`` or becomes a
-      sliver, in any pose.
+    * no face around ``u`` flips, turns by more than ``arccos(min_normal_cos)``, deviates by
+      more than that from the fine vertex normals at its corners, or becomes a sliver, in any
+      pose.
 
     A round accepts collapses whose closed one-rings are pairwise disjoint, chosen greedily
     by cost, at most ``round_fraction`` of the remaining excess. Such collapses commute, and
@@ -576,6 +581,11 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     is_bnd = np.zeros(n, dtype=bool)
     is_bnd[T.boundary_vertices] = True
     geom = _face_geometry(X, Fc)                      # kept aligned with Fc
+    inc = sp.csr_matrix((np.ones(3 * Fc.shape[0]), (Fc.T.ravel(),
+                                                    np.tile(np.arange(Fc.shape[0]), 3))),
+                        shape=(n, Fc.shape[0]))
+    vnormals = np.stack([inc @ geom[0][j] for j in range(J)])
+    vnormals /= np.maximum(np.linalg.norm(vnormals, axis=-1, keepdims=True), 1e-300)
     lw = float(length_weight) * float(geom[1].mean()) / 2.0
     min_cos, min_q = float(min_normal_cos), float(min_quality)
 
@@ -634,7 +644,7 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
 
         budget = max(1, int(math.ceil(round_fraction * (n_cur - nt))))
         us, vs = _select_collapses(g, ckey, cbnd[idx_ok], iu, iv, cost, budget,
-                                   lambda u, v: _face_checks(X, Fc, geom, vf_ptr, vf_idx, u, v,
+                                   lambda u, v: _face_checks(X, Fc, geom, vnormals, vf_ptr, vf_idx, u, v,
                                                              min_cos, min_q),
                                    rng, int(max_alternatives))
         if us.shape[0] == 0:

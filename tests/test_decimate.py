@@ -1,0 +1,194 @@
+"""Simultaneous decimation: coarse meshes are valid, embedded, flip-free and pose-aware."""
+import warnings
+
+import numpy as np
+import pytest
+
+import data_synth
+from shellspline import MeshError, topology
+from shellspline.decimate import (Decimation, canonical_target, decimate, decimate_replay,
+                                  hausdorff_fine_to_coarse)
+
+
+def _euler(F, n):
+    T = topology(F, n)
+    return n - T.n_edges + T.n_faces, T
+
+
+def _normals(V, F):
+    N = np.cross(V[..., F[:, 1], :] - V[..., F[:, 0], :], V[..., F[:, 2], :] - V[..., F[:, 0], :])
+    return N
+
+
+@pytest.fixture(scope="module")
+def bumpy():
+    return data_synth.generate("bumpy", n_vertices=1000)
+
+
+@pytest.fixture(scope="module")
+def bumpy_dec(bumpy):
+    return decimate(bumpy["V"], bumpy["F"], 150)
+
+
+@pytest.fixture(scope="module")
+def hexagon():
+    return data_synth.generate("hexagon", n_vertices=600)
+
+
+def test_closed_mesh_stays_closed_with_same_euler_characteristic(bumpy, bumpy_dec):
+    dec = bumpy_dec
+    assert isinstance(dec, Decimation)
+    assert dec.n_vertices == 150 and dec.stats["reached"]
+    chi_f, _ = _euler(bumpy["F"], bumpy["V"].shape[1])
+    chi_c, Tc = _euler(dec.F, dec.n_vertices)
+    assert chi_c == chi_f == 2
+    assert Tc.boundary_vertices.size == 0
+    assert dec.F.dtype == np.int64 and dec.F.min() == 0 and dec.F.max() == dec.n_vertices - 1
+
+
+def test_coarse_poses_are_exact_restrictions(bumpy, bumpy_dec):
+    dec = bumpy_dec
+    assert (np.diff(dec.kept) > 0).all()
+    assert dec.V.shape == (3, dec.n_vertices, 3)
+    assert np.array_equal(dec.V, bumpy["V"][:, dec.kept])
+    assert np.array_equal(dec.restrict(bumpy["V"]), dec.V)
+    assert np.array_equal(dec.collapse_map[dec.kept], np.arange(dec.n_vertices))
+    assert dec.collapse_map.min() >= 0 and dec.collapse_map.max() < dec.n_vertices
+    # coarse faces are fine vertices' triangles: orientation agrees with the fine surface
+    Vf = bumpy["V"]
+    Nc = _normals(dec.V, dec.F)
+    centroid_dir = dec.V[:, dec.F].mean(axis=2)            # star-shaped about the origin
+    assert (np.einsum("jmi,jmi->jm", Nc, centroid_dir) > 0).all()
+    assert Vf.shape[1] == dec.n_fine
+
+
+def test_no_flipped_or_degenerate_faces_in_any_pose(bumpy, bumpy_dec):
+    dec = bumpy_dec
+    Vf, Ff = bumpy["V"], bumpy["F"]
+    # fine vertex normals at the kept vertices vs the coarse faces around them
+    Nf = _normals(Vf, Ff)
+    vn = np.zeros_like(Vf)
+    for c in range(3):
+        np.add.at(vn, (slice(None), Ff[:, c]), Nf)
+    Nc = _normals(dec.V, dec.F)
+    for c in range(3):
+        d = np.einsum("jmi,jmi->jm", Nc, vn[:, dec.kept[dec.F[:, c]]])
+        assert (d > 0).all()
+    area = 0.5 * np.linalg.norm(Nc, axis=-1)
+    assert area.min() > 1e-3 * area.mean()
+
+
+def test_open_mesh_keeps_its_boundary_on_the_boundary(hexagon):
+    Vs, F = hexagon["V"], hexagon["F"]
+    dec = decimate(Vs, F, 80)
+    chi_f, Tf = _euler(F, Vs.shape[1])
+    chi_c, Tc = _euler(dec.F, dec.n_vertices)
+    assert chi_c == chi_f == 1
+    fine_bnd = set(Tf.boundary_vertices.tolist())
+    assert set(dec.kept[Tc.boundary_vertices].tolist()) <= fine_bnd
+    # interior coarse vertices are interior fine vertices, and the six corners survive
+    interior_c = np.setdiff1d(np.arange(dec.n_vertices), Tc.boundary_vertices)
+    assert not set(dec.kept[interior_c].tolist()) & fine_bnd
+    corners = np.argsort(np.linalg.norm(Vs[0], axis=1))[-6:]
+    assert set(corners.tolist()) <= set(dec.kept.tolist())
+
+
+def test_same_pose_repeated_gives_the_single_pose_result(bumpy):
+    V0, F = bumpy["V"][1], bumpy["F"]
+    one = decimate(V0, F, 200)
+    two = decimate(np.stack([V0, V0]), F, 200)
+    assert np.array_equal(one.kept, two.kept)
+    assert np.array_equal(one.F, two.F)
+    assert np.array_equal(one.collapse_map, two.collapse_map)
+
+
+def test_pinned_vertices_only_merge_into_pinned_ones():
+    d = data_synth.generate("cactus", n_vertices=1500)
+    dec = decimate(d["V"], d["F"], 0.1, pinned=d["pinned"])
+    pin = np.zeros(d["V"].shape[1], dtype=bool)
+    pin[d["pinned"]] = True
+    assert dec.n_vertices == canonical_target(0.1, d["V"].shape[1])
+    assert np.array_equal(dec.pinned, np.flatnonzero(pin[dec.kept]))
+    assert dec.pinned.size > 0
+    # every pinned fine vertex ends in a pinned coarse vertex
+    assert pin[dec.kept[dec.collapse_map[pin]]].all()
+
+
+def test_summed_quadrics_beat_pose0_decimation_when_poses_differ(hexagon):
+    """Each pose folds the hexagon along another diagonal: pose 0 alone cannot see the
+    other creases, the summed quadrics keep all three."""
+    Vs, F = hexagon["V"], hexagon["F"]
+    target = 100
+    dec = decimate(Vs, F, target)
+    h_sum = hausdorff_fine_to_coarse(Vs, dec.V, dec.F).max()
+    dec0 = decimate(Vs[0], F, target)
+    h_0 = hausdorff_fine_to_coarse(Vs, Vs[:, dec0.kept], dec0.F).max()
+    assert h_sum <= h_0
+    assert h_sum < 0.5 * h_0
+    try:
+        Vr, Fr = decimate_replay(Vs, F, target)
+    except ImportError:
+        return
+    h_r = hausdorff_fine_to_coarse(Vs, Vr, Fr).max()
+    assert h_sum <= h_r
+
+
+def test_replay_baseline_shapes(bumpy):
+    pytest.importorskip("fast_simplification")
+    Vr, Fr = decimate_replay(bumpy["V"], bumpy["F"], 200)
+    assert Vr.shape[0] == 3 and Vr.shape[2] == 3
+    assert Fr.shape[1] == 3 and Fr.max() < Vr.shape[1]
+
+
+def test_hausdorff_measure():
+    from conftest import grid_sheet
+
+    V, F = grid_sheet(6, 5)
+    assert hausdorff_fine_to_coarse(V, V, F).max() == pytest.approx(0.0, abs=1e-15)
+    W = V.copy()
+    W[:, 2] = 0.25
+    assert hausdorff_fine_to_coarse(W, V, F)[0] == pytest.approx(0.25)
+
+
+def test_target_forms():
+    assert canonical_target(100, 1000) == 100
+    assert canonical_target(0.05, 5261) == 264
+    assert canonical_target(5000, 1000) == 1000
+    assert canonical_target(1e-9, 1000) == 4
+    for bad in (3, 0, -1, 0.0, 1.5, float("nan"), True, "10", None):
+        with pytest.raises(ValueError, match="target"):
+            canonical_target(bad, 1000)
+
+
+def test_invalid_inputs_raise(bumpy):
+    Vs, F = bumpy["V"], bumpy["F"]
+    with pytest.raises(ValueError, match="Vs"):
+        decimate(Vs[..., :2], F, 100)
+    with pytest.raises(ValueError, match="Vs"):
+        decimate(np.full_like(Vs, np.nan), F, 100)
+    with pytest.raises(ValueError, match="pinned"):
+        decimate(Vs, F, 100, pinned=[Vs.shape[1]])
+    with pytest.raises(ValueError, match="min_normal_cos"):
+        decimate(Vs, F, 100, min_normal_cos=2.0)
+    with pytest.raises(MeshError):
+        decimate(Vs[:, :4], np.array([[0, 1, 2], [0, 1, 3], [1, 0, 3]]), 4)
+
+
+def test_unreachable_target_warns():
+    V, F = data_synth.geodesic_sphere(2)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        dec = decimate(V, F, 4, min_normal_cos=0.99)
+    assert not dec.stats["reached"] and dec.n_vertices > 4
+    assert any(issubclass(x.category, RuntimeWarning) for x in w)
+    topology(dec.F, dec.n_vertices)
+
+
+@pytest.mark.slow
+def test_large_mesh_to_1000_vertices():
+    d = data_synth.generate("cactus", n_vertices=100_000)
+    dec = decimate(d["V"], d["F"], 1000, pinned=d["pinned"])
+    assert dec.n_vertices == 1000 and dec.stats["reached"]
+    chi, _ = _euler(dec.F, dec.n_vertices)
+    assert chi == 2
+    assert np.array_equal(dec.V, d["V"][:, dec.kept])
