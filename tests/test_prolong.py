@@ -1,0 +1,169 @@
+"""Prolongation by detail transfer: exact keyframes, no folds, details kept, equivariance."""
+import numpy as np
+import pytest
+
+import data_synth
+from shellspline.decimate import decimate
+from shellspline.lta_spline import lta_spline
+from shellspline.pipeline import linear_blend
+from shellspline.prolong import (Prolongation, linear_time_weights, prolong,
+                                 spline_time_weights)
+
+
+def _normals(V, F):
+    return np.cross(V[..., F[:, 1], :] - V[..., F[:, 0], :], V[..., F[:, 2], :] - V[..., F[:, 0], :])
+
+
+@pytest.fixture(scope="module")
+def bumpy():
+    d = data_synth.generate("bumpy", n_vertices=2500)
+    dec = decimate(d["V"], d["F"], 400)
+    return d, dec, Prolongation.encode(d["V"], d["F"], dec, d["frames"])
+
+
+@pytest.mark.parametrize("tw", ["linear", "spline"])
+def test_keyframes_come_back_bit_for_bit(bumpy, tw):
+    d, dec, P = bumpy
+    K = int(d["frames"][-1])
+    Vc = linear_blend(dec.V, d["frames"], K)
+    V = P.decode(Vc, d["frames"], K, time_weights=tw)
+    assert V.shape == (K + 1,) + d["V"].shape[1:]
+    for j, f in enumerate(d["frames"]):
+        assert np.array_equal(V[f], d["V"][j])
+
+
+def test_encoding_reproduces_keyframes_without_the_shortcut(bumpy):
+    """decode's formula itself returns the keyframe from its own coarse pose."""
+    d, dec, P = bumpy
+    S = P.base(dec.V)
+    R = P.frames_of(S)
+    V = S + np.einsum("jnab,jnb->jna", R, P.coeffs)
+    assert np.abs(V - d["V"]).max() < 1e-12
+
+
+def test_base_interpolates_coarse_vertices_and_kept_vertices_follow(bumpy):
+    d, dec, P = bumpy
+    K = int(d["frames"][-1])
+    Vc = linear_blend(dec.V, d["frames"], K)
+    S = P.base(Vc[3])
+    assert np.array_equal(S[dec.kept], Vc[3])
+    V = P.decode(Vc)
+    assert np.abs(V[:, dec.kept] - Vc).max() < 1e-12
+
+
+def test_linear_coarse_sequence_has_no_folded_triangles(bumpy):
+    d, dec, P = bumpy
+    F, fr = d["F"], d["frames"]
+    K = int(fr[-1])
+    V = P.decode(linear_blend(dec.V, fr, K))
+    N = _normals(V, F)
+    Nk = _normals(d["V"], F)
+    for k in range(K + 1):
+        j0 = min(np.searchsorted(fr, k, side="right") - 1, len(fr) - 2)
+        for j in (j0, j0 + 1):
+            cos = np.einsum("mi,mi->m", N[k], Nk[j]) / (
+                np.linalg.norm(N[k], axis=1) * np.linalg.norm(Nk[j], axis=1))
+            assert cos.min() > 0.5
+    area = 0.5 * np.linalg.norm(N, axis=-1)
+    assert area.min() > 0.1 * (0.5 * np.linalg.norm(Nk, axis=-1)).min()
+
+
+def test_in_between_keeps_the_bumps(bumpy):
+    """bumpy keyframes are the bumped unit sphere scaled per axis: divide a frame by the
+    linearly interpolated axes and the bump amplitude must match the keyframes' (10 %)."""
+    d, dec, P = bumpy
+    fr, A = d["frames"], d["axes"]
+    K = int(fr[-1])
+    V = P.decode(linear_blend(dec.V, fr, K))
+    W = linear_time_weights(fr, K)
+    amp = np.array([np.linalg.norm(V[k] / (W[k] @ A), axis=1).std() for k in range(K + 1)])
+    key_amp = amp[fr].mean()
+    assert np.abs(amp / key_amp - 1).max() < 0.10
+    # and the detail is not simply copied: the coarse-only surface has much smaller bumps
+    S = P.base(linear_blend(dec.V, fr, K)[3])
+    assert np.linalg.norm(S / (W[3] @ A), axis=1).std() < 0.8 * key_amp
+
+
+def test_rigid_motion_of_the_coarse_path_moves_the_detail_rigidly():
+    d = data_synth.generate("cactus", n_vertices=1200)
+    V0 = d["V"][1]
+    K = 4
+    th = np.linspace(0, np.pi / 2, K + 1)
+
+    def rot(t):
+        c, s = np.cos(t), np.sin(t)
+        return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+    key = np.stack([V0, V0 @ rot(th[-1]).T])
+    dec = decimate(key, d["F"], 150)
+    P = Prolongation.encode(key, d["F"], dec, [0, K])
+    Vc = np.stack([dec.V[0] @ rot(t).T for t in th])
+    V = P.decode(Vc)
+    for k in range(K + 1):
+        assert np.abs(V[k] - V0 @ rot(th[k]).T).max() < 1e-10
+
+
+def test_pinned_vertices_stay_put():
+    d = data_synth.generate("cactus", n_vertices=1200)
+    fr = d["frames"]
+    K = int(fr[-1])
+    dec = decimate(d["V"], d["F"], 0.1, pinned=d["pinned"])
+    Vc = linear_blend(dec.V, fr, K)
+    Vc = Vc + 1e-3 * np.sin(np.arange(K + 1))[:, None, None]   # a coarse path that moves
+    V = prolong(Vc, d["V"], d["F"], dec, fr, pinned=d["pinned"])
+    assert np.array_equal(V[:, d["pinned"]], np.broadcast_to(d["V"][0, d["pinned"]],
+                                                              (K + 1, len(d["pinned"]), 3)))
+
+
+def test_flat_sheet_base_stays_flat():
+    from conftest import grid_sheet
+
+    V, F = grid_sheet(12, 10)
+    Vs = np.stack([V, V + [0.0, 0.0, 0.0]])
+    Vs[1, :, 2] = 0.05 * np.sin(6 * V[:, 0])
+    dec = decimate(Vs, F, 40)
+    P = Prolongation.encode(Vs, F, dec)
+    S = P.base(dec.V[0])
+    assert np.abs(S[:, 2]).max() == 0.0
+
+
+def test_time_weights():
+    fr = np.array([0, 3, 7])
+    W = linear_time_weights(fr, 9)
+    assert W.shape == (10, 3)
+    assert np.allclose(W.sum(1), 1.0)
+    assert np.array_equal(W[fr], np.eye(3))
+    assert np.allclose(W[5], [0, 0.5, 0.5])
+    assert np.array_equal(W[9], [0, 0, 1])
+    Wp = linear_time_weights(fr, 9, "periodic")
+    assert np.allclose(Wp[8], [0.5, 0, 0.5])
+    Z = np.random.default_rng(0).normal(size=(3, 4))
+    Ws = spline_time_weights(fr, 9)
+    assert np.allclose(Ws @ Z, lta_spline(Z, fr, 9), atol=1e-12)
+    assert np.array_equal(Ws[fr], np.eye(3))
+
+
+def test_invalid_inputs_raise(bumpy):
+    d, dec, P = bumpy
+    K = int(d["frames"][-1])
+    Vc = linear_blend(dec.V, d["frames"], K)
+    with pytest.raises(ValueError, match="Vc"):
+        P.decode(Vc[:, :-1])
+    with pytest.raises(ValueError, match="frames"):
+        P.decode(Vc, [0, 5, 12])
+    with pytest.raises(ValueError, match="time_weights"):
+        P.decode(Vc, time_weights=np.ones((K, 3)))
+    with pytest.raises(ValueError, match="time_weights"):
+        P.decode(Vc, time_weights="cubic")
+    with pytest.raises(ValueError, match="K"):
+        P.decode(Vc[:5], K=4)
+    with pytest.raises(ValueError, match="Vs_fine"):
+        Prolongation.encode(d["V"][:, :-1], d["F"], dec)
+    with pytest.raises(ValueError, match="frames"):
+        Prolongation.encode(d["V"], d["F"], dec, [0, 0, 1])
+    with pytest.raises(ValueError, match="pinned"):
+        Prolongation.encode(d["V"], d["F"], dec, pinned=[0])
+    with pytest.raises(ValueError, match="frames"):
+        linear_time_weights([0, 5, 3], 9)
+    with pytest.raises(ValueError, match="K"):
+        linear_time_weights([0, 5], 0)
