@@ -145,14 +145,16 @@ class Prolongation:
 
     Examples
     --------
-    >>> import data_synth
+    >>> import numpy as np, data_synth
     >>> from shellspline.decimate import decimate
     >>> d = data_synth.generate("bumpy", n_vertices=600)
     >>> dec = decimate(d["V"], d["F"], 150)
-    >>> P = Prolongation.encode(d["V"], d["F"], dec, d["frames"])
-    >>> Vc = dec.V[[0, 0, 1]].copy(); Vc[1] = 0.5 * (dec.V[0] + dec.V[1])
-    >>> P.decode(Vc, [0, 2], 2).shape
-    (3, 642, 3)
+    >>> P = Prolongation.encode(d["V"], d["F"], dec, [0, 2, 4])
+    >>> Vc = np.repeat(dec.V, 2, axis=0)[:5]
+    >>> Vc[1], Vc[3] = (dec.V[0] + dec.V[1]) / 2, (dec.V[1] + dec.V[2]) / 2
+    >>> V = P.decode(Vc)            # (K+1, n, 3); keyframes exact
+    >>> V.shape, bool((V[4] == d["V"][2]).all())
+    ((5, 642, 3), True)
     """
 
     def __init__(self, F, n, kept, frames, keyframes, coeffs, pinned, solver, B_fc, free,
