@@ -77,8 +77,13 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--bc", default="natural", choices=["natural", "periodic", "hermite"],
                    help="time boundary conditions (hermite: keyframes at frames 1 and K-1 fix "
                         "the end velocities)")
-    q.add_argument("--method", default="lta", choices=["lta", "linear"],
-                   help="lta: LΘA shell spline (default); linear: per-vertex blending baseline")
+    q.add_argument("--method", default="lta", choices=["lta", "linear", "geodesic", "nonlinear"],
+                   help="lta: LΘA shell spline (default, fast); linear: per-vertex blending "
+                        "baseline; geodesic: piecewise discrete geodesics (paper §3); "
+                        "nonlinear: nonlinear shell spline (paper §5-6) started from lta, slow")
+    q.add_argument("--max-time", type=float, default=None,
+                   help="time limit in seconds of the nonlinear spline optimisation "
+                        "(default 600; the result so far is written, marked unconverged)")
     q.add_argument("--eta", type=float, default=1e-3, help="bending weight η = thickness² "
                                                            "(default 1e-3)")
     q.add_argument("--mu", type=float, default=1.0, help="edge-length weight (default 1)")
@@ -118,12 +123,18 @@ def _interpolate(args) -> int:
     if str(reference).lstrip("-").isdigit():
         reference = int(reference)
     gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
+    solver_options = {}
+    if args.max_time is not None and args.method != "nonlinear":
+        raise ValueError("--max-time applies to --method nonlinear only")
+    if args.method == "nonlinear":
+        solver_options["max_time_s"] = 600.0 if args.max_time is None else args.max_time
     if not args.quiet:
         print(f"shellspline {ss.__version__}: {len(args.keyframes)} keyframes, "
               f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)
     res = ss.interpolate(kf, K=args.K, method=args.method, bc=args.bc, eta=args.eta, mu=args.mu,
                          lam=args.lam, reference=reference, pinned=pinned,
-                         workers=args.workers, gn_options=gn_options, progress=bar)
+                         workers=args.workers, gn_options=gn_options,
+                         solver_options=solver_options, progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     out = ss.write_sequence(args.out, res.V, res.F, res.report, overwrite=args.overwrite,
@@ -168,8 +179,14 @@ def _summary(res, out: Path, quiet: bool) -> int:
     lines.append(f"quality: keyframes exact={q['keyframes_exact']}, flipped faces "
                  f"{q['flipped_faces']}, degenerate faces {q['degenerate_faces']}, "
                  f"min area ratio {q['min_area_ratio']:.3g}")
+    for name in ("geodesic", "nonlinear"):
+        if name in rep:
+            r = rep[name]
+            lines.append(f"{name}: {'converged' if r['success'] else 'NOT converged'} after "
+                         f"{r['nit']} iterations ({r['message']})")
     ok = q["keyframes_exact"] and q["flipped_faces"] == 0 and q["degenerate_faces"] == 0 and \
-        (not gn or gn["converged"] == gn["frames"])
+        (not gn or gn["converged"] == gn["frames"]) and \
+        all(rep[name]["success"] for name in ("geodesic", "nonlinear") if name in rep)
     if not quiet:
         print("\n".join(lines), file=sys.stderr)
     return EXIT_OK if ok else EXIT_WARN

@@ -25,7 +25,7 @@ from .topology import Topology
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
            "canonical_frames", "linear_blend", "sequence_quality"]
 
-METHODS = ("lta", "linear")
+METHODS = ("lta", "linear", "geodesic", "nonlinear")
 BOUNDARY_CONDITIONS = ("natural", "periodic", "hermite")
 REFERENCES = ("constant", "keyframe")
 DEFAULT_STEP = 10
@@ -298,7 +298,7 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
 def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta: float = 1e-3,
                 mu: float = 1.0, lam: float = 1.0, reference="constant", *, frames=None,
                 pinned=None, workers: int = 1, gn_options: dict | None = None,
-                warm_start: bool = True,
+                warm_start: bool = True, solver_options: dict | None = None,
                 progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
@@ -308,9 +308,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         The keyframe poses (see :func:`shellspline.read_keyframes`).
     K : int, optional
         Last frame index; the result has ``K+1`` frames. Default from the keyframe frames.
-    method : {"lta", "linear"}
+    method : {"lta", "linear", "geodesic", "nonlinear"}
         ``"lta"``: LΘA spline (paper §7): descriptors, time-discrete spline, Gauss–Newton
-        reconstruction. ``"linear"``: per-vertex linear blending (baseline).
+        reconstruction. ``"linear"``: per-vertex linear blending (baseline). ``"geodesic"``:
+        piecewise discrete geodesics in shell space (paper §3, the paper's baseline).
+        ``"nonlinear"``: the nonlinear spline on the Discrete Shells energy (paper eqs. 7–8,
+        adjoint gradient), started from the LΘA spline; slow on large meshes.
     bc : {"natural", "periodic", "hermite"}
         Time boundary conditions (paper §8). ``"hermite"`` needs keyframes at frames 1 and
         ``K-1`` (they fix the end velocities).
@@ -327,6 +330,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Processes for the per-frame reconstructions.
     gn_options : dict, optional
         Options of :class:`shellspline.reconstruct.GaussNewton`.
+    solver_options : dict, optional
+        Extra options of :func:`shellspline.geodesic.geodesic_interpolation` (``tol``,
+        ``max_iter``) or :func:`shellspline.nonlinear_spline.nonlinear_spline` (``max_iter``,
+        ``gtol``, ``max_time_s``, ...).
     warm_start : bool
         Start frame k's Gauss–Newton from frame k-1's solution moved by the change of the
         keyframe blend (frames are solved in time order within each worker's run); otherwise
@@ -398,6 +405,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             "mu": mu, "lam": lam, "reference": reference, "workers": workers, "warm_start": bool(warm_start),
             "pinned_vertices": 0 if pinned is None else int(pinned.size),
             "gn_options": dict(gn_options or {}),
+            "solver_options": dict(solver_options or {}),
         },
         "mesh": {"vertices": int(n), "faces": int(T.n_faces), "edges": int(T.n_edges),
                  "keyframes": int(J), "names": list(kf.names)},
@@ -405,9 +413,24 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     periodic = bc == "periodic"
     blend = linear_blend(Vkey, frames, K, bc)
     Z = None
+    frame_records = []
     if method == "linear":
         V = blend
-        frame_records = []
+    elif method == "geodesic":
+        from .geodesic import geodesic_interpolation
+
+        with prog.stage("geodesic", total=len(frames) - (0 if periodic else 1)):
+            g = geodesic_interpolation(Vkey, frames, K, T, mu=mu, lam=lam, eta=eta,
+                                       pinned=pinned, bc=bc,
+                                       callback=lambda s, r: prog.advance("geodesic", s + 1,
+                                                                          len(frames)),
+                                       **dict(solver_options or {}))
+        V = _placed(g.V, blend, frames, K, periodic, pinned, Vkey)
+        report["geodesic"] = {"success": bool(g.success), "nit": int(g.nit),
+                              "message": g.message,
+                              "segment_energies": [float(e) for e in g.segment_energies]}
+        if not g.success:
+            prog.message(f"geodesic: {g.message}")
     else:
         with prog.stage("describe"):
             Zkey = lta_descriptors(Vkey, T)
@@ -456,6 +479,26 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             if periodic:
                 V[K] = Vkey[0]
         frame_records = [results[k][1] for k in ks]
+        if method == "nonlinear":
+            from .nonlinear_spline import nonlinear_spline
+
+            opts = dict(solver_options or {})
+            max_iter = int(opts.pop("max_iter", 500))
+            with prog.stage("nonlinear", total=max_iter):
+                nl = nonlinear_spline(Vkey, frames, K, T, bc=bc, mu=mu, lam=lam, eta=eta,
+                                      pinned=pinned, init=V, max_iter=max_iter,
+                                      callback=lambda it, e, g: prog.advance(
+                                          "nonlinear", it, max_iter), **opts)
+            V = _placed(nl.V, blend, frames, K, periodic, pinned, Vkey)
+            report["nonlinear"] = {
+                "success": bool(nl.success), "nit": int(nl.nit), "nfev": int(nl.nfev),
+                "message": nl.message, "energy_initial": float(nl.energies[0]),
+                "energy_final": float(nl.energy),
+                "grad_norm_initial": float(nl.grad_norms[0]),
+                "grad_norm_final": float(nl.grad_norms[-1]), "seconds": float(nl.time_s),
+                "energy_history": [float(e) for e in nl.energies]}
+            if not nl.success:
+                prog.message(f"nonlinear spline: {nl.message}")
     with prog.stage("energies"):
         report["energies"] = _energies(V, Z, T, bc, W_report if method == "lta" else
                                        lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta))
@@ -482,6 +525,23 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     report["timings"]["total"] = time.perf_counter() - t_start
     report["platform"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
     return InterpolationResult(V=V, F=T.F, frames=frames, report=report, Z=Z)
+
+
+def _placed(V, blend, frames, K, periodic, pinned, Vkey):
+    """Rigidly place the in-between frames onto the blend (no pins) and restore the keyframes
+    bit for bit."""
+    V = np.array(V, dtype=np.float64, copy=True)
+    if pinned is None:
+        is_key = np.zeros(K + 1, dtype=bool)
+        is_key[frames] = True
+        is_key[K] |= periodic
+        for k in np.flatnonzero(~is_key):
+            V[k] = rigid_placement(V[k], blend[k])
+    for j, f in enumerate(frames):
+        V[f] = Vkey[j]
+    if periodic:
+        V[K] = Vkey[0]
+    return V
 
 
 def _energies(V, Z, T: Topology, bc: str, W) -> dict:

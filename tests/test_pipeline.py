@@ -182,3 +182,26 @@ def test_energy_has_no_spike_at_keyframes_unlike_linear_blend(ellipsoids):
     spike = {m: v[6] / max(v[5], v[7]) for m, v in e.items()}
     assert spike["linear"] > 50
     assert spike["lta"] < 2
+
+
+def test_geodesic_method_is_piecewise_with_a_kink(ellipsoids):
+    d = ellipsoids
+    g = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.1, method="geodesic")
+    for j, f in enumerate(d["frames"]):
+        assert np.array_equal(g.V[f], d["V"][j])
+    assert g.report["geodesic"]["success"]
+    q = g.report["quality"]
+    assert q["flipped_faces"] == 0 and q["degenerate_faces"] == 0
+    s = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.1)
+    assert _kink(g.V, 6) > 2 * _kink(s.V, 6)  # the geodesic corners at the keyframe
+
+
+def test_nonlinear_method_starts_from_lta_and_decreases_the_energy():
+    d = data_synth.generate("ellipsoids", n_vertices=100)
+    res = ss.interpolate((d["V"], d["F"]), frames=[0, 2, 4], K=4, eta=0.1, method="nonlinear",
+                         solver_options={"max_iter": 5})
+    nl = res.report["nonlinear"]
+    assert nl["nit"] <= 5 and nl["energy_final"] <= nl["energy_initial"]
+    assert np.all(np.diff(nl["energy_history"]) <= 1e-12 * nl["energy_initial"])
+    for j, f in enumerate([0, 2, 4]):
+        assert np.array_equal(res.V[f], d["V"][j])
