@@ -94,6 +94,13 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--pinned", help="file of vertex indices held fixed (e.g. a base)")
     q.add_argument("--fix-boundary", action="store_true",
                    help="hold the mesh boundary vertices fixed")
+    q.add_argument("--coarse", default="auto",
+                   help="multiresolution: decimate all keyframes to N vertices (or a fraction "
+                        "0<γ<1), solve there and prolong by detail transfer; 'none' = full "
+                        "resolution; 'auto' (default) = 1000 vertices for meshes above 20k")
+    q.add_argument("--fine", action="store_true",
+                   help="after --coarse, run the spline and Gauss–Newton at full resolution "
+                        "initialised from the prolonged result")
     q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
     q.add_argument("--max-iter", type=int, default=None, help="Gauss–Newton iteration limit")
     q.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
@@ -134,7 +141,8 @@ def _interpolate(args) -> int:
     res = ss.interpolate(kf, K=args.K, method=args.method, bc=args.bc, eta=args.eta, mu=args.mu,
                          lam=args.lam, reference=reference, pinned=pinned,
                          workers=args.workers, gn_options=gn_options,
-                         solver_options=solver_options, progress=bar)
+                         solver_options=solver_options, coarse=args.coarse, fine=args.fine,
+                         progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     out = ss.write_sequence(args.out, res.V, res.F, res.report, overwrite=args.overwrite,
@@ -170,6 +178,10 @@ def _summary(res, out: Path, quiet: bool) -> int:
     q = rep["quality"]
     gn = rep.get("gauss_newton")
     lines = [f"wrote {res.K + 1} frames to {out}/ (report.json)"]
+    if "multires" in rep:
+        lines.append(f"multiresolution: solved on {rep['multires']['coarse_vertices']} coarse "
+                     f"vertices, prolonged to {res.V.shape[1]}"
+                     + (" and refined at full resolution" if rep["parameters"]["fine"] else ""))
     t = rep["timings"]
     lines.append("time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     if gn:

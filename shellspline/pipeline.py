@@ -20,7 +20,7 @@ from .descriptors import lta_descriptors, lta_weights, unwrap_angles
 from .io import Keyframes, keyframes_from_arrays, read_keyframes
 from .lta_spline import lta_energy_per_frame, lta_spline
 from .reconstruct import GaussNewton, rigid_placement
-from .topology import Topology
+from .topology import Topology, topology
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
            "canonical_frames", "linear_blend", "sequence_quality"]
@@ -186,16 +186,26 @@ def sequence_quality(V, T: Topology, frames) -> dict:
     """
     V = np.asarray(V)
     F = T.F
-    N = np.cross(V[:, F[:, 1]] - V[:, F[:, 0]], V[:, F[:, 2]] - V[:, F[:, 0]])
-    A = 0.5 * np.linalg.norm(N, axis=-1)
-    a_ref = A[np.asarray(frames)].mean(axis=0)
-    ratio = A / np.maximum(a_ref, 1e-300)
-    dots = np.einsum("kij,kij->ki", N[1:], N[:-1])
+
+    def normals(Vs):
+        return np.cross(Vs[:, F[:, 1]] - Vs[:, F[:, 0]], Vs[:, F[:, 2]] - Vs[:, F[:, 0]])
+
+    a_ref = (0.5 * np.linalg.norm(normals(V[np.asarray(frames)]), axis=-1)).mean(axis=0)
+    a_ref = np.maximum(a_ref, 1e-300)
+    rmin, rmax, n_degen, n_flip, prev = np.inf, 0.0, 0, 0, None
+    for i in range(0, V.shape[0], 8):  # a few frames at a time: bounded memory
+        N = normals(V[i:i + 8])
+        ratio = 0.5 * np.linalg.norm(N, axis=-1) / a_ref
+        rmin, rmax = min(rmin, float(ratio.min())), max(rmax, float(ratio.max()))
+        n_degen += int((ratio < 1e-6).sum())
+        NN = N if prev is None else np.concatenate([prev[None], N])
+        n_flip += int((np.einsum("kij,kij->ki", NN[1:], NN[:-1]) < 0).sum())
+        prev = N[-1]
     return {
-        "min_area_ratio": float(ratio.min()),
-        "degenerate_faces": int((ratio < 1e-6).sum()),
-        "flipped_faces": int((dots < 0).sum()),
-        "max_area_ratio": float(ratio.max()),
+        "min_area_ratio": rmin,
+        "degenerate_faces": n_degen,
+        "flipped_faces": n_flip,
+        "max_area_ratio": rmax,
     }
 
 
@@ -299,6 +309,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 mu: float = 1.0, lam: float = 1.0, reference="constant", *, frames=None,
                 pinned=None, workers: int = 1, gn_options: dict | None = None,
                 warm_start: bool = True, solver_options: dict | None = None,
+                coarse="auto", fine: bool = False,
                 progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
@@ -330,6 +341,15 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Processes for the per-frame reconstructions.
     gn_options : dict, optional
         Options of :class:`shellspline.reconstruct.GaussNewton`.
+    coarse : "auto", "none", int or float
+        Multiresolution (paper §8): decimate all keyframes simultaneously to this many
+        vertices (int) or this fraction of them (float in (0,1)), run the LΘA spline and the
+        reconstruction on the coarse meshes and prolong the result by detail transfer.
+        ``"auto"`` (default) decimates to 1000 vertices above 20 000 vertices; ``"none"`` runs
+        at full resolution. Applies to ``method="lta"``.
+    fine : bool
+        After the coarse run, run the LΘA spline and Gauss–Newton at full resolution,
+        initialised from the prolonged sequence (paper Table 2, last column).
     solver_options : dict, optional
         Extra options of :func:`shellspline.geodesic.geodesic_interpolation` (``tol``,
         ``max_iter``) or :func:`shellspline.nonlinear_spline.nonlinear_spline` (``max_iter``,
@@ -405,7 +425,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             "mu": mu, "lam": lam, "reference": reference, "workers": workers, "warm_start": bool(warm_start),
             "pinned_vertices": 0 if pinned is None else int(pinned.size),
             "gn_options": dict(gn_options or {}),
-            "solver_options": dict(solver_options or {}),
+            "solver_options": dict(solver_options or {}), "coarse": coarse, "fine": bool(fine),
         },
         "mesh": {"vertices": int(n), "faces": int(T.n_faces), "edges": int(T.n_edges),
                  "keyframes": int(J), "names": list(kf.names)},
@@ -432,53 +452,38 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         if not g.success:
             prog.message(f"geodesic: {g.message}")
     else:
-        with prog.stage("describe"):
-            Zkey = lta_descriptors(Vkey, T)
-            sT = T.descriptor_slices()[1]
-            Zkey[:, sT] = unwrap_angles(Zkey[:, sT])
-            if isinstance(reference, (int, np.integer)) and not isinstance(reference, bool):
-                ref_idx, ref_kind = int(reference), "constant"
-                if not 0 <= ref_idx < J:
-                    raise ValueError(f"`reference` keyframe index must lie in [0, {J}), got "
-                                     f"{reference}")
-            else:
-                ref_kind = _canonical_choice(reference, "reference", REFERENCES)
-                ref_idx = 0
-            if ref_kind == "constant":
-                w_const = lta_weights(Vkey[ref_idx], T, mu=mu, lam=lam, eta=eta)
-                W_spline, W_report = None, w_const
+        lta_args = dict(frames=frames, K=K, bc=bc, mu=mu, lam=lam, eta=eta, reference=reference,
+                        workers=workers, gn_options=dict(gn_options or {}),
+                        warm_start=warm_start, prog=prog)
+        n_coarse = _coarse_target(coarse, n)
+        if n_coarse is None:
+            V, Z, W_report, frame_records = _lta_sequence(Vkey, T, pinned, **lta_args)
+        else:
+            from .decimate import decimate
+            from .prolong import Prolongation
 
-                def W_of(k):
-                    return w_const
+            with prog.stage("decimate"):
+                dec = decimate(Vkey, T.F, n_coarse, pinned=pinned)
+                Tc = topology(dec.F, dec.V.shape[1], name="coarse mesh")
+            report["multires"] = {"coarse_vertices": int(dec.V.shape[1]),
+                                  "coarse_faces": int(dec.F.shape[0]),
+                                  "decimation": {k: v for k, v in dec.stats.items()
+                                                 if isinstance(v, (int, float, str, bool))}}
+            Vc, Zc, _, coarse_records = _lta_sequence(
+                dec.V, Tc, dec.pinned, stage_prefix="coarse ", **lta_args)
+            with prog.stage("prolong"):
+                P = Prolongation.encode(Vkey, T.F, dec, frames, pinned=pinned)
+                V = P.decode(Vc, frames, K, time_weights="linear", bc=bc)
+            report["multires"]["coarse_frames"] = coarse_records
+            Z, W_report = None, None
+            if fine:
+                V, Z, W_report, frame_records = _lta_sequence(Vkey, T, pinned, Vinit=V,
+                                                              stage_prefix="fine ", **lta_args)
             else:
-                Wkey = lta_weights(Vkey, T, mu=mu, lam=lam, eta=eta)
-                j0, j1, t = _bracketing(frames, K, periodic)
-                nearest = np.where(t <= 0.5, j0, j1)
-                W_spline = W_report = Wkey[nearest]
-
-                def W_of(k):
-                    return Wkey[nearest[k]]
-        with prog.stage("solve"):
-            Z = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
-        is_key = np.zeros(K + 1, dtype=bool)
-        is_key[frames] = True
-        if periodic:
-            is_key[K] = True
-        ks = np.flatnonzero(~is_key)
-        Vinit = blend.copy()
-        with prog.stage("reconstruct", total=len(ks)):
-            results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, dict(gn_options or {}),
-                                          workers, prog, warm_start)
-        with prog.stage("place"):
-            V = blend.copy()
-            for k in ks:
-                Vk = results[k][0]
-                V[k] = Vk if pinned is not None else rigid_placement(Vk, blend[k])
-            for j, f in enumerate(frames):
-                V[f] = Vkey[j]
-            if periodic:
-                V[K] = Vkey[0]
-        frame_records = [results[k][1] for k in ks]
+                frame_records = coarse_records
+            V = _placed(V, blend, frames, K, periodic, pinned, Vkey)
+        if W_report is None:
+            W_report = lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta)
         if method == "nonlinear":
             from .nonlinear_spline import nonlinear_spline
 
@@ -500,8 +505,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             if not nl.success:
                 prog.message(f"nonlinear spline: {nl.message}")
     with prog.stage("energies"):
-        report["energies"] = _energies(V, Z, T, bc, W_report if method == "lta" else
-                                       lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta))
+        report["energies"] = _energies(V, Z, T, bc, W_report if method in ("lta", "nonlinear")
+                                       else lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta))
     report["frames"] = frame_records
     with prog.stage("quality"):
         report["quality"] = sequence_quality(V, T, frames)
@@ -527,6 +532,90 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     return InterpolationResult(V=V, F=T.F, frames=frames, report=report, Z=Z)
 
 
+AUTO_COARSE_ABOVE = 20_000
+AUTO_COARSE_VERTICES = 1000
+
+
+def _coarse_target(coarse, n):
+    """Canonical coarse vertex count, or None for a single-resolution run."""
+    if coarse is None or (isinstance(coarse, str) and coarse.strip().lower() == "auto"):
+        return AUTO_COARSE_VERTICES if n > AUTO_COARSE_ABOVE else None
+    if isinstance(coarse, str):
+        c = coarse.strip().lower()
+        if c in ("none", "off", "no"):
+            return None
+        try:
+            coarse = float(c) if any(ch in c for ch in ".e") else int(c)
+        except ValueError:
+            raise ValueError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction in "
+                             f"(0, 1), got {coarse!r}") from None
+    if isinstance(coarse, bool):
+        raise ValueError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, got "
+                         f"{coarse!r}")
+    if isinstance(coarse, (float, np.floating)) and 0 < coarse < 1:
+        target = int(round(coarse * n))
+    elif float(coarse) == int(coarse) and int(coarse) >= 4:
+        target = int(coarse)
+    else:
+        raise ValueError(f"`coarse` must be a vertex count >= 4 or a fraction in (0, 1), got "
+                         f"{coarse!r}")
+    return None if target >= n else max(target, 4)
+
+
+def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, workers,
+                  gn_options, warm_start, prog, Vinit=None, stage_prefix=""):
+    """The LΘA stages on one resolution: describe, solve, reconstruct, place.
+
+    Returns ``(V (K+1,n,3), Z (K+1,d), W (d,) or (K+1,d), frame_records)``.
+    """
+    J = Vkey.shape[0]
+    periodic = bc == "periodic"
+    blend = linear_blend(Vkey, frames, K, bc)
+    with prog.stage(stage_prefix + "describe"):
+        Zkey = lta_descriptors(Vkey, T)
+        sT = T.descriptor_slices()[1]
+        Zkey[:, sT] = unwrap_angles(Zkey[:, sT])
+        if isinstance(reference, (int, np.integer)) and not isinstance(reference, bool):
+            ref_idx, ref_kind = int(reference), "constant"
+            if not 0 <= ref_idx < J:
+                raise ValueError(f"`reference` keyframe index must lie in [0, {J}), got "
+                                 f"{reference}")
+        else:
+            ref_kind = _canonical_choice(reference, "reference", REFERENCES)
+            ref_idx = 0
+        if ref_kind == "constant":
+            w_const = lta_weights(Vkey[ref_idx], T, mu=mu, lam=lam, eta=eta)
+            W_spline, W_report = None, w_const
+
+            def W_of(k):
+                return w_const
+        else:
+            Wkey = lta_weights(Vkey, T, mu=mu, lam=lam, eta=eta)
+            j0, j1, t = _bracketing(frames, K, periodic)
+            nearest = np.where(t <= 0.5, j0, j1)
+            W_spline = W_report = Wkey[nearest]
+
+            def W_of(k):
+                return Wkey[nearest[k]]
+    with prog.stage(stage_prefix + "solve"):
+        Z = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
+    is_key = np.zeros(K + 1, dtype=bool)
+    is_key[frames] = True
+    is_key[K] |= periodic
+    ks = np.flatnonzero(~is_key)
+    warm = warm_start and Vinit is None
+    Vinit = blend if Vinit is None else np.asarray(Vinit, dtype=np.float64)
+    with prog.stage(stage_prefix + "reconstruct", total=len(ks)):
+        results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
+                                      warm)
+    with prog.stage(stage_prefix + "place"):
+        V = blend.copy()
+        for k in ks:
+            V[k] = results[k][0]
+        V = _placed(V, blend, frames, K, periodic, pinned, Vkey)
+    return V, Z, W_report, [results[k][1] for k in ks]
+
+
 def _placed(V, blend, frames, K, periodic, pinned, Vkey):
     """Rigidly place the in-between frames onto the blend (no pins) and restore the keyframes
     bit for bit."""
@@ -544,17 +633,19 @@ def _placed(V, blend, frames, K, periodic, pinned, Vkey):
     return V
 
 
-def _energies(V, Z, T: Topology, bc: str, W) -> dict:
+def _energies(V, Z, T: Topology, bc: str, W, chunk: int = 8) -> dict:
     """Per-frame LΘA energies (paper Figs. 11–12) of the output and, when given, of the spline
-    targets ``Z``, plus the reconstruction misfit of every frame; ``W`` is (d,) or (K+1,d)."""
+    targets ``Z``, plus the reconstruction misfit of every frame; ``W`` is (d,) or (K+1,d).
+    Descriptors are computed a few frames at a time to bound memory on large meshes."""
     sT = T.descriptor_slices()[1]
-    Zout = lta_descriptors(V, T)
+    K1 = V.shape[0]
+    Zout = np.concatenate([lta_descriptors(V[i:i + chunk], T) for i in range(0, K1, chunk)])
     Zout[:, sT] = unwrap_angles(Zout[:, sT])
     out = {"lta_output_energy_per_frame": lta_energy_per_frame(Zout, bc=bc, weights=W).tolist()}
     if Z is not None:
         Wk = np.broadcast_to(W, Z.shape)
-        r = Zout - Z
-        r[:, sT] = (r[:, sT] + np.pi) % (2 * np.pi) - np.pi
+        Zout -= Z
+        Zout[:, sT] = (Zout[:, sT] + np.pi) % (2 * np.pi) - np.pi
         out["lta_spline_energy_per_frame"] = lta_energy_per_frame(Z, bc=bc, weights=W).tolist()
-        out["reconstruction_energy_per_frame"] = np.einsum("kd,kd->k", Wk, r * r).tolist()
+        out["reconstruction_energy_per_frame"] = np.einsum("kd,kd->k", Wk, Zout * Zout).tolist()
     return out
