@@ -29,6 +29,14 @@ __all__ = [
 _TWO_PI = 2.0 * np.pi
 
 
+def _cross(a, b):
+    """Cross product over the last axis, written out (several times faster than np.cross on
+    large batched arrays)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def edge_lengths(V, T: Topology) -> np.ndarray:
     """Edge lengths ``l_e``.
 
@@ -49,7 +57,7 @@ def edge_lengths(V, T: Topology) -> np.ndarray:
 
 def _face_normals_unnormalized(V, F):
     v0, v1, v2 = V[..., F[:, 0], :], V[..., F[:, 1], :], V[..., F[:, 2], :]
-    return np.cross(v1 - v0, v2 - v0)
+    return _cross(v1 - v0, v2 - v0)
 
 
 def face_areas(V, T: Topology) -> np.ndarray:
@@ -72,8 +80,8 @@ def _flap_geometry(V, flaps):
     v0, v1 = V[..., flaps[:, 0], :], V[..., flaps[:, 1], :]
     v2, v3 = V[..., flaps[:, 2], :], V[..., flaps[:, 3], :]
     e = v1 - v0
-    n1 = np.cross(e, v2 - v0)          # normal of face (v0, v1, v2)
-    n2 = np.cross(v0 - v1, v3 - v1)    # normal of face (v1, v0, v3)
+    n1 = _cross(e, v2 - v0)          # normal of face (v0, v1, v2)
+    n2 = _cross(v0 - v1, v3 - v1)    # normal of face (v1, v0, v3)
     return v0, v1, v2, v3, e, n1, n2
 
 
@@ -108,7 +116,7 @@ def dihedral_angles(V, T: Topology) -> np.ndarray:
     V = np.asarray(V, dtype=np.float64)
     _, _, _, _, e, n1, n2 = _flap_geometry(V, T.flaps)
     el = np.sqrt(np.einsum("...i,...i->...", e, e))
-    y = np.einsum("...i,...i->...", np.cross(n1, n2), e) / el
+    y = np.einsum("...i,...i->...", _cross(n1, n2), e) / el
     x = np.einsum("...i,...i->...", n1, n2)
     return np.arctan2(y, x)
 
@@ -217,16 +225,16 @@ def lta_jacobian(V, T: Topology, *, return_values: bool = False):
     t1 = (np.einsum("ij,ij->i", v2 - v0, e) / ee)[:, None]
     t2 = (np.einsum("ij,ij->i", v3 - v0, e) / ee)[:, None]
     gT = np.concatenate([(1 - t1) * q1 + (1 - t2) * q2, t1 * q1 + t2 * q2, -q1, -q2], axis=1)
-    y = np.einsum("ij,ij->i", np.cross(n1, n2), e) / el
+    y = np.einsum("ij,ij->i", _cross(n1, n2), e) / el
     x = np.einsum("ij,ij->i", n1, n2)
     Th = np.arctan2(y, x)
     # areas
     F = T.F
     w0, w1, w2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    N = np.cross(w1 - w0, w2 - w0)
+    N = _cross(w1 - w0, w2 - w0)
     nn = np.sqrt(np.einsum("ij,ij->i", N, N))
     nu = N / nn[:, None]
-    gA = 0.5 * np.concatenate([np.cross(nu, w2 - w1), np.cross(nu, w0 - w2), np.cross(nu, w1 - w0)],
+    gA = 0.5 * np.concatenate([_cross(nu, w2 - w1), _cross(nu, w0 - w2), _cross(nu, w1 - w0)],
                               axis=1)
     data = np.concatenate([gL.ravel(), gT.ravel(), gA.ravel()])
     J = sp.csr_matrix((data, P.indices, P.indptr), shape=P.shape)

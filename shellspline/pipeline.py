@@ -434,6 +434,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     blend = linear_blend(Vkey, frames, K, bc)
     Z = None
     frame_records = []
+    energy_source = None
     if method == "linear":
         V = blend
     elif method == "geodesic":
@@ -469,7 +470,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                   "coarse_faces": int(dec.F.shape[0]),
                                   "decimation": {k: v for k, v in dec.stats.items()
                                                  if isinstance(v, (int, float, str, bool))}}
-            Vc, Zc, _, coarse_records = _lta_sequence(
+            Vc, Zc, Wc, coarse_records = _lta_sequence(
                 dec.V, Tc, dec.pinned, stage_prefix="coarse ", **lta_args)
             with prog.stage("prolong"):
                 P = Prolongation.encode(Vkey, T.F, dec, frames, pinned=pinned)
@@ -481,6 +482,9 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                                               stage_prefix="fine ", **lta_args)
             else:
                 frame_records = coarse_records
+                # energies where the spline was solved (full-resolution descriptors of every
+                # frame would cost more than the whole coarse run)
+                energy_source = (Vc, Zc, Tc, Wc)
             V = _placed(V, blend, frames, K, periodic, pinned, Vkey)
         if W_report is None:
             W_report = lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta)
@@ -505,8 +509,14 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             if not nl.success:
                 prog.message(f"nonlinear spline: {nl.message}")
     with prog.stage("energies"):
-        report["energies"] = _energies(V, Z, T, bc, W_report if method in ("lta", "nonlinear")
-                                       else lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta))
+        if energy_source is not None:
+            report["energies"] = _energies(energy_source[0], energy_source[1],
+                                           energy_source[2], bc, energy_source[3])
+            report["energies"]["resolution"] = "coarse"
+        else:
+            report["energies"] = _energies(V, Z, T, bc, W_report if method in ("lta", "nonlinear")
+                                           else lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta))
+            report["energies"]["resolution"] = "full"
     report["frames"] = frame_records
     with prog.stage("quality"):
         report["quality"] = sequence_quality(V, T, frames)
