@@ -499,6 +499,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                       callback=lambda it, e, g: prog.advance(
                                           "nonlinear", it, max_iter), **opts)
             V = _placed(nl.V, blend, frames, K, periodic, pinned, Vkey)
+            energy_source = None  # energies of the final (full-resolution) sequence
             report["nonlinear"] = {
                 "success": bool(nl.success), "nit": int(nl.nit), "nfev": int(nl.nfev),
                 "message": nl.message, "energy_initial": float(nl.energies[0]),
