@@ -8,13 +8,18 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 from ._errors import MeshError, ShellsplineError
+from .decimate import Decimation, decimate
 from .descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
                           lta_jacobian, lta_weights)
+from .geodesic import discrete_geodesic, geodesic_interpolation
 from .io import (Keyframes, keyframes_from_arrays, read_frames, read_indices, read_keyframes,
                  read_mesh, read_sequence, write_sequence)
 from .lta_spline import lta_spline
+from .nonlinear_spline import nonlinear_spline
 from .pipeline import InterpolationResult, interpolate, linear_blend
+from .prolong import Prolongation
 from .reconstruct import GaussNewton, ReconstructionResult, reconstruct, rigid_placement
+from .shell_energy import DiscreteShells, shell_energy
 from .topology import Topology, topology
 
 __all__ = [
@@ -23,5 +28,6 @@ __all__ = [
     "write_sequence", "interpolate", "InterpolationResult", "linear_blend", "lta_spline",
     "lta_descriptors", "lta_jacobian", "lta_weights", "edge_lengths", "face_areas",
     "dihedral_angles", "GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement",
-    "Topology", "topology",
+    "Topology", "topology", "decimate", "Decimation", "Prolongation", "discrete_geodesic",
+    "geodesic_interpolation", "nonlinear_spline", "DiscreteShells", "shell_energy",
 ]
