@@ -205,3 +205,38 @@ def test_nonlinear_method_starts_from_lta_and_decreases_the_energy():
     assert np.all(np.diff(nl["energy_history"]) <= 1e-12 * nl["energy_initial"])
     for j, f in enumerate([0, 2, 4]):
         assert np.array_equal(res.V[f], d["V"][j])
+
+
+def test_multiresolution_path_keeps_keyframes_and_detail():
+    d = data_synth.generate("bumpy", n_vertices=2500)
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.01, coarse=400)
+    mr = res.report["multires"]
+    assert 380 <= mr["coarse_vertices"] <= 400
+    for j, f in enumerate(d["frames"]):
+        assert np.array_equal(res.V[f], d["V"][j])
+    q = res.report["quality"]
+    assert q["flipped_faces"] == 0 and q["degenerate_faces"] == 0
+    assert res.report["energies"]["resolution"] == "coarse"
+    # the prolonged in-betweens are close to a full-resolution LΘA solve
+    full = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.01, coarse="none")
+    size = np.ptp(d["V"][0], axis=0).max()
+    assert np.abs(res.V - full.V).max() < 0.05 * size
+    # and the bumps survive: vertex-wise deviation from a smooth blend stays keyframe-sized
+    fine = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.01, coarse=400, fine=True)
+    assert fine.report["parameters"]["fine"] and fine.report["energies"]["resolution"] == "full"
+    assert np.abs(fine.V - full.V).max() < 0.01 * size
+
+
+def test_coarse_option_canonicalisation(monkeypatch):
+    from shellspline import pipeline
+
+    assert pipeline._coarse_target("none", 5000) is None
+    assert pipeline._coarse_target(0.1, 5000) == 500
+    assert pipeline._coarse_target("0.1", 5000) == 500
+    assert pipeline._coarse_target("700", 5000) == 700
+    assert pipeline._coarse_target(6000, 5000) is None  # no coarsening above the mesh size
+    assert pipeline._coarse_target("auto", 5000) is None
+    assert pipeline._coarse_target("auto", 50_000) == pipeline.AUTO_COARSE_VERTICES
+    for bad in ("many", 0, 1.5, True, -3):
+        with pytest.raises(ValueError, match="coarse"):
+            pipeline._coarse_target(bad, 5000)
