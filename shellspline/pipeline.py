@@ -261,6 +261,29 @@ def _worker_solve(task):
     return _solve_run(_WORKER["gn"], *task)
 
 
+def _decode_worker(task):
+    Vc, frames, K, bc, ks = task
+    return ks, _WORKER["prolong"].decode(Vc, frames, K, time_weights="linear", bc=bc,
+                                         only=ks)[ks]
+
+
+def _parallel_decode(P, Vc, frames, K, bc, workers):
+    """Prolongation of every frame; frames split over ``workers`` forked processes (they share
+    the parent's factorization; without fork, or with one worker, it runs here)."""
+    if workers <= 1 or "fork" not in mp.get_all_start_methods() or platform.system() != "Linux":
+        return P.decode(Vc, frames, K, time_weights="linear", bc=bc)
+    _WORKER["prolong"] = P
+    try:
+        out = np.zeros((K + 1, P.n_vertices, 3))
+        chunks = _chunks(np.arange(K + 1), workers)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as ex:
+            for ks, Vk in ex.map(_decode_worker, [(Vc, frames, K, bc, c) for c in chunks]):
+                out[ks] = Vk
+        return out
+    finally:
+        _WORKER.pop("prolong", None)
+
+
 def _chunks(idx, n_chunks):
     n_chunks = max(1, min(n_chunks, len(idx)))
     return [c for c in np.array_split(np.asarray(idx), n_chunks) if len(c)]
@@ -474,7 +497,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 dec.V, Tc, dec.pinned, stage_prefix="coarse ", **lta_args)
             with prog.stage("prolong"):
                 P = Prolongation.encode(Vkey, T.F, dec, frames, pinned=pinned)
-                V = P.decode(Vc, frames, K, time_weights="linear", bc=bc)
+                V = _parallel_decode(P, Vc, frames, K, bc, workers)
             report["multires"]["coarse_frames"] = coarse_records
             Z, W_report = None, None
             if fine:

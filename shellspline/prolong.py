@@ -26,6 +26,7 @@ import scipy.sparse as sp
 
 from ._linalg import SparseCholesky
 from .decimate import Decimation, _canonical_pinned
+from .descriptors import _cross
 from .topology import topology
 
 __all__ = ["Prolongation", "linear_time_weights", "spline_time_weights", "prolong"]
@@ -109,11 +110,14 @@ def _checked_frames(frames, K):
     return fr, int(K)
 
 
-def _vertex_normals(S, F, n):
-    """Area-weighted vertex normals (unit) of poses ``S (..., n, 3)``."""
-    N = np.cross(S[..., F[:, 1], :] - S[..., F[:, 0], :], S[..., F[:, 2], :] - S[..., F[:, 0], :])
+def _vertex_normals(S, F, n, inc=None):
+    """Area-weighted vertex normals (unit) of poses ``S (..., n, 3)``; ``inc`` is the cached
+    vertex-face incidence matrix (built when not given)."""
+    N = _cross(S[..., F[:, 1], :] - S[..., F[:, 0], :], S[..., F[:, 2], :] - S[..., F[:, 0], :])
     m = F.shape[0]
-    inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))), shape=(n, m))
+    if inc is None:
+        inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))),
+                            shape=(n, m))
     if N.ndim == 2:
         vn = inc @ N
     else:
@@ -290,20 +294,24 @@ class Prolongation:
             ``R[..., i, :, 0] = t_i``, ``R[..., i, :, 1] = b_i``, ``R[..., i, :, 2] = n_i``.
         """
         S = np.asarray(S, dtype=np.float64)
-        nrm = _vertex_normals(S, self.F, self.n_vertices)
+        if getattr(self, "_inc", None) is None:
+            m = self.F.shape[0]
+            self._inc = sp.csr_matrix((np.ones(3 * m), (self.F.T.ravel(), np.tile(np.arange(m), 3))),
+                                      shape=(self.n_vertices, m))
+        nrm = _vertex_normals(S, self.F, self.n_vertices, self._inc)
         e = S[..., self._ref_nbr, :] - S
         t = e - np.einsum("...i,...i->...", e, nrm)[..., None] * nrm
         tl = np.linalg.norm(t, axis=-1, keepdims=True)
         # fallback for a reference edge along the normal: any direction orthogonal to n
-        alt = np.cross(nrm, np.where(np.abs(nrm[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
+        alt = _cross(nrm, np.where(np.abs(nrm[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
         t = np.where(tl > 1e-12 * np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-300),
                      t / np.maximum(tl, 1e-300), alt / np.maximum(
                          np.linalg.norm(alt, axis=-1, keepdims=True), 1e-300))
-        b = np.cross(nrm, t)
+        b = _cross(nrm, t)
         return np.stack([t, b, nrm], axis=-1)
 
     def decode(self, Vc, frames=None, K=None, *, time_weights="linear", bc: str = "natural",
-               chunk: int = 16) -> np.ndarray:
+               chunk: int = 16, only=None) -> np.ndarray:
         """Prolong a coarse sequence to the fine mesh.
 
         Parameters
@@ -322,6 +330,9 @@ class Prolongation:
             Boundary condition used by the ``"linear"``/``"spline"`` weights.
         chunk : int
             Frames solved together (memory ``~ chunk * n * 3`` doubles).
+        only : (r,) int array_like, optional
+            Decode only these frames (the other rows of the result are zero); lets callers
+            split the frames over processes.
 
         Returns
         -------
@@ -364,6 +375,8 @@ class Prolongation:
         if str(bc).lower() == "periodic" and self.frames[0] == 0:
             key_of[K] = 0
         todo = np.flatnonzero(key_of < 0)
+        if only is not None:
+            todo = np.intersect1d(todo, np.asarray(only, dtype=np.int64))
         step = max(1, int(chunk))
         for s in range(0, todo.shape[0], step):
             ks = todo[s:s + step]
@@ -374,6 +387,8 @@ class Prolongation:
         if self.pinned.size:
             out[:, self.pinned] = self.keyframes[0, self.pinned]
         done = np.flatnonzero(key_of >= 0)
+        if only is not None:
+            done = np.intersect1d(done, np.asarray(only, dtype=np.int64))
         out[done] = self.keyframes[key_of[done]]
         return out
 
