@@ -321,7 +321,9 @@ class _LowerAssembler:
             keys_parts.append(key)
             self._blocks.append((r0, rows, k, off, np.flatnonzero(lower.ravel())))
         diag_keys = np.arange(N, dtype=np.int64) * (N + 1)
-        keys = np.unique(np.concatenate(keys_parts + [diag_keys]))
+        keys = np.sort(np.concatenate(keys_parts + [diag_keys]))
+        # sort-then-mask: numpy 2.4's np.unique is ~80x slower on large int64 arrays
+        keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
         self.N = N
         self.indices = (keys % N).astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(keys // N, minlength=N))]
