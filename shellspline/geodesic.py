@@ -30,6 +30,7 @@ import scipy.sparse as sp
 from ._errors import ShellsplineError
 from ._linalg import SparseCholesky
 from .lta_spline import _canonical_bc, _checked_frames, _checked_K
+from .reconstruct import _rigid_modes
 from .shell_energy import DiscreteShells, HessianPattern, _checked_pose
 from .topology import Topology
 
@@ -67,29 +68,6 @@ class GeodesicResult:
     nit: int
     message: str
     grad_norms: list = field(default_factory=list)
-
-
-def _rigid_modes(V, free, pinned_dofs):
-    """Orthonormal basis ``(len(free), r)`` of the infinitesimal rigid motions of ``V (n,3)``
-    that leave the pinned DOFs fixed, restricted to the free DOFs (``r <= 6``)."""
-    n = len(V)
-    c = V - V.mean(axis=0)
-    B = np.zeros((n, 3, 6))
-    B[:, [0, 1, 2], [0, 1, 2]] = 1.0
-    for a in range(3):
-        w = np.zeros(3)
-        w[a] = 1.0
-        B[:, :, 3 + a] = np.cross(w, c)
-    B = B.reshape(3 * n, 6)
-    if len(pinned_dofs):
-        _, s, Vh = np.linalg.svd(B[pinned_dofs], full_matrices=True)
-        rank = int(np.sum(s > 1e-10 * max(s[0], 1e-300)))
-        C = Vh[rank:].T
-        if C.shape[1] == 0:
-            return np.zeros((len(free), 0))
-        B = B @ C
-    Q, _ = np.linalg.qr(B[free])
-    return Q
 
 
 class PathSolver:

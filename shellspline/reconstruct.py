@@ -349,19 +349,33 @@ def _dot(a, b) -> float:
     return float(np.einsum("i,i->", a, b))
 
 
-def _rigid_basis(x):
-    """Orthonormal basis (3n,6) of the infinitesimal rigid motions at positions ``x`` (3n,)."""
-    V = x.reshape(-1, 3)
-    c = V - V.mean(axis=0)
+def _rigid_modes(V, free, pinned_dofs):
+    """Orthonormal basis ``(len(free), r)`` of the infinitesimal rigid motions of ``V (n,3)``
+    that leave the pinned DOFs fixed, restricted to the free DOFs (``r <= 6``)."""
     n = len(V)
+    c = V - V.mean(axis=0)
     B = np.zeros((n, 3, 6))
     B[:, [0, 1, 2], [0, 1, 2]] = 1.0
     for a in range(3):
         w = np.zeros(3)
         w[a] = 1.0
         B[:, :, 3 + a] = np.cross(w, c)
-    Q, _ = np.linalg.qr(B.reshape(3 * n, 6))
+    B = B.reshape(3 * n, 6)
+    if len(pinned_dofs):
+        _, s, Vh = np.linalg.svd(B[pinned_dofs], full_matrices=True)
+        rank = int(np.sum(s > 1e-10 * max(s[0], 1e-300)))
+        C = Vh[rank:].T
+        if C.shape[1] == 0:
+            return np.zeros((len(free), 0))
+        B = B @ C
+    Q, _ = np.linalg.qr(B[free])
     return Q
+
+
+
+def _rigid_basis(x):
+    """Orthonormal basis (3n,6) of the infinitesimal rigid motions at positions ``x`` (3n,)."""
+    return _rigid_modes(x.reshape(-1, 3), slice(None), ())
 
 
 def reconstruct(z_target, weights, V_init, T: Topology, **options) -> ReconstructionResult:
