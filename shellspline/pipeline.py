@@ -228,9 +228,8 @@ def _worker_init(F, n, pinned, gn_options):
     from .topology import topology
 
     _WORKER["blas"] = _single_blas_thread()
-
-    T = topology(F, n)
-    _WORKER["gn"] = GaussNewton(T, pinned=pinned, **gn_options)
+    if "gn" not in _WORKER:  # forked workers inherit the parent's prepared solver
+        _WORKER["gn"] = GaussNewton(topology(F, n), pinned=pinned, **gn_options)
 
 
 def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vprev, warm, on_frame=None):
@@ -314,17 +313,25 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
     method = "fork" if "fork" in mp.get_all_start_methods() and platform.system() == "Linux" \
         else "spawn"
     ctx = mp.get_context(method)
+    if method == "fork":
+        # build the assembly pattern once here; the forked workers inherit it
+        gn = GaussNewton(T, pinned=pinned, **gn_options)
+        gn._assembler()
+        _WORKER["gn"] = gn
     done = 0
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                             initargs=(T.F, T.n_vertices, pinned, gn_options)) as ex:
-        futs = [ex.submit(_worker_solve, (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
-                                          Vinit[np.maximum(c - 1, 0)], warm))
-                for c in chunks]
-        for fut in futs:
-            for kk, Vk, rec in fut.result():
-                results[kk] = (Vk, rec)
-                done += 1
-                progress.advance("reconstruct", done, total)
+    try:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                                 initargs=(T.F, T.n_vertices, pinned, gn_options)) as ex:
+            futs = [ex.submit(_worker_solve, (c, Z[c], np.stack([W_of(k) for k in c]),
+                                              Vinit[c], Vinit[np.maximum(c - 1, 0)], warm))
+                    for c in chunks]
+            for fut in futs:
+                for kk, Vk, rec in fut.result():
+                    results[kk] = (Vk, rec)
+                    done += 1
+                    progress.advance("reconstruct", done, total)
+    finally:
+        _WORKER.pop("gn", None)
     return results
 
 
