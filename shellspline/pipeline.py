@@ -658,15 +658,15 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
 
 
 def _placed(V, blend, frames, K, periodic, pinned, Vkey):
-    """Rigidly place the in-between frames onto the blend (no pins) and restore the keyframes
-    bit for bit."""
+    """Rigidly place the in-between frames onto the blend (with pins: only by the rigid motions
+    that keep them fixed) and restore the keyframes bit for bit."""
     V = np.array(V, dtype=np.float64, copy=True)
-    if pinned is None:
-        is_key = np.zeros(K + 1, dtype=bool)
-        is_key[frames] = True
-        is_key[K] |= periodic
-        for k in np.flatnonzero(~is_key):
-            V[k] = rigid_placement(V[k], blend[k])
+    is_key = np.zeros(K + 1, dtype=bool)
+    is_key[frames] = True
+    is_key[K] |= periodic
+    for k in np.flatnonzero(~is_key):
+        # with pins only the motions they leave free (none for 3+ non-collinear pins)
+        V[k] = rigid_placement(V[k], blend[k], fixed=pinned)
     for j, f in enumerate(frames):
         V[f] = Vkey[j]
     if periodic:

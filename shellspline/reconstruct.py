@@ -151,6 +151,19 @@ class GaussNewton:
             self._chol.refactor_lower(data)
         self._stale = False
 
+    def _free_rigid_modes(self, x):
+        """Orthonormal (3n,r) basis of the rigid motions the pins leave free (all six without
+        pins, none with three non-collinear pins), zero on the pinned DOFs; None if r = 0."""
+        if not self.pinned.size:
+            return _rigid_basis(x)
+        free = np.flatnonzero(self._free)
+        Qf = _rigid_modes(x.reshape(-1, 3), free, np.flatnonzero(self._dof_pinned))
+        if Qf.shape[1] == 0:
+            return None
+        Q = np.zeros((x.shape[0], Qf.shape[1]))
+        Q[free] = Qf
+        return Q
+
     def _pcg(self, J, w, b, delta, x_cur=None):
         """Solve (JᵀWJ + δI) x = b on the free DOFs, preconditioned by the cached factor.
 
@@ -160,7 +173,7 @@ class GaussNewton:
         projected on the complement of the current rigid modes.
         """
         free = self._free
-        Q = _rigid_basis(x_cur) if (x_cur is not None and not self.pinned.size) else None
+        Q = self._free_rigid_modes(x_cur) if x_cur is not None else None
 
         def matvec(v):
             out = J.T @ (w * (J @ v)) + delta * v
@@ -232,6 +245,9 @@ class GaussNewton:
         res = ReconstructionResult(V=x.reshape(-1, 3), success=False, nit=0, message="",
                                    energy=[f], grad_norm=[g0])
         facts0 = self._chol.n_factorizations if self._chol is not None else 0
+        if not (np.isfinite(f) and np.isfinite(g0)):
+            res.message = "initial guess is degenerate (non-finite energy)"
+            return res
         if g0 == 0.0:
             res.success, res.message = True, "initial guess is stationary"
             return res
@@ -269,8 +285,9 @@ class GaussNewton:
                     continue
                 res.nit = it
                 res.message = "line search failed (no decrease along the Gauss–Newton step)"
-                res.success = f <= 1e-12 * max(res.energy[0], 1e-300) or \
-                    float(np.linalg.norm(g)) <= 1e3 * self.gtol * g0
+                res.success = bool(np.isfinite(f)) and (
+                    f <= 1e-12 * max(res.energy[0], 1e-300) or
+                    float(np.linalg.norm(g)) <= 1e3 * self.gtol * g0)
                 break
             x = xn
             f_old, f = f, fn
@@ -408,7 +425,7 @@ def reconstruct(z_target, weights, V_init, T: Topology, **options) -> Reconstruc
     return GaussNewton(T, **options).solve(z_target, weights, V_init)
 
 
-def rigid_placement(V, V_target, weights=None):
+def rigid_placement(V, V_target, weights=None, fixed=None):
     """Rigidly move ``V`` onto ``V_target`` in the least-squares sense (Kabsch, no scaling).
 
     Parameters
@@ -417,6 +434,10 @@ def rigid_placement(V, V_target, weights=None):
     V_target : (n,3) float64 array
     weights : (n,) float64 array, optional
         Non-negative per-vertex weights.
+    fixed : (p,) int array, optional
+        Vertices that must not move (pinned vertices). Only the rigid motions that keep them
+        in place are used: a rotation about the point (one vertex), about the line (collinear
+        vertices), or none (three or more non-collinear vertices). They stay bit-identical.
 
     Returns
     -------
@@ -427,9 +448,36 @@ def rigid_placement(V, V_target, weights=None):
     Y = np.asarray(V_target, dtype=np.float64)
     w = np.ones(len(V)) if weights is None else np.asarray(weights, dtype=np.float64)
     w = w / w.sum()
+    if fixed is not None and len(fixed):
+        return _placement_about_fixed(V, Y, w, np.asarray(fixed, dtype=np.int64))
     cx, cy = w @ V, w @ Y
     H = (V - cx).T @ ((Y - cy) * w[:, None])
     U, _, Wt = np.linalg.svd(H)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Wt.T @ U.T)) or 1.0])
     R = Wt.T @ D @ U.T
     return (V - cx) @ R.T + cy
+
+
+def _placement_about_fixed(V, Y, w, fixed):
+    P = V[fixed]
+    c = P.mean(axis=0)
+    sv = np.linalg.svd(P - c, compute_uv=False) if len(P) > 1 else np.zeros(3)
+    scale = max(np.abs(V - c).max(), 1e-300)
+    out = V.copy()
+    if sv[0] <= 1e-9 * scale:  # one point: rotation about it
+        H = (V - c).T @ ((Y - c) * w[:, None])
+        U, _, Wt = np.linalg.svd(H)
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Wt.T @ U.T)) or 1.0])
+        out = (V - c) @ (Wt.T @ D @ U.T).T + c
+    elif len(sv) < 2 or sv[1] <= 1e-9 * scale:  # collinear: rotation about the line
+        _, _, Vt = np.linalg.svd(P - c)
+        u = Vt[0]
+        a = (V - c) - np.outer((V - c) @ u, u)
+        b = (Y - c) - np.outer((Y - c) @ u, u)
+        th = np.arctan2(w @ np.einsum("ij,ij->i", np.cross(a, b), np.broadcast_to(u, a.shape)),
+                        w @ np.einsum("ij,ij->i", a, b))
+        K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+        R = np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * (K @ K)
+        out = (V - c) @ R.T + c
+    out[fixed] = V[fixed]
+    return out

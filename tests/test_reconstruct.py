@@ -112,3 +112,37 @@ def test_sparse_cholesky_solves():
         assert np.allclose(2 * (A @ C.solve(b)), b)
     with pytest.raises(ValueError, match="backend"):
         SparseCholesky(A, backend="magic")
+
+
+@pytest.mark.parametrize("fixed", [[3], [3, 7], [3, 7, 20]])
+def test_rigid_placement_with_fixed_vertices(fixed):
+    V, _ = icosphere(1)
+    V = V * [1, 2, 3]
+    fixed = np.array(fixed)
+    P = V[fixed]
+    if len(fixed) == 1:  # rotate about the point
+        R = _rotation(3)
+        X = (V - P[0]) @ R.T + P[0]
+    else:  # rotate about the line through the first two pins
+        u = (P[1] - P[0]) / np.linalg.norm(P[1] - P[0])
+        K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+        R = np.eye(3) + np.sin(0.7) * K + (1 - np.cos(0.7)) * K @ K
+        X = (V - P[0]) @ R.T + P[0]
+    X[fixed] = V[fixed]
+    out = rigid_placement(X, V, fixed=fixed)
+    assert np.array_equal(out[fixed], X[fixed])  # pins bit-identical
+    if len(fixed) < 3:
+        assert np.abs(out - V).max() < 1e-9  # the free rotation is undone
+    else:
+        assert np.array_equal(out, X)  # three non-collinear pins: nothing may move
+
+
+def test_partial_pins_leave_no_free_spin():
+    # two pins leave the rotation about their axis free: steps must not spin the mesh
+    V, F = icosphere(2)
+    T = topology(F)
+    target = V * [1.2, 1.0, 0.9]
+    z, w = lta_descriptors(target, T), lta_weights(V, T)
+    res = GaussNewton(T, pinned=[0, 5]).solve(z, w, V)
+    placed = rigid_placement(res.V, V, fixed=[0, 5])
+    assert np.abs(placed - res.V).max() < 1e-3 * np.abs(V).max()
