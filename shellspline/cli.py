@@ -114,13 +114,23 @@ def _interpolate(args) -> int:
     import shellspline as ss
 
     bar = _Bar(quiet=args.quiet)
+    if args.max_iter is not None and args.max_iter < 1:
+        raise ValueError(f"--max-iter must be >= 1, got {args.max_iter}")
+    if args.frames is not None and not args.frames.strip():
+        raise ValueError("--frames is empty")
     t_read = time.perf_counter()
-    frames = ss.read_frames(args.frames) if args.frames else None
+    try:
+        frames = ss.read_frames(args.frames) if args.frames else None
+    except OverflowError:
+        raise ValueError(f"--frames {args.frames!r}: a frame number is too large") from None
     kf = ss.read_keyframes(args.keyframes, frames=frames)
     t_read = time.perf_counter() - t_read
     pinned = None
     if args.pinned:
-        pinned = ss.read_indices(args.pinned)
+        try:
+            pinned = ss.read_indices(args.pinned)
+        except OverflowError:
+            raise ValueError(f"--pinned {args.pinned}: a vertex index is too large") from None
     if args.fix_boundary:
         bv = kf.topology.boundary_vertices
         if bv.size == 0:
@@ -145,8 +155,10 @@ def _interpolate(args) -> int:
                          progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
+    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames)
+                                      if p and Path(p).is_file()]
     out = ss.write_sequence(args.out, res.V, res.F, res.report, overwrite=args.overwrite,
-                            protect=list(args.keyframes))
+                            protect=protect)
     res.report["timings"]["write"] = time.perf_counter() - t0
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)
@@ -159,7 +171,8 @@ def _rewrite_report(out: Path, report: dict) -> None:
 
     fd, tmp = tempfile.mkstemp(dir=out, prefix=".report.", suffix=".json")
     with os.fdopen(fd, "w") as fh:
-        json.dump(report, fh, indent=2, default=_json_default)
+        json.dump(report, fh, indent=2, default=_json_default, allow_nan=False)
+    os.chmod(tmp, 0o644)  # mkstemp creates 0600; the report is an ordinary output file
     os.replace(tmp, out / "report.json")
 
 
@@ -216,15 +229,27 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
+    import signal
+
+    def _terminate(signum, frame):  # SIGTERM unwinds like Ctrl-C: temp outputs are removed
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, _terminate)
     try:
         if args.command == "interpolate":
             return _interpolate(args)
-    except (ValueError, FileExistsError, FileNotFoundError, OSError) as exc:
+    except (ValueError, OverflowError, FileExistsError, FileNotFoundError, OSError) as exc:
         print(f"shellspline: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except MemoryError:
+        print("shellspline: error: out of memory (fewer frames, --coarse, or more memory)",
+              file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("shellspline: interrupted; no output was written", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, old)
     return EXIT_USAGE
 
 

@@ -29,6 +29,7 @@ METHODS = ("lta", "linear", "geodesic", "nonlinear")
 BOUNDARY_CONDITIONS = ("natural", "periodic", "hermite")
 REFERENCES = ("constant", "keyframe")
 DEFAULT_STEP = 10
+MAX_FRAMES = 1_000_000
 
 
 @dataclass
@@ -103,6 +104,8 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
             K = int(frames[-1] + (DEFAULT_STEP if periodic else 0))
         else:
             K = int(K)
+            if K < 1 or K > MAX_FRAMES:
+                raise ValueError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
             if periodic:
                 frames = np.round(np.arange(J) * K / J).astype(np.int64)
             else:
@@ -122,6 +125,8 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
     if K is None:
         K = int(frames[-1] + ((frames[-1] - frames[-2]) if periodic else 0))
     K = int(K)
+    if K < 1 or K > MAX_FRAMES:
+        raise ValueError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
     if periodic and frames[-1] >= K:
         raise ValueError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K is "
                          f"frame 0 again), got frames {frames.tolist()}")
@@ -188,7 +193,7 @@ def sequence_quality(V, T: Topology, frames) -> dict:
     F = T.F
 
     def normals(Vs):
-        return np.cross(Vs[:, F[:, 1]] - Vs[:, F[:, 0]], Vs[:, F[:, 2]] - Vs[:, F[:, 0]])
+        return _tri_normals(Vs, F)
 
     a_ref = (0.5 * np.linalg.norm(normals(V[np.asarray(frames)]), axis=-1)).mean(axis=0)
     a_ref = np.maximum(a_ref, 1e-300)
@@ -244,7 +249,10 @@ def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vprev, warm, on_frame=None):
     for i, (k, z, w, v) in enumerate(zip(ks, Zs, Ws, Vinit)):
         t0 = time.perf_counter()
         if warm and prev_k is not None and prev_k == k - 1:
-            v = prev_V + (v - Vprev[i])
+            vw = prev_V + (v - Vprev[i])
+            if np.all(np.isfinite(vw)) and \
+                    np.linalg.norm(_tri_normals(vw, gn.T.F), axis=-1).min() > 0:
+                v = vw
         r = gn.solve(z, w, v)
         prev_k, prev_V = int(k), r.V
         rec = r.summary()
@@ -419,7 +427,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
 
     if isinstance(keyframes, Keyframes):
         kf = keyframes
-    elif isinstance(keyframes, tuple) and len(keyframes) == 2:
+    elif isinstance(keyframes, tuple) and len(keyframes) == 2 and \
+            not isinstance(keyframes[0], (str, os.PathLike)):
         with prog.stage("validate"):
             kf = keyframes_from_arrays(keyframes[0], keyframes[1])
     else:
@@ -487,6 +496,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                         workers=workers, gn_options=dict(gn_options or {}),
                         warm_start=warm_start, prog=prog)
         n_coarse = _coarse_target(coarse, n)
+        if fine and n_coarse is None:
+            raise ValueError("`fine=True` refines a multiresolution run: it needs `coarse` "
+                             f"(a vertex count or fraction below the {n} vertices), got "
+                             f"coarse={coarse!r}")
         if n_coarse is None:
             V, Z, W_report, frame_records = _lta_sequence(Vkey, T, pinned, **lta_args)
         else:
@@ -503,8 +516,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             Vc, Zc, Wc, coarse_records = _lta_sequence(
                 dec.V, Tc, dec.pinned, stage_prefix="coarse ", **lta_args)
             with prog.stage("prolong"):
-                P = Prolongation.encode(Vkey, T.F, dec, frames, pinned=pinned)
+                moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
+                P = Prolongation.encode(Vkey, T.F, dec, frames,
+                                        pinned=None if moving else pinned)
                 V = _parallel_decode(P, Vc, frames, K, bc, workers)
+                if moving:  # same semantics as full resolution: pins follow the blend
+                    V[:, pinned] = blend[:, pinned]
             report["multires"]["coarse_frames"] = coarse_records
             Z, W_report = None, None
             if fine:
@@ -541,13 +558,16 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 prog.message(f"nonlinear spline: {nl.message}")
     with prog.stage("energies"):
         if energy_source is not None:
-            report["energies"] = _energies(energy_source[0], energy_source[1],
-                                           energy_source[2], bc, energy_source[3])
-            report["energies"]["resolution"] = "coarse"
+            Ve, Ze, Te, We, resolution = (*energy_source, "coarse")
         else:
-            report["energies"] = _energies(V, Z, T, bc, W_report if method in ("lta", "nonlinear")
-                                           else lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta))
-            report["energies"]["resolution"] = "full"
+            We = W_report if method in ("lta", "nonlinear") else \
+                lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta)
+            Ve, Ze, Te, resolution = V, Z, T, "full"
+        if np.all(np.isfinite(Ve)):
+            report["energies"] = _energies(Ve, Ze, Te, bc, We)
+        else:  # a failed frame: keep the report (the quality check flags the sequence)
+            report["energies"] = {"error": "the sequence has non-finite coordinates"}
+        report["energies"]["resolution"] = resolution
     report["frames"] = frame_records
     with prog.stage("quality"):
         report["quality"] = sequence_quality(V, T, frames)
@@ -570,7 +590,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     report["timings"] = dict(prog.timings)
     report["timings"]["total"] = time.perf_counter() - t_start
     report["platform"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
-    return InterpolationResult(V=V, F=T.F, frames=frames, report=report, Z=Z)
+    return InterpolationResult(V=V, F=T.F, frames=frames, report=_jsonable(report), Z=Z)
 
 
 AUTO_COARSE_ABOVE = 20_000
@@ -645,7 +665,8 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
     is_key[K] |= periodic
     ks = np.flatnonzero(~is_key)
     warm = warm_start and Vinit is None
-    Vinit = blend if Vinit is None else np.asarray(Vinit, dtype=np.float64)
+    Vinit = _safe_init(blend, Vkey, frames, K, bc, T) if Vinit is None else \
+        np.asarray(Vinit, dtype=np.float64)
     with prog.stage(stage_prefix + "reconstruct", total=len(ks)):
         results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
                                       warm)
@@ -655,6 +676,50 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
             V[k] = results[k][0]
         V = _placed(V, blend, frames, K, periodic, pinned, Vkey)
     return V, Z, W_report, [results[k][1] for k in ks]
+
+
+def _safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):
+    """The keyframe blend as initial guess, except for frames where the blend collapses
+    triangles (e.g. a half-turn between keyframes): those start from the nearer keyframe."""
+    F = T.F
+
+    def areas(Vs):
+        return 0.5 * np.linalg.norm(_tri_normals(Vs, F), axis=-1)
+
+    a_key = areas(Vkey).mean(axis=0)
+    out = blend
+    j0, j1, t = _bracketing(np.asarray(frames), K, bc == "periodic")
+    for i in range(0, K + 1, 8):
+        bad = (areas(blend[i:i + 8]) < min_ratio * a_key).any(axis=1)
+        for k in np.flatnonzero(bad) + i:
+            if out is blend:
+                out = blend.copy()
+            out[k] = Vkey[j0[k] if t[k] <= 0.5 else j1[k]]
+    return out
+
+
+def _tri_normals(Vs, F):
+    from .descriptors import _cross
+
+    return _cross(Vs[..., F[:, 1], :] - Vs[..., F[:, 0], :], Vs[..., F[:, 2], :] - Vs[..., F[:, 0], :])
+
+
+def _jsonable(obj):
+    """The report with numpy scalars/arrays as Python values and non-finite floats as None
+    (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer, int)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
 
 
 def _placed(V, blend, frames, K, periodic, pinned, Vkey):

@@ -110,3 +110,28 @@ def test_unit_sphere_shared_data(tmp_path):
     rep = json.loads((out / "report.json").read_text())
     assert rep["quality"]["flipped_faces"] == 0 and rep["quality"]["degenerate_faces"] == 0
     assert rep["gauss_newton"]["converged"] == 4
+
+
+def test_overflowing_numbers_are_usage_errors(ell_dir, tmp_path, capsys):
+    for extra in (["--frames", "0,6,99999999999999999999999"], ["--K", "100000000000"],
+                  ["--K", "-3"], ["--max-iter", "0"]):
+        rc = main(["interpolate", *_poses(ell_dir), "-o", str(tmp_path / "o"), "-q", *extra])
+        err = capsys.readouterr().err
+        assert rc == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_report_is_world_readable_strict_json(ell_dir, tmp_path):
+    out = tmp_path / "r"
+    assert main(["interpolate", *_poses(ell_dir), "-o", str(out), "-q", "--K", "6"]) == 0
+    assert (out / "report.json").stat().st_mode & 0o777 == 0o644
+    json.loads((out / "report.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+
+
+def test_overwrite_never_deletes_the_pinned_or_frames_file(ell_dir, tmp_path, capsys):
+    out = tmp_path / "prev"
+    assert main(["interpolate", *_poses(ell_dir), "-o", str(out), "-q", "--method",
+                 "linear"]) == 0
+    (out / "pinned.txt").write_text("0\n")
+    rc = main(["interpolate", *_poses(ell_dir), "-o", str(out), "-q", "--overwrite",
+               "--pinned", str(out / "pinned.txt")])
+    assert rc == 2 and (out / "pinned.txt").exists()
