@@ -296,7 +296,8 @@ def _chunks(idx, n_chunks):
     return [c for c in np.array_split(np.asarray(idx), n_chunks) if len(c)]
 
 
-def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress, warm):
+def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress, warm,
+                        stage="reconstruct"):
     results = {}
     total = len(ks)
     if total == 0:
@@ -308,7 +309,7 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
             W = np.stack([W_of(k) for k in ks])
             for kk, Vk, rec in _solve_run(gn, ks, Z[ks], W, Vinit[ks],
                                           Vinit[np.maximum(ks - 1, 0)], warm,
-                                          lambda i: progress.advance("reconstruct", i, total)):
+                                          lambda i: progress.advance(stage, i, total)):
                 results[kk] = (Vk, rec)
         finally:
             if limiter is not None:
@@ -337,7 +338,7 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
                 for kk, Vk, rec in fut.result():
                     results[kk] = (Vk, rec)
                     done += 1
-                    progress.advance("reconstruct", done, total)
+                    progress.advance(stage, done, total)
     finally:
         _WORKER.pop("gn", None)
     return results
@@ -452,6 +453,9 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                          f"with K={K}")
     Vkey = kf.V
     J, n = Vkey.shape[:2]
+    if bc != "periodic" and K > frames[-1] and method != "linear":
+        prog.message(f"frames {int(frames[-1]) + 1}..{K} lie after the last keyframe: the "
+                     "spline extrapolates them (linearly in its variables)")
     if pinned is not None:
         spread = np.abs(Vkey[:, pinned] - Vkey[0, pinned]).max()
         if spread > 0:
@@ -669,7 +673,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         np.asarray(Vinit, dtype=np.float64)
     with prog.stage(stage_prefix + "reconstruct", total=len(ks)):
         results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
-                                      warm)
+                                      warm, stage=stage_prefix + "reconstruct")
     with prog.stage(stage_prefix + "place"):
         V = blend.copy()
         for k in ks:
