@@ -68,6 +68,8 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from _common import _fmt, format_table  # noqa: E402  (benchmarks/ is on sys.path)
+
 REPO = Path(__file__).resolve().parents[1]
 CACTUS_DIR = REPO.parent / "shared" / "data" / "cactus"
 CACTUS_FILES = ("cactus0.ply", "cactus5.ply", "cactus13.ply")
@@ -360,28 +362,6 @@ def machine_info() -> dict:
 # --------------------------------------------------------------------------------------
 # printing
 # --------------------------------------------------------------------------------------
-def _fmt(x, nd=2) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, bool):
-        return "yes" if x else "NO"
-    if isinstance(x, float):
-        if x != 0 and abs(x) < 10 ** -nd:
-            return f"{x:.1e}"
-        return f"{x:.{nd}f}"
-    return str(x)
-
-
-def format_table(headers, rows) -> str:
-    """Plain fixed-width table: first column left-aligned, the rest right-aligned."""
-    cells = [[_fmt(c) for c in r] for r in rows]
-    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h)
-              for i, h in enumerate(headers)]
-
-    def line(r):
-        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
-                         for i, (c, w) in enumerate(zip(r, widths)))
-    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, cells)])
 
 
 def timing_rows(results) -> list:

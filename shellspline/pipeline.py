@@ -708,9 +708,9 @@ def _safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):
 
 
 def _tri_normals(Vs, F):
-    from .descriptors import _cross
+    from .descriptors import _face_normals_unnormalized
 
-    return _cross(Vs[..., F[:, 1], :] - Vs[..., F[:, 0], :], Vs[..., F[:, 2], :] - Vs[..., F[:, 0], :])
+    return _face_normals_unnormalized(Vs, F)
 
 
 def _jsonable(obj):
