@@ -105,6 +105,11 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--max-iter", type=int, default=None, help="Gauss–Newton iteration limit")
     q.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    # Other subcommands live in their own modules; each registers parsers that set `func`.
+    from . import _cli_batch, _cli_viz
+
+    _cli_viz.add_parsers(sub)
+    _cli_batch.add_parsers(sub)
     return p
 
 
@@ -238,6 +243,8 @@ def main(argv=None) -> int:
     try:
         if args.command == "interpolate":
             return _interpolate(args)
+        if hasattr(args, "func"):
+            return args.func(args)
     except (ValueError, OverflowError, FileExistsError, FileNotFoundError, OSError) as exc:
         print(f"shellspline: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
