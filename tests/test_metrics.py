@@ -1,0 +1,34 @@
+import numpy as np
+
+import shellspline as ss
+from shellspline.metrics import edge_strain, half_axes, keyframe_kinks, speed
+
+from conftest import icosphere
+
+
+def test_half_axes_of_a_scaled_and_shifted_sphere():
+    V, _ = icosphere(2)
+    W = V * np.array([2.0, 1.0, 0.5]) + np.array([5.0, -3.0, 1.0])
+    np.testing.assert_allclose(half_axes(W), [2.0, 1.0, 0.5], rtol=1e-12)
+    assert half_axes(np.stack([V, W])).shape == (2, 3)
+
+
+def test_kinks_separate_smooth_curves_from_corners():
+    V, _ = icosphere(1)
+    K = 20
+    t = np.linspace(0, 1, K + 1)[:, None, None]
+    smooth = V[None] * (1 + t ** 2)                     # C¹ in t: second difference O(1/K)
+    a, b = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])   # turn by 90° at frame 10
+    corner = V[None] + np.where(t <= 0.5, t * a, 0.5 * a + (t - 0.5) * b)
+    assert keyframe_kinks(smooth, [0, 10, 20])[0] < 0.2
+    np.testing.assert_allclose(keyframe_kinks(corner, [0, 10, 20]), [1.0], rtol=1e-12)
+    assert keyframe_kinks(smooth, [0, 20]).size == 0
+
+
+def test_edge_strain_of_a_uniform_scaling_and_speed_of_a_translation():
+    V, F = icosphere(2)
+    T = ss.topology(F)
+    np.testing.assert_allclose(edge_strain(np.stack([V, 1.1 * V]), V, T), [0.0, 0.1], atol=1e-12)
+    K = 8
+    Vs = V[None] + np.linspace(0, 1, K + 1)[:, None, None] * np.array([3.0, 4.0, 0.0])
+    np.testing.assert_allclose(speed(Vs), 5.0, rtol=1e-12)
