@@ -103,6 +103,12 @@ def _build_parser() -> argparse.ArgumentParser:
                         "initialised from the prolonged result")
     q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
     q.add_argument("--max-iter", type=int, default=None, help="Gauss–Newton iteration limit")
+    q.add_argument("--format", default="obj", choices=["obj", "ply", "glb"],
+                   help="output: frame_*.obj (default, exact), frame_*.ply (binary, exact) or "
+                        "one animation.glb (float32 morph-target animation for Blender, "
+                        "three.js, game engines)")
+    q.add_argument("--fps", type=float, default=24.0,
+                   help="frames per second of the GLB animation (default 24)")
     q.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     # Other subcommands live in their own modules; each registers parsers that set `func`.
@@ -123,6 +129,8 @@ def _interpolate(args) -> int:
         raise ValueError(f"--max-iter must be >= 1, got {args.max_iter}")
     if args.frames is not None and not args.frames.strip():
         raise ValueError("--frames is empty")
+    if not (args.fps > 0 and args.fps < float("inf")):
+        raise ValueError(f"--fps must be a positive number, got {args.fps}")
     t_read = time.perf_counter()
     try:
         frames = ss.read_frames(args.frames) if args.frames else None
@@ -163,7 +171,7 @@ def _interpolate(args) -> int:
     protect = list(args.keyframes) + [p for p in (args.pinned, args.frames)
                                       if p and Path(p).is_file()]
     out = ss.write_sequence(args.out, res.V, res.F, res.report, overwrite=args.overwrite,
-                            protect=protect)
+                            protect=protect, fmt=args.format, fps=args.fps)
     res.report["timings"]["write"] = time.perf_counter() - t0
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)

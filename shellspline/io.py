@@ -55,6 +55,8 @@ MESH_EXTENSIONS = (".obj", ".off", ".ply")
 """File extensions :func:`read_mesh` understands (case-insensitive)."""
 
 _FRAME_RE = re.compile(r"^frame_(\d+)\.(obj|ply)$")
+GLB_NAME = "animation.glb"
+"""File name of the sequence in an output directory written with ``fmt="glb"``."""
 
 
 # ----------------------------------------------------------------------------------------
@@ -750,7 +752,7 @@ def _parse_integers(text: str, what: str) -> np.ndarray:
 # Writing sequences
 # ----------------------------------------------------------------------------------------
 def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: bool = False,
-                   protect=(), workers: int = 1) -> Path:
+                   protect=(), workers: int = 1, fps: float = 24.0) -> Path:
     """Write a sequence of poses as ``frame_0000.obj ...`` plus ``report.json``, atomically.
 
     Everything is written into a temporary sibling directory
@@ -770,10 +772,12 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     report : dict, optional
         Written as ``report.json`` (indent 2); numpy arrays and scalars, paths, tuples and
         dataclasses are converted. Default ``{}``.
-    fmt : {"obj", "ply"}
+    fmt : {"obj", "ply", "glb"}
         ``"obj"``: text, coordinates with 17 significant digits (``%.17g``), so that every
         float64 reads back bit-identically. ``"ply"``: binary little-endian PLY with
-        ``double`` coordinates (exact, smaller and faster).
+        ``double`` coordinates (exact, smaller and faster). ``"glb"``: one file
+        ``animation.glb`` (binary glTF: frame 0 as the base mesh, one morph target per later
+        frame, an animation playing them at ``fps``; float32, see :mod:`shellspline.gltf`).
     overwrite : bool
         Replace an existing ``out_dir``. Only a directory that is empty or holds a
         ``report.json`` (i.e. looks like an earlier output) is ever replaced.
@@ -784,6 +788,8 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         Number of processes that format and write frames (``1``: in this process).
         Formatting OBJ text is CPU bound, so more workers help on long sequences; uses the
         ``fork`` start method where available.
+    fps : float
+        Frames per second of the GLB animation (``fmt="glb"`` only).
 
     Returns
     -------
@@ -830,8 +836,12 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         raise ShellsplineError(f"F indexes vertices outside [0, {n}): range "
                                f"[{F.min()}, {F.max()}]")
     fmt = str(fmt).lower().lstrip(".")
-    if fmt not in ("obj", "ply"):
-        raise ShellsplineError(f"fmt must be 'obj' or 'ply', got {fmt!r}")
+    if fmt not in ("obj", "ply", "glb"):
+        raise ShellsplineError(f"fmt must be 'obj', 'ply' or 'glb', got {fmt!r}")
+    if fmt == "glb":
+        from .gltf import glb_bytes
+
+        glb = glb_bytes(V, F, fps=fps)  # validates fps before anything is created
     workers = int(workers)
     if workers < 1:
         raise ShellsplineError(f"workers must be >= 1, got {workers}")
@@ -845,10 +855,13 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     parent.mkdir(parents=True, exist_ok=True)
     tmp = _fresh_sibling(parent, f".{target.name}.tmp-{os.getpid()}-")
     try:
-        K = V.shape[0] - 1
-        width = max(4, len(str(K)))
-        paths = [tmp / f"frame_{k:0{width}d}.{fmt}" for k in range(K + 1)]
-        _write_frames(paths, V, F, fmt, workers)
+        if fmt == "glb":
+            (tmp / GLB_NAME).write_bytes(glb)
+        else:
+            K = V.shape[0] - 1
+            width = max(4, len(str(K)))
+            paths = [tmp / f"frame_{k:0{width}d}.{fmt}" for k in range(K + 1)]
+            _write_frames(paths, V, F, fmt, workers)
         (tmp / "report.json").write_text(report_text, encoding="utf-8")
         _move_into_place(tmp, target, overwrite)
     except BaseException:
@@ -1009,6 +1022,9 @@ def _jsonable(obj, where: str):
 def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read a directory written by :func:`write_sequence`.
 
+    Frame files (``frame_*.obj`` / ``frame_*.ply``) are read when present, else
+    ``animation.glb`` (float32 coordinates, see :func:`shellspline.gltf.read_glb`).
+
     Parameters
     ----------
     out_dir : str or path-like
@@ -1040,7 +1056,15 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
                 raise MeshError(f"{d}: frame {k} appears twice ({found[k].name}, {p.name})")
             found[k] = p
     if not found:
-        raise MeshError(f"{d}: no frame_*.obj or frame_*.ply files")
+        if (d / GLB_NAME).is_file():
+            from .gltf import read_glb
+
+            try:
+                Vg, Fg, _ = read_glb(d / GLB_NAME)
+            except ShellsplineError as exc:
+                raise MeshError(str(exc)) from None
+            return Vg, Fg, _read_report(d)
+        raise MeshError(f"{d}: no frame_*.obj, frame_*.ply or {GLB_NAME} files")
     ks = sorted(found)
     if ks != list(range(len(ks))):
         missing = sorted(set(range(ks[-1] + 1)) - set(ks))
@@ -1058,11 +1082,14 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
                                 f"{Vs[0].shape[0]}")
             _check_same_faces(F, F0, name, name0)
         Vs.append(V)
-    report = {}
+    return np.stack(Vs), F0, _read_report(d)
+
+
+def _read_report(d: Path) -> dict:
     rp = d / "report.json"
-    if rp.is_file():
-        try:
-            report = json.loads(rp.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise MeshError(f"cannot read '{rp}': {_one_line(exc)}") from None
-    return np.stack(Vs), F0, report
+    if not rp.is_file():
+        return {}
+    try:
+        return json.loads(rp.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise MeshError(f"cannot read '{rp}': {_one_line(exc)}") from None
