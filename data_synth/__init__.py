@@ -20,7 +20,9 @@ Data sets (name: keyframes; default ``n_vertices``; default frames):
   isometry); 1000; 0 4 8 (periodic, K = 12)
 * ``bumpy``: the ellipsoid keyframes with high-frequency radial bumps; 2500; 0 6 12
 
-Command line: ``python -m data_synth NAME OUT [--vertices N] [--format obj|ply|off]``.
+Command line: ``python -m data_synth NAME OUT [--vertices N] [--format obj|ply|off]
+[--count C]`` (``--count``: ``C`` varied sequences in ``OUT/NAME_00/ ...``, see
+:func:`write_batch`).
 """
 from __future__ import annotations
 
@@ -36,7 +38,7 @@ from .sphere import DEFAULT_ELLIPSOID_AXES, bumpy, ellipsoids, geodesic_sphere
 
 __all__ = ["NAMES", "FORMATS", "generate", "write", "write_keyframes", "ellipsoids", "cactus",
            "hexagon", "bumpy", "geodesic_sphere", "cactus_rest", "hexagon_sheet", "write_mesh",
-           "pose_filenames", "DEFAULT_ELLIPSOID_AXES"]
+           "pose_filenames", "DEFAULT_ELLIPSOID_AXES", "variants", "write_batch"]
 
 _GENERATORS = {
     "ellipsoids": ellipsoids,
@@ -151,3 +153,79 @@ def write(name: str, out_dir, n_vertices: int | None = None, fmt: str = "obj",
     if fmt not in FORMATS:
         raise ValueError(f"fmt must be one of {FORMATS}, got {fmt!r}")
     return write_keyframes(generate(name, n_vertices, **params), out_dir, fmt)
+
+
+def variants(name: str, count: int, seed: int = 0) -> list[dict]:
+    """Generator parameters of ``count`` distinct, deterministic variants of a data set.
+
+    Ellipsoids and bumpy ellipsoids vary their stretched half-axes, the cactus its bend
+    angle, the hexagon its fold angle (each within a range where the data set stays valid).
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`NAMES`.
+    count : int
+        Number of variants (>= 1).
+    seed : int
+        Seed of the random variation.
+
+    Returns
+    -------
+    list of dict
+        Keyword arguments for :func:`generate`, one per variant.
+    """
+    from ._common import positive_int
+
+    count = positive_int(count, "count")
+    if name not in _GENERATORS:
+        raise ValueError(f"name must be one of {NAMES}, got {name!r}")
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        if name in ("ellipsoids", "bumpy"):
+            a, b = rng.uniform(1.3, 2.2, size=2)
+            out.append({"axes": [[float(a), 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, float(b), 1.0]]})
+        elif name == "cactus":
+            out.append({"bend_angle": float(rng.uniform(0.2, 0.9))})
+        else:
+            out.append({"fold_angle": float(rng.uniform(0.8, 1.8))})
+    return out
+
+
+def write_batch(name: str, out_root, count: int, n_vertices: int | None = None,
+                fmt: str = "obj", seed: int = 0) -> list[Path]:
+    """Write ``count`` varied sequences of a data set as ``out_root/<name>_00/``, ... .
+
+    Each directory is laid out as by :func:`write_keyframes` (``pose_*.<fmt>``,
+    ``frames.txt``, ``pinned.txt``), ready for a batch job's ``glob``.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`NAMES`.
+    out_root : str or path-like
+        Parent directory, created if missing.
+    count : int
+        Number of sequences.
+    n_vertices : int, optional
+        Approximate vertex count.
+    fmt : {"obj", "ply", "off"}
+    seed : int
+        Seed of :func:`variants`.
+
+    Returns
+    -------
+    list of Path
+        The sequence directories.
+    """
+    if fmt not in FORMATS:
+        raise ValueError(f"fmt must be one of {FORMATS}, got {fmt!r}")
+    params = variants(name, count, seed)
+    width = max(2, len(str(count - 1)))
+    dirs = []
+    for i, p in enumerate(params):
+        d = Path(out_root) / f"{name}_{i:0{width}d}"
+        write_keyframes(generate(name, n_vertices, **p), d, fmt)
+        dirs.append(d)
+    return dirs

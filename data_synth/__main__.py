@@ -1,10 +1,11 @@
-"""Command line: ``python -m data_synth NAME OUT [--vertices N] [--format obj|ply|off]``."""
+"""Command line: ``python -m data_synth NAME OUT [--vertices N] [--format obj|ply|off]
+[--count C]``."""
 from __future__ import annotations
 
 import argparse
 import sys
 
-from . import FORMATS, NAMES, generate, write_keyframes
+from . import FORMATS, NAMES, generate, write_batch, write_keyframes
 
 
 def main(argv=None) -> int:
@@ -30,7 +31,20 @@ def main(argv=None) -> int:
     parser.add_argument("--vertices", type=int, default=None, metavar="N",
                         help="approximate vertex count (default: the data set's default)")
     parser.add_argument("--format", choices=FORMATS, default="obj", help="mesh file format")
+    parser.add_argument("--count", type=int, default=None, metavar="C",
+                        help="write C varied sequences OUT/NAME_00/, OUT/NAME_01/, ... (for "
+                             "batch jobs) instead of one")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the --count variation")
     args = parser.parse_args(argv)
+    if args.count is not None:
+        try:
+            dirs = write_batch(args.name, args.out, args.count, args.vertices, args.format,
+                               args.seed)
+        except ValueError as exc:
+            parser.error(str(exc))  # exits with status 2
+        print(f"{args.name}: wrote {len(dirs)} sequences {dirs[0].name}..{dirs[-1].name} "
+              f"to {dirs[0].parent}")
+        return 0
     try:
         data = generate(args.name, args.vertices)
         paths = write_keyframes(data, args.out, args.format)

@@ -8,6 +8,7 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 from ._errors import MeshError, ShellsplineError
+from .batch import BatchSummary, Job, load_job, run_batch
 from .decimate import Decimation, decimate
 from .descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
                           lta_jacobian, lta_weights)
@@ -30,4 +31,5 @@ __all__ = [
     "dihedral_angles", "GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement",
     "Topology", "topology", "decimate", "Decimation", "Prolongation", "discrete_geodesic",
     "geodesic_interpolation", "nonlinear_spline", "DiscreteShells", "shell_energy",
+    "load_job", "run_batch", "Job", "BatchSummary",
 ]
