@@ -396,9 +396,15 @@ def load_job(path) -> Job:
         raise _err(f"{f}: [job] key 'workers'", f"must be an integer >= 1, got {workers!r}")
 
     dt = _table(f"{f}: [defaults]", doc.get("defaults", {}))
-    _unknown(f"{f}: [defaults]", dt, _PARAM_KEYS)
+    _unknown(f"{f}: [defaults]", dt, _PARAM_KEYS | {"vertices"})
     defaults = dict(_DEFAULTS)
-    defaults.update({k: _check_param(f"{f}: [defaults]", k, v) for k, v in dt.items()})
+    defaults.update({k: _check_param(f"{f}: [defaults]", k, v) for k, v in dt.items()
+                     if k != "vertices"})
+    if "vertices" in dt:
+        v = dt["vertices"]
+        if not _is_int(v) or v < 4:
+            raise _err(f"{f}: [defaults] key 'vertices'", f"must be an integer >= 4, got {v!r}")
+        defaults["vertices"] = int(v)
 
     entries = doc.get("sequences", [])
     if not isinstance(entries, list) or not entries or \
@@ -446,6 +452,7 @@ def check_scheduler_address(addr, where: str = "--scheduler") -> str:
 
 def _expand_entry(where, base, output, kind, e, own, defaults):
     merged = dict(defaults)
+    merged.pop("vertices", None)
     merged.update(own)
     params = {k: merged[k] for k in ("method", "bc", "K", "eta", "mu", "lam", "reference",
                                      "coarse", "fine", "max_iter", "max_time",
@@ -542,7 +549,7 @@ def _expand_entry(where, base, output, kind, e, own, defaults):
     if gen not in data_synth.NAMES:
         raise _err(f"{where} key 'synth'", f"must be one of {', '.join(data_synth.NAMES)}, "
                                            f"got {gen!r}")
-    vertices = e.get("vertices")
+    vertices = e.get("vertices", defaults.get("vertices"))
     if vertices is not None and (not _is_int(vertices) or vertices < 4):
         raise _err(f"{where} key 'vertices'", f"must be an integer >= 4, got {vertices!r}")
     sp = _table(f"{where} key 'synth_params'", e.get("synth_params", {}))
@@ -571,6 +578,8 @@ def _load_regression(f, base, rt, names):
         expected_path = _resolve(base, exp)
         try:
             exp = json.loads(expected_path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            exp = None  # run_batch(write_expected=True) creates it; otherwise an error
         except OSError as exc:
             raise _err(f"{where} key 'expected'", f"cannot read '{expected_path}': "
                                                   f"{exc.strerror or exc}") from None
@@ -581,6 +590,9 @@ def _load_regression(f, base, rt, names):
             exp = exp["sequences"]
     elif exp is None:
         exp = {}
+    if exp is None:
+        return {"expected": None, "expected_path": expected_path,
+                "tolerances": _load_tolerances(where, rt)}
     if not isinstance(exp, dict) or not all(isinstance(v, dict) for v in exp.values()):
         raise _err(f"{where} key 'expected'", "must map sequence names to tables of metric "
                                               "values")
@@ -592,6 +604,11 @@ def _load_regression(f, base, rt, names):
                 raise _err(f"{where} key 'expected'", f"sequence '{sname}': unknown metric "
                                                       f"'{m}' (known: "
                                                       f"{', '.join(REGRESSION_METRICS)})")
+    return {"expected": exp, "expected_path": expected_path,
+            "tolerances": _load_tolerances(where, rt)}
+
+
+def _load_tolerances(where, rt):
     tols = _table(f"{where} key 'tolerances'", rt.get("tolerances", {}))
     out_tols = {}
     for m, t in tols.items():
@@ -606,7 +623,7 @@ def _load_regression(f, base, rt, names):
         if mode not in ("close", "max", "min"):
             raise _err(w, f"mode must be 'close', 'max' or 'min', got {mode!r}")
         out_tols[m] = {"rtol": float(rtol), "atol": float(atol), "mode": mode}
-    return {"expected": exp, "expected_path": expected_path, "tolerances": out_tols}
+    return out_tols
 
 
 def _check_outputs_do_not_hold_inputs(job: Job) -> None:
@@ -1360,6 +1377,11 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
     if write_expected and (job.regression is None or job.regression["expected_path"] is None):
         raise ShellsplineError(f"{job.path}: --write-expected needs a [regression] section "
                                "whose 'expected' is a JSON file")
+    if job.regression is not None and job.regression["expected"] is None and \
+            not write_expected:
+        raise ShellsplineError(f"{job.path}: [regression] expected values file "
+                               f"'{job.regression['expected_path']}' does not exist (create it "
+                               "with --write-expected)")
     emit = progress or (lambda ev: None)
     root = job.output
     root.mkdir(parents=True, exist_ok=True)
