@@ -22,6 +22,8 @@ from .prolong import Prolongation
 from .reconstruct import GaussNewton, ReconstructionResult, reconstruct, rigid_placement
 from .shell_energy import DiscreteShells, shell_energy
 from .topology import Topology, topology
+from .viz import (SequenceViewer, export_glb, plot, plot_half_axes, preview, render_animation,
+                  render_strip)
 
 __all__ = [
     "__version__", "MeshError", "ShellsplineError", "Keyframes", "read_keyframes",
@@ -32,4 +34,6 @@ __all__ = [
     "Topology", "topology", "decimate", "Decimation", "Prolongation", "discrete_geodesic",
     "geodesic_interpolation", "nonlinear_spline", "DiscreteShells", "shell_energy",
     "load_job", "run_batch", "Job", "BatchSummary",
+    "preview", "SequenceViewer", "render_animation", "render_strip", "plot", "plot_half_axes",
+    "export_glb",
 ]

@@ -1,0 +1,1125 @@
+"""See and share results: preview windows, off-screen renders, plots.
+
+The only module that uses pyvista, matplotlib and imageio; all three are imported inside the
+functions that need them (``pip install "shellspline[viz]"``), so ``import shellspline``
+stays light.
+
+A *source* is anything that holds a sequence:
+
+* an output directory written by ``interpolate`` (read with
+  :func:`~shellspline.io.read_sequence`; keyframes from ``report.json``),
+* an :class:`~shellspline.pipeline.InterpolationResult` (``.V``, ``.F``, ``.frames``,
+  ``.report``),
+* a tuple ``(V, F)`` or ``(V, F, frames)`` with ``V (K+1,n,3)``, ``F (m,3)``.
+
+Functions taking several sources accept a list of them.
+
+Colours follow the paper's figures: keyframes gray, in-betweens coloured, one colour per
+source (orange, green, blue, ...: e.g. spline orange and piecewise geodesic green).
+
+Off-screen rendering needs no display: on Linux without ``DISPLAY``/``WAYLAND_DISPLAY`` VTK is
+pointed at its EGL window (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``, set before
+pyvista is first imported), which renders through Mesa's software renderer.
+"""
+from __future__ import annotations
+
+import os
+import secrets
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import ShellsplineError
+
+__all__ = ["SequenceViewer", "load_source", "preview", "render_frames", "render_animation",
+           "render_strip", "plot", "plot_figure", "plot_half_axes", "half_axes_figure",
+           "default_strip_frames", "export_glb", "fitted_camera", "KEYFRAME_COLOR",
+           "PALETTE"]
+
+KEYFRAME_COLOR = "#a6a6a6"
+"""Colour of keyframe poses (gray, as in the paper's figures)."""
+PALETTE = ("#f28e2b", "#59a14f", "#4e79a7", "#e15759", "#b07aa1", "#76b7b2", "#edc948")
+"""Colours of the in-between frames of the 1st, 2nd, ... source."""
+
+_EXTRA = 'pip install "shellspline[viz]"'
+_VIEWS = {
+    "iso": ((1.0, -1.0, 0.8), (0.0, 0.0, 1.0)),
+    "front": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),   # looking along +y, z up
+    "side": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),     # looking along -x, z up
+    "top": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),      # looking down -z, y up
+    "xy": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "xz": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+    "yz": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+}
+_VIEW_ANGLE = 30.0  # VTK's default vertical view angle, degrees
+_FRAME_FILE_NAMES = ("report.json", "animation.glb")
+
+
+# ----------------------------------------------------------------------------------------
+# Sources
+# ----------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class _Sequence:
+    """A loaded source: poses, faces, keyframe frames, report, label."""
+
+    V: np.ndarray
+    F: np.ndarray
+    frames: np.ndarray
+    report: dict
+    label: str
+    path: Path | None = None
+    inputs: list = field(default_factory=list)
+
+    @property
+    def K(self) -> int:
+        return int(self.V.shape[0] - 1)
+
+    @property
+    def parameters(self) -> dict:
+        return dict(self.report.get("parameters") or {})
+
+
+def load_source(source, label: str | None = None) -> _Sequence:
+    """Load a source (see the module docstring) into arrays.
+
+    Parameters
+    ----------
+    source : path, InterpolationResult, (V, F) or (V, F, frames)
+    label : str, optional
+        Name used in legends and titles; default the directory name, the method recorded in
+        the report, or ``"sequence"``.
+
+    Returns
+    -------
+    object with ``V (K+1,n,3) float64``, ``F (m,3) int64``, ``frames (J,) int64`` (keyframe
+    frames; empty when unknown), ``report`` (dict), ``label``, ``K``.
+
+    Raises
+    ------
+    ShellsplineError
+        For an unreadable directory or arrays of the wrong shape (one line).
+    """
+    if isinstance(source, _Sequence):
+        if label is not None:
+            source = _Sequence(source.V, source.F, source.frames, source.report, label,
+                               source.path, source.inputs)
+        return source
+    path, inputs = None, []
+    if isinstance(source, (str, os.PathLike)):
+        from .io import _FRAME_RE, read_sequence
+
+        path = Path(source)
+        V, F, report = read_sequence(path)
+        frames = (report.get("parameters") or {}).get("frames")
+        inputs = [p for p in path.iterdir()
+                  if _FRAME_RE.match(p.name) or p.name in _FRAME_FILE_NAMES]
+        default_label = path.resolve().name
+    elif hasattr(source, "V") and hasattr(source, "F"):
+        V, F = source.V, source.F
+        report = dict(getattr(source, "report", None) or {})
+        frames = getattr(source, "frames", None)
+        default_label = str((report.get("parameters") or {}).get("method", "sequence"))
+    elif isinstance(source, tuple) and len(source) in (2, 3):
+        V, F = source[0], source[1]
+        frames = source[2] if len(source) == 3 else None
+        report = {}
+        default_label = "sequence"
+    else:
+        raise ShellsplineError(f"a source must be an output directory, an InterpolationResult, "
+                               f"or a (V, F[, frames]) tuple; got {type(source).__name__}")
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 3 or V.shape[2] != 3 or V.shape[0] == 0 or V.shape[1] == 0:
+        raise ShellsplineError(f"V must be a (K+1,n,3) array of poses, got shape {V.shape}")
+    if not np.isfinite(V).all():
+        raise ShellsplineError(f"{path or 'V'}: the sequence has NaN/inf coordinates")
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0 or \
+            not np.issubdtype(F.dtype, np.integer):
+        raise ShellsplineError(f"F must be a non-empty (m,3) integer array, got shape {F.shape}")
+    F = F.astype(np.int64)
+    if F.min() < 0 or F.max() >= V.shape[1]:
+        raise ShellsplineError(f"F indexes vertices outside [0, {V.shape[1]})")
+    frames = np.zeros(0, dtype=np.int64) if frames is None else \
+        np.asarray(frames, dtype=np.int64).ravel()
+    frames = frames[(frames >= 0) & (frames <= V.shape[0] - 1)]
+    return _Sequence(V, F, frames, report, label or default_label, path, inputs)
+
+
+def _load_all(sources, labels) -> list[_Sequence]:
+    if isinstance(sources, list):
+        sources = list(sources)
+    else:
+        sources = [sources]
+    if not sources:
+        raise ShellsplineError("no source given")
+    labels = _labels(labels, len(sources))
+    seqs = [load_source(s, lab) for s, lab in zip(sources, labels)]
+    return seqs
+
+
+def _labels(labels, count: int) -> list:
+    if labels is None:
+        return [None] * count
+    if isinstance(labels, str):
+        labels = [s.strip() for s in labels.split(",")]
+    labels = [str(s) for s in labels]
+    if len(labels) != count:
+        raise ShellsplineError(f"labels: need one per source ({count}), got {len(labels)}: "
+                               f"{labels}")
+    return labels
+
+
+def _track_indices(track, seqs) -> np.ndarray:
+    if track is None:
+        return np.zeros(0, dtype=np.int64)
+    if isinstance(track, str):
+        try:
+            track = [int(t) for t in track.replace(",", " ").split()]
+        except ValueError:
+            raise ShellsplineError(f"track: expected vertex indices such as '12,345', got "
+                                   f"{track!r}") from None
+    idx = np.asarray(track).ravel()
+    if idx.size and not np.issubdtype(idx.dtype, np.integer):
+        raise ShellsplineError(f"track: vertex indices must be integers, got {idx.tolist()}")
+    idx = idx.astype(np.int64)
+    for s in seqs:
+        n = s.V.shape[1]
+        bad = (idx < 0) | (idx >= n)
+        if bad.any():
+            raise ShellsplineError(f"track: vertex {int(idx[bad][0])} is outside [0, {n}) of "
+                                   f"'{s.label}'")
+    return idx
+
+
+def _is_keyframe(seq: _Sequence, k: int) -> bool:
+    return bool(np.any(seq.frames == k))
+
+
+# ----------------------------------------------------------------------------------------
+# Output files: atomic, never over an input
+# ----------------------------------------------------------------------------------------
+def _write_atomically(path, write, seqs=(), suffixes=None) -> Path:
+    """Call ``write(tmp)`` for a temporary sibling of ``path`` and rename it into place."""
+    out = Path(path)
+    suffix = out.suffix.lower()
+    if suffixes is not None and suffix not in suffixes:
+        raise ShellsplineError(f"'{out}': unsupported file type '{out.suffix}' (use "
+                               f"{', '.join(suffixes)})")
+    target = out.resolve()
+    if target.is_dir():
+        raise ShellsplineError(f"'{out}' is a directory; give a file name")
+    for s in seqs:
+        for p in s.inputs:
+            if Path(p).resolve() == target:
+                raise ShellsplineError(f"refusing to write '{out}': it is an input file of "
+                                       f"'{s.label}'")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.parent / f".{target.stem}.tmp-{os.getpid()}-{secrets.token_hex(4)}{suffix}"
+    try:
+        write(tmp)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            tmp.unlink()
+        except FileNotFoundError:
+            pass
+        raise
+    return target
+
+
+# ----------------------------------------------------------------------------------------
+# pyvista helpers
+# ----------------------------------------------------------------------------------------
+def _headless() -> bool:
+    return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                     or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _pyvista(what: str, off_screen: bool):
+    if off_screen and _headless():
+        # must be set before VTK creates its first render window
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    try:
+        import pyvista as pv
+    except ImportError:
+        raise ShellsplineError(f"{what} needs the viz extra: {_EXTRA}") from None
+    return pv
+
+
+def _polydata(pv, V: np.ndarray, F: np.ndarray):
+    from .gltf import vertex_normals
+
+    faces = np.hstack([np.full((F.shape[0], 1), 3, dtype=np.int64), F]).ravel()
+    mesh = pv.PolyData(np.array(V, dtype=np.float64), faces)
+    mesh.point_data["Normals"] = vertex_normals(V, F)
+    mesh.point_data.active_normals_name = "Normals"
+    return mesh
+
+
+def _view_vectors(view):
+    if isinstance(view, str):
+        key = view.strip().lower()
+        if key not in _VIEWS:
+            raise ShellsplineError(f"view must be one of {', '.join(_VIEWS)} or a direction "
+                                   f"(x, y, z), got {view!r}")
+        d, up = _VIEWS[key]
+    else:
+        d = tuple(float(x) for x in view)
+        if len(d) != 3 or not np.isfinite(d).all() or not any(d):
+            raise ShellsplineError(f"view direction must be three finite numbers, got {view!r}")
+        up = (0.0, 0.0, 1.0)
+    d = np.asarray(d, dtype=np.float64)
+    d /= np.linalg.norm(d)
+    up = np.asarray(up, dtype=np.float64)
+    up = up - (up @ d) * d
+    if np.linalg.norm(up) < 1e-8:  # looking along the up axis
+        up = np.array([0.0, 1.0, 0.0]) - d[1] * d
+    return d, up / np.linalg.norm(up)
+
+
+def fitted_camera(points, aspect: float, view="iso", margin: float = 1.06):
+    """A camera that shows all ``points`` from direction ``view`` in a window of ``aspect``.
+
+    Parameters
+    ----------
+    points : (p, 3) array
+        Every position the camera must show (e.g. all vertices of all frames).
+    aspect : float
+        Window width / height.
+    view : str or (3,) array
+        ``"iso"`` (default), ``"front"``/``"xz"``, ``"side"``/``"yz"``, ``"top"``/``"xy"``, or
+        a direction from the focal point towards the camera.
+    margin : float
+        Extra distance factor (1 = points touch the border).
+
+    Returns
+    -------
+    [position, focal_point, view_up] : list of three 3-tuples
+        For ``plotter.camera_position``; perspective with a 30° vertical view angle.
+    """
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    d, up = _view_vectors(view)
+    right = np.cross(d, up)
+    c = 0.5 * (P.min(axis=0) + P.max(axis=0))
+    R = P - c
+    x, y, z = np.abs(R @ right), np.abs(R @ up), R @ d
+    tv = np.tan(np.radians(_VIEW_ANGLE) / 2)
+    th = tv * float(aspect)
+    dist = float(np.max(np.maximum(z + x / th, z + y / tv)))
+    scale = float(np.abs(R).max()) or 1.0
+    dist = max(dist, 1e-3 * scale) * margin
+    pos = c + d * dist
+    return [tuple(pos), tuple(c), tuple(up)]
+
+
+# ----------------------------------------------------------------------------------------
+# The viewer (preview window; also drives the off-screen renders)
+# ----------------------------------------------------------------------------------------
+class SequenceViewer:
+    """Shows one or several sequences side by side, one frame at a time.
+
+    Holds a pyvista plotter with one subplot per source (cameras linked), and the frame logic
+    that the preview window's slider, play/pause button, timer and keys call. Everything works
+    off-screen, so tests (and :func:`render_animation`) drive it without a display.
+
+    Parameters
+    ----------
+    sources : source or list of sources
+        See the module docstring. Sources of different lengths are clamped at their last frame.
+    track : sequence of int or str, optional
+        Vertex indices whose trajectories (polylines over all frames) are drawn, with a marker
+        at the current frame.
+    fps : float
+        Playback speed (frames per second) of :meth:`play` in a window.
+    loop : bool
+        Restart at frame 0 after the last frame (else stop).
+    labels : list of str or comma-separated str, optional
+        One title per source.
+    off_screen : bool
+        Render into an off-screen buffer (no window).
+    window_size : (int, int), optional
+        Pixels; default 600×600 per source plus a control strip.
+    view : str or (3,) array
+        Camera direction, see :func:`fitted_camera`.
+    widgets : bool
+        Add the frame slider, play/pause checkbox and key bindings (needs an interactor;
+        off by default off-screen).
+    annotate : bool
+        Show the frame number (lower left of each view).
+    titles : bool
+        Show each source's label (upper left of its view).
+
+    Attributes
+    ----------
+    k : int
+        Current frame.
+    K : int
+        Last frame of the longest source.
+    playing, loop : bool
+    plotter : pyvista.Plotter
+    meshes : list of pyvista.PolyData
+        One per source; ``meshes[i].points`` is the current pose of source ``i``.
+    actors : list of pyvista.Actor
+    """
+
+    keys = {"space": "play / pause", "Right": "next frame", "Left": "previous frame",
+            "Home": "first frame", "End": "last frame", "l": "loop on/off",
+            "q": "quit"}
+
+    def __init__(self, sources, *, track=None, fps: float = 24.0, loop: bool = True,
+                 labels=None, off_screen: bool = False, window_size=None, view="iso",
+                 widgets: bool | None = None, annotate: bool = True, titles: bool = True):
+        self.seqs = _load_all(sources, labels)
+        self.track = _track_indices(track, self.seqs)
+        fps = float(fps)
+        if not (np.isfinite(fps) and fps > 0):
+            raise ShellsplineError(f"fps must be a positive number, got {fps!r}")
+        self.fps = fps
+        self.loop = bool(loop)
+        self.playing = False
+        self.annotate = bool(annotate)
+        self.titles = bool(titles)
+        self.K = max(s.K for s in self.seqs)
+        self.k = 0
+        S = len(self.seqs)
+        widgets = (not off_screen) if widgets is None else bool(widgets)
+        self.widgets = widgets
+        pv = _pyvista("the preview window" if not off_screen else "rendering", off_screen)
+        if window_size is None:
+            window_size = (min(600 * S, 1800), 600 + (60 if widgets else 0))
+        self.window_size = (int(window_size[0]), int(window_size[1]))
+        if widgets:
+            # a control strip under the views, spanning all columns
+            self.plotter = pv.Plotter(shape=(2, S), row_weights=[10, 1],
+                                      groups=[(1, np.s_[:])], off_screen=off_screen,
+                                      window_size=self.window_size, border=False)
+        else:
+            self.plotter = pv.Plotter(shape=(1, S), off_screen=off_screen,
+                                      window_size=self.window_size, border=False)
+        pl = self.plotter
+        pl.set_background("white")
+        h_view = int(self.window_size[1] * (10 / 11 if widgets else 1.0))
+        self.meshes, self.actors, self.markers = [], [], []
+        for i, s in enumerate(self.seqs):
+            pl.subplot(0, i)
+            mesh = _polydata(pv, s.V[0], s.F)
+            actor = pl.add_mesh(mesh, color=self.color(i, 0), smooth_shading=False,
+                                ambient=0.25, diffuse=0.8, specular=0.15, show_edges=False)
+            actor.prop.interpolation = "gouraud"
+            self.meshes.append(mesh)
+            self.actors.append(actor)
+            if self.track.size:
+                for v in self.track:
+                    pl.add_mesh(pv.lines_from_points(s.V[:, v]), color="#333333", line_width=2)
+                marker = pv.PolyData(np.array(s.V[0, self.track]))
+                pl.add_mesh(marker, color="#d62728", point_size=10,
+                            render_points_as_spheres=True)
+                self.markers.append(marker)
+            if titles:
+                pl.add_text(s.label, position=(8, h_view - 24), font_size=11, color="black",
+                            name=f"label{i}")
+        # one camera for every subplot, fitted to every pose of every source
+        w_view = self.window_size[0] / S
+        self.camera_position = fitted_camera(np.concatenate([s.V.reshape(-1, 3)
+                                                             for s in self.seqs]),
+                                             w_view / h_view, view)
+        for i in range(S):
+            pl.subplot(0, i)
+            pl.camera_position = self.camera_position
+        if S > 1:
+            pl.link_views(views=list(range(S)))
+        self.slider = self.checkbox = None
+        if widgets:
+            self._add_widgets(pl, S)
+        self.set_frame(0)
+
+    # -- colours -----------------------------------------------------------------------------
+    def color(self, i: int, k: int) -> str:
+        """Colour of source ``i`` at frame ``k``: gray on its keyframes, else its own colour."""
+        s = self.seqs[i]
+        return KEYFRAME_COLOR if _is_keyframe(s, min(k, s.K)) else PALETTE[i % len(PALETTE)]
+
+    # -- frame logic ---------------------------------------------------------------------------
+    def set_frame(self, k) -> int:
+        """Show frame ``k`` (clamped to ``0..K``) in every view; returns the frame shown."""
+        from .gltf import vertex_normals
+
+        k = int(min(max(int(round(float(k))), 0), self.K))
+        self.k = k
+        for i, s in enumerate(self.seqs):
+            ks = min(k, s.K)
+            mesh = self.meshes[i]
+            mesh.points = s.V[ks]
+            mesh.point_data["Normals"] = vertex_normals(s.V[ks], s.F)
+            self.actors[i].prop.color = self.color(i, k)
+            if self.markers:
+                self.markers[i].points = s.V[ks, self.track]
+        if self.annotate:
+            self._label_frame()
+        if self.slider is not None:
+            self.slider.GetRepresentation().SetValue(k)
+        return k
+
+    def _label_frame(self):
+        pl = self.plotter
+        h_view = int(self.window_size[1] * (10 / 11 if self.widgets else 1.0))
+        short = not self.titles  # renders: a small "k=5" in the upper left corner
+        font = max(6, min(10, self.window_size[0] // (26 * len(self.seqs))))
+        for i, s in enumerate(self.seqs):
+            ks = min(self.k, s.K)
+            key = _is_keyframe(s, ks)
+            if short:
+                text, pos = f"k={ks}" + (" key" if key else ""), (4, h_view - 2 * font - 4)
+            else:
+                text, pos = f"frame {ks}/{s.K}" + ("  keyframe" if key else ""), (8, 6)
+            pl.subplot(0, i)
+            pl.add_text(text, position=pos, font_size=font if short else 9, color="#444444",
+                        name=f"frame{i}")
+
+    def step(self, delta: int = 1) -> int:
+        """Move ``delta`` frames (wrapping around when looping, else clamped)."""
+        k = self.k + int(delta)
+        if self.loop:
+            k %= self.K + 1
+        return self.set_frame(k)
+
+    def tick(self) -> int:
+        """Advance one frame as the playback timer does: wrap when looping, else stop at K."""
+        if self.k >= self.K:
+            if self.loop:
+                return self.set_frame(0)
+            self.pause()
+            return self.k
+        return self.set_frame(self.k + 1)
+
+    def play(self) -> None:
+        self.playing = True
+        self._sync_checkbox()
+
+    def pause(self) -> None:
+        self.playing = False
+        self._sync_checkbox()
+
+    def toggle(self) -> bool:
+        """Play if paused, pause if playing; returns ``playing``."""
+        self.pause() if self.playing else self.play()
+        return self.playing
+
+    def toggle_loop(self) -> bool:
+        self.loop = not self.loop
+        return self.loop
+
+    def on_slider(self, value) -> int:
+        """Slider callback: show the frame nearest to ``value``."""
+        return self.set_frame(value)
+
+    def screenshot(self) -> np.ndarray:
+        """The current image, ``(h, w, 3) uint8``."""
+        return np.asarray(self.plotter.screenshot(return_img=True))
+
+    def close(self) -> None:
+        self.plotter.close()
+
+    # -- widgets and events ----------------------------------------------------------------------
+    def _add_widgets(self, pl, S):
+        pl.subplot(1, 0)
+        pl.set_background("#eeeeee", all_renderers=False)
+        h = max(self.window_size[1] // 11, 20)
+        size = max(h - 12, 12)
+        self.checkbox = pl.add_checkbox_button_widget(
+            lambda on: self.play() if on else self.pause(), value=False,
+            position=(6, (h - size) // 2), size=size, border_size=2, color_on="#59a14f",
+            color_off="#9e9e9e", background_color="#eeeeee")
+        pl.add_text("play", position=(size + 12, h // 2 - 6), font_size=8, color="#333333")
+        self.slider = pl.add_slider_widget(
+            lambda v: (self.on_slider(v), self._render()), [0, self.K], value=0,
+            pointa=(min(0.3, (size + 60) / self.window_size[0]), 0.5), pointb=(0.97, 0.5),
+            fmt="%.0f", style="modern", interaction_event="always", title_height=0.0,
+            slider_width=0.06, tube_width=0.015)
+        rep = self.slider.GetRepresentation()
+        rep.SetSliderLength(0.025)
+        rep.GetSliderProperty().SetColor(0.35, 0.35, 0.35)
+        rep.SetShowSliderLabel(False)
+        bindings = {"space": self.toggle, "Right": lambda: self.step(1),
+                    "Left": lambda: self.step(-1), "Home": lambda: self.set_frame(0),
+                    "End": lambda: self.set_frame(self.K), "l": self.toggle_loop}
+        for key, fn in bindings.items():
+            pl.add_key_event(key, lambda fn=fn: (fn(), self._render()))
+        if pl.iren is not None and not pl.off_screen:
+            pl.add_timer_event(max_steps=2 ** 31 - 1, duration=max(1, int(1000 / self.fps)),
+                               callback=self._on_timer)
+        pl.subplot(0, 0)
+
+    def _sync_checkbox(self):
+        if self.checkbox is not None:
+            rep = self.checkbox.GetRepresentation()
+            if bool(rep.GetState()) != self.playing:
+                rep.SetState(int(self.playing))
+
+    def _on_timer(self, step):
+        if self.playing:
+            self.tick()
+            self._render()
+
+    def _render(self):
+        self.plotter.render()
+
+
+def preview(*sources, track=None, fps: float = 24.0, loop: bool = True, labels=None,
+            off_screen: bool = False, window_size=None, view="iso") -> SequenceViewer:
+    """Open a window that plays one or several sequences side by side.
+
+    Controls: frame slider and play/pause button under the views; keys ``space`` play/pause,
+    ``←``/``→`` step, ``Home``/``End`` first/last frame, ``l`` loop on/off, ``q`` quit (mouse:
+    rotate, shift-drag pan, wheel zoom; all views share one camera).
+
+    Parameters
+    ----------
+    *sources : sources (see the module docstring)
+    track, fps, loop, labels, window_size, view
+        See :class:`SequenceViewer`.
+    off_screen : bool
+        Build everything without opening a window (for tests and screenshots); the window
+        is not shown and the viewer is returned at frame 0.
+
+    Returns
+    -------
+    SequenceViewer
+        After the window was closed (or, off-screen, ready to drive).
+
+    Raises
+    ------
+    ShellsplineError
+        Without a display (use :func:`render_animation` / :func:`render_strip` instead), or
+        without the viz extra.
+    """
+    if not sources:
+        raise ShellsplineError("preview: no source given")
+    if not off_screen and _headless():
+        raise ShellsplineError("preview needs a display (DISPLAY is not set); render files "
+                               "instead: shellspline render OUT --gif out.gif --strip out.png")
+    viewer = SequenceViewer(list(sources), track=track, fps=fps, loop=loop, labels=labels,
+                            off_screen=off_screen, window_size=window_size, view=view,
+                            widgets=True)
+    if not off_screen:
+        viewer.plotter.show(title="shellspline preview")
+    return viewer
+
+
+# ----------------------------------------------------------------------------------------
+# Off-screen renders
+# ----------------------------------------------------------------------------------------
+def _checked_frames(frames, K: int) -> np.ndarray:
+    if isinstance(frames, str):
+        try:
+            frames = [int(t) for t in frames.replace(",", " ").split()]
+        except ValueError:
+            raise ShellsplineError(f"frames: expected integers such as '0,5,10', got "
+                                   f"{frames!r}") from None
+    f = np.asarray(frames).ravel()
+    if f.size == 0:
+        raise ShellsplineError("frames: no frame given")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ShellsplineError(f"frames must be integers, got {f.tolist()}")
+    f = f.astype(np.int64)
+    bad = (f < 0) | (f > K)
+    if bad.any():
+        raise ShellsplineError(f"frames: {int(f[bad][0])} is outside 0..{K}")
+    return f
+
+
+def _checked_size(window_size, default):
+    if window_size is None:
+        return default
+    if isinstance(window_size, str):
+        parts = window_size.lower().replace("×", "x").split("x")
+        try:
+            window_size = tuple(int(p) for p in parts)
+        except ValueError:
+            window_size = ()
+    if len(window_size) != 2 or min(window_size) < 16 or max(window_size) > 8192:
+        raise ShellsplineError(f"window size must be WIDTHxHEIGHT with 16..8192 pixels, got "
+                               f"{window_size!r}")
+    return int(window_size[0]), int(window_size[1])
+
+
+def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
+                  annotate: bool = True) -> np.ndarray:
+    """Render frames of one source off-screen with one camera fitted to the whole sequence.
+
+    Parameters
+    ----------
+    source : a source (see the module docstring)
+    frames : (p,) int array-like, optional
+        Default all frames ``0..K``.
+    window_size : (int, int)
+    view : str or (3,) array
+        See :func:`fitted_camera`.
+    annotate : bool
+        Write the frame number into the image.
+
+    Returns
+    -------
+    (p, h, w, 3) uint8 array
+    """
+    seq = load_source(source)
+    frames = np.arange(seq.K + 1) if frames is None else _checked_frames(frames, seq.K)
+    size = _checked_size(window_size, (640, 480))
+    viewer = SequenceViewer(seq, off_screen=True, window_size=size, view=view, widgets=False,
+                            annotate=annotate, titles=False)
+    try:
+        imgs = []
+        for k in frames:
+            viewer.set_frame(k)
+            imgs.append(viewer.screenshot())
+    finally:
+        viewer.close()
+    return np.stack(imgs)
+
+
+def render_animation(source, path, *, fps: float = 24.0, window_size=(640, 480), frames=None,
+                     view="iso", annotate: bool = True) -> Path:
+    """Render a sequence off-screen to an animated GIF or an MP4 movie (by ``path``'s suffix).
+
+    Parameters
+    ----------
+    source : a source (see the module docstring)
+    path : str or path-like
+        ``.gif`` (imageio/Pillow, loops forever) or ``.mp4`` (H.264 through imageio-ffmpeg).
+        Written atomically; never over an input file.
+    fps : float
+        Frames per second.
+    window_size : (int, int) or "WxH"
+        Pixels (MP4 sizes are rounded up to even numbers).
+    frames : (p,) int array-like, optional
+        Frames to show, default all.
+    view, annotate
+        See :func:`render_frames`.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path written.
+    """
+    seq = load_source(source)
+    fps = float(fps)
+    if not (np.isfinite(fps) and fps > 0):
+        raise ShellsplineError(f"fps must be a positive number, got {fps!r}")
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ShellsplineError(f"'{path}': an animation must be .gif or .mp4")
+    size = _checked_size(window_size, (640, 480))
+    if suffix == ".mp4":
+        size = (size[0] + size[0] % 2, size[1] + size[1] % 2)
+    try:
+        import imageio.v2 as iio2
+        import imageio.v3 as iio
+    except ImportError:
+        raise ShellsplineError(f"render_animation needs the viz extra: {_EXTRA}") from None
+    imgs = render_frames(seq, frames, window_size=size, view=view, annotate=annotate)
+
+    def write(tmp):
+        if suffix == ".gif":
+            iio.imwrite(tmp, imgs, extension=".gif", duration=1000.0 / fps, loop=0)
+        else:
+            try:
+                writer = iio2.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264",
+                                         quality=7, macro_block_size=2,
+                                         ffmpeg_log_level="error")
+            except (ImportError, ValueError) as exc:
+                raise ShellsplineError(f"MP4 output needs imageio-ffmpeg ({_EXTRA}): "
+                                       f"{exc}") from None
+            with writer:
+                for img in imgs:
+                    writer.append_data(img)
+
+    return _write_atomically(path, write, [seq])
+
+
+def default_strip_frames(K: int, keyframes, max_panels: int = 12) -> np.ndarray:
+    """Frames of a filmstrip: keyframes plus the frame halfway between consecutive ones.
+
+    Falls back to the keyframes alone, then to ``max_panels`` evenly spaced frames, when there
+    are too many; without keyframes, 5 evenly spaced frames.
+
+    Returns
+    -------
+    (p,) int64 array, sorted, unique.
+    """
+    key = np.unique(np.asarray(keyframes, dtype=np.int64))
+    key = key[(key >= 0) & (key <= K)]
+    if key.size == 0:
+        return np.unique(np.round(np.linspace(0, K, min(5, K + 1))).astype(np.int64))
+    mids = (key[:-1] + key[1:]) // 2
+    f = np.unique(np.concatenate([key, mids]))
+    if f.size > max_panels:
+        f = key
+    if f.size > max_panels:
+        f = np.unique(np.round(np.linspace(0, K, max_panels)).astype(np.int64))
+    return f
+
+
+def _compose(panels: np.ndarray, columns: int, gap: int, background=255) -> np.ndarray:
+    p, h, w, c = panels.shape
+    rows = -(-p // columns)
+    out = np.full((rows * h + (rows - 1) * gap, columns * w + (columns - 1) * gap, c),
+                  background, dtype=np.uint8)
+    for i in range(p):
+        r, q = divmod(i, columns)
+        out[r * (h + gap):r * (h + gap) + h, q * (w + gap):q * (w + gap) + w] = panels[i]
+    return out
+
+
+def render_strip(source, path, *, frames=None, columns=None, window_size=(240, 240),
+                 gap: int = 8, view="iso", annotate: bool = True) -> Path:
+    """A PNG filmstrip of chosen frames, like the paper's figures.
+
+    Keyframes are gray, in-betweens coloured; every panel uses the same camera (fitted to the
+    whole sequence), so the motion reads from left to right.
+
+    Parameters
+    ----------
+    source : a source (see the module docstring)
+    path : str or path-like
+        ``.png`` file, written atomically, never over an input.
+    frames : (p,) int array-like, optional
+        Default :func:`default_strip_frames` (keyframes and the frames halfway between).
+    columns : int, optional
+        Panels per row; default all in one row (at most 8 per row).
+    window_size : (int, int) or "WxH"
+        Pixels of one panel.
+    gap : int
+        White pixels between panels.
+    view, annotate
+        See :func:`render_frames`.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path written. The image is
+        ``rows × h + (rows−1) × gap`` by ``columns × w + (columns−1) × gap`` pixels.
+    """
+    seq = load_source(source)
+    if Path(path).suffix.lower() != ".png":
+        raise ShellsplineError(f"'{path}': a filmstrip is written as .png")
+    frames = default_strip_frames(seq.K, seq.frames) if frames is None else \
+        _checked_frames(frames, seq.K)
+    if columns is None:
+        columns = min(len(frames), 8)
+    columns = int(columns)
+    if columns < 1:
+        raise ShellsplineError(f"columns must be >= 1, got {columns}")
+    gap = int(gap)
+    if gap < 0:
+        raise ShellsplineError(f"gap must be >= 0, got {gap}")
+    size = _checked_size(window_size, (240, 240))
+    try:
+        import imageio.v3 as iio
+    except ImportError:
+        raise ShellsplineError(f"render_strip needs the viz extra: {_EXTRA}") from None
+    panels = render_frames(seq, frames, window_size=size, view=view, annotate=annotate)
+    strip = _compose(panels, min(columns, len(frames)), gap)
+    return _write_atomically(path, lambda tmp: iio.imwrite(tmp, strip, extension=".png"),
+                             [seq])
+
+
+def export_glb(source, path, *, fps: float = 24.0, frames=None,
+               interpolation: str = "LINEAR") -> Path:
+    """Write a source as a GLB morph-target animation (see :mod:`shellspline.gltf`).
+
+    Parameters
+    ----------
+    source : a source (see the module docstring)
+    path : str or path-like
+        ``.glb`` file, written atomically, never over an input.
+    fps : float
+    frames : (p,) int array-like, optional
+        Frames to export (in this order), default all.
+    interpolation : {"LINEAR", "STEP"}
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    from .gltf import glb_bytes
+
+    seq = load_source(source)
+    V = seq.V if frames is None else seq.V[_checked_frames(frames, seq.K)]
+    data = glb_bytes(V, seq.F, fps=fps, interpolation=interpolation)
+    return _write_atomically(path, lambda tmp: tmp.write_bytes(data), [seq], (".glb",))
+
+
+# ----------------------------------------------------------------------------------------
+# Plots (matplotlib, no pyplot: no global state, no display)
+# ----------------------------------------------------------------------------------------
+_PLOT_SUFFIXES = (".png", ".svg", ".pdf")
+_WHAT = ("energy", "speed", "track")
+
+
+def _matplotlib(what: str):
+    try:
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise ShellsplineError(f"{what} needs the viz extra: {_EXTRA}") from None
+    return Figure
+
+
+def _lta_energy(seq: _Sequence) -> tuple[np.ndarray, str]:
+    en = seq.report.get("energies") or {}
+    e = en.get("lta_output_energy_per_frame")
+    if e is not None and en.get("resolution", "full") == "full" and len(e) == seq.K + 1:
+        return np.asarray(e, dtype=np.float64), "report"
+    from .metrics import lta_energies
+    from .topology import topology
+
+    p = seq.parameters
+    T = topology(seq.F, seq.V.shape[1], name=seq.label)
+    return lta_energies(seq.V, T, bc=p.get("bc", "natural"), mu=p.get("mu", 1.0),
+                        lam=p.get("lam", 1.0), eta=p.get("eta", 1e-3)), "recomputed"
+
+
+def _shell_energy(seq: _Sequence, mode: str) -> np.ndarray:
+    from .metrics import shell_energies
+    from .topology import topology
+
+    p = seq.parameters
+    T = topology(seq.F, seq.V.shape[1], name=seq.label)
+    return shell_energies(seq.V, T, bc=p.get("bc", "natural"), mu=p.get("mu", 1.0),
+                          lam=p.get("lam", 1.0), eta=p.get("eta", 1e-3),
+                          midpoints=(mode == "midpoint"))
+
+
+def _shell_mode(mode, seqs) -> str:
+    mode = str(mode).strip().lower()
+    if mode not in ("auto", "midpoint", "step", "none"):
+        raise ShellsplineError(f"shell_energy must be 'auto', 'midpoint', 'step' or 'none', got "
+                               f"{mode!r}")
+    if mode == "auto":
+        # one Newton solve per frame: ~0.5–1 s per frame at 5k vertices on one core
+        work = max(s.V.shape[1] * max(s.K - 1, 0) for s in seqs)
+        mode = "midpoint" if work <= 60_000 else "step"
+    return mode
+
+
+def _keyframe_lines(ax, seqs):
+    key = np.unique(np.concatenate([s.frames for s in seqs]))
+    for f in key:
+        ax.axvline(f, color=KEYFRAME_COLOR, lw=1.0, ls="--", zorder=0, label="_keyframe")
+
+
+def plot_figure(sources, what=("energy", "speed"), *, track=None, labels=None,
+                shell_energy: str = "auto", figsize=None):
+    """A matplotlib Figure of per-frame quantities of one or several sequences.
+
+    Panels, top to bottom (each one axes, one line per source, keyframes as dashed gray
+    vertical lines):
+
+    * ``"energy"``: the LΘA energy ``Ŵ[z_k, z̃_k]`` per frame (from ``report.json`` when it
+      has it at full resolution, else recomputed with the report's parameters) and the
+      nonlinear Discrete Shells energy (paper Figs. 11–12): ``W[s_k, s̃_k]`` with the geodesic
+      midpoint ``s̃_k`` (``shell_energy="midpoint"``), the cheaper ``W[s_k, s_{k+1}]``
+      (``"step"``), chosen by size (``"auto"``: midpoints up to n·(K−1) = 60 000), or left
+      out (``"none"``).
+    * ``"speed"``: root-mean-square vertex speed between frames
+      (:func:`shellspline.metrics.speed`, plotted at ``k + 1/2``).
+    * ``"track"`` (implied by ``track``): trajectories of the tracked vertices projected onto
+      their principal plane, keyframe positions marked (paper Fig. 8).
+
+    Parameters
+    ----------
+    sources : a source or a list of sources
+    what : sequence of {"energy", "speed", "track"} or comma-separated str
+    track : sequence of int or str, optional
+        Vertex indices for the trajectory panel.
+    labels : list of str or comma-separated str, optional
+    shell_energy : {"auto", "midpoint", "step", "none"}
+    figsize : (float, float), optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Not attached to pyplot. Data lines carry the source label (``line.get_label()``).
+    """
+    Figure = _matplotlib("plot")
+    seqs = _load_all(sources, labels)
+    if isinstance(what, str):
+        what = [w.strip() for w in what.split(",") if w.strip()]
+    what = [str(w).lower() for w in what]
+    for w in what:
+        if w not in _WHAT:
+            raise ShellsplineError(f"what: unknown plot {w!r} (choose from {', '.join(_WHAT)})")
+    idx = _track_indices(track, seqs)
+    if idx.size and "track" not in what:
+        what.append("track")
+    if "track" in what and not idx.size:
+        raise ShellsplineError("a trajectory plot needs vertex indices (track=...)")
+    mode = _shell_mode(shell_energy, seqs) if "energy" in what else "none"
+    panels = []
+    for w in _WHAT:
+        if w not in what:
+            continue
+        if w == "energy":
+            panels.append("lta")
+            if mode != "none":
+                panels.append("shell")
+        else:
+            panels.append(w)
+    if not panels:
+        raise ShellsplineError("nothing to plot: choose energy, speed and/or track")
+    fig = Figure(figsize=figsize or (7.0, 2.4 * len(panels) + 0.4), layout="constrained")
+    axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
+    colors = [PALETTE[i % len(PALETTE)] for i in range(len(seqs))]
+    for ax, panel in zip(axes, panels):
+        if panel == "lta":
+            for s, c in zip(seqs, colors):
+                e, _ = _lta_energy(s)
+                ax.plot(np.arange(s.K + 1), e, color=c, lw=1.8, marker=".", label=s.label)
+            ax.set_ylabel("LΘA energy")
+            ax.set_title(r"LΘA energy $\widehat{W}[z_k, \tilde z_k]$ per frame", fontsize=10)
+        elif panel == "shell":
+            for s, c in zip(seqs, colors):
+                e = _shell_energy(s, mode)
+                ax.plot(np.arange(s.K + 1), e, color=c, lw=1.8, marker=".", label=s.label)
+            ax.set_ylabel("shell energy")
+            ax.set_title(r"Discrete Shells energy $W[s_k, \tilde s_k]$ ($\tilde s_k$ geodesic "
+                         r"midpoint of $s_{k-1}, s_{k+1}$)" if mode == "midpoint" else
+                         r"Discrete Shells energy $W[s_k, s_{k+1}]$ between frames",
+                         fontsize=10)
+        elif panel == "speed":
+            from .metrics import speed
+
+            for s, c in zip(seqs, colors):
+                ax.plot(np.arange(s.K) + 0.5, speed(s.V), color=c, lw=1.8, marker=".",
+                        label=s.label)
+            ax.set_ylabel("speed")
+            ax.set_title("RMS vertex speed (length per unit time, t ∈ [0, 1])", fontsize=10)
+        if panel in ("lta", "shell", "speed"):
+            _keyframe_lines(ax, seqs)
+            ax.set_xlabel("frame k")
+            ax.set_xlim(0, max(s.K for s in seqs))
+            ax.grid(alpha=0.3)
+        elif panel == "track":
+            _trajectory_panel(ax, seqs, idx, colors)
+        ax.legend(fontsize=8, loc="best")
+    return fig
+
+
+def _trajectory_panel(ax, seqs, idx, colors):
+    P = np.concatenate([s.V[:, idx].reshape(-1, 3) for s in seqs])
+    c = P.mean(axis=0)
+    _, _, Vt = np.linalg.svd(P - c, full_matrices=False)
+    basis = Vt[:2].T  # principal plane of all tracked positions
+    for s, col in zip(seqs, colors):
+        for j, v in enumerate(idx):
+            xy = (s.V[:, v] - c) @ basis
+            ax.plot(xy[:, 0], xy[:, 1], color=col, lw=1.8,
+                    label=s.label if j == 0 else "_nolegend_")
+            if s.frames.size:
+                kxy = xy[s.frames]
+                ax.plot(kxy[:, 0], kxy[:, 1], ls="none", marker="o", ms=5,
+                        color=KEYFRAME_COLOR, mec="#555555", label="_keyframe")
+    for v in idx:
+        xy0 = (seqs[0].V[0, v] - c) @ basis
+        ax.annotate(str(int(v)), xy0, fontsize=8, color="#333333")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"trajectories of vertices {', '.join(map(str, idx.tolist()))} "
+                 "(principal plane; keyframes ●)", fontsize=10)
+    ax.grid(alpha=0.3)
+
+
+def _save_figure(fig, path, seqs=()) -> Path:
+    suffix = Path(path).suffix.lower()
+    if suffix not in _PLOT_SUFFIXES:
+        raise ShellsplineError(f"'{path}': a plot is written as {', '.join(_PLOT_SUFFIXES)}")
+    return _write_atomically(path, lambda tmp: fig.savefig(tmp, format=suffix[1:], dpi=120),
+                             seqs, _PLOT_SUFFIXES)
+
+
+def plot(sources, path, what=("energy", "speed"), *, track=None, labels=None,
+         shell_energy: str = "auto") -> Path:
+    """Save :func:`plot_figure` as PNG, SVG or PDF (by ``path``'s suffix), atomically.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path written.
+
+    Examples
+    --------
+    ``plot(["out/spline", "out/geodesic"], "energy.png", what="energy")`` compares a spline
+    with a piecewise geodesic as in the paper's Fig. 11.
+    """
+    if Path(path).suffix.lower() not in _PLOT_SUFFIXES:
+        raise ShellsplineError(f"'{path}': a plot is written as {', '.join(_PLOT_SUFFIXES)}")
+    seqs = _load_all(sources, labels)
+    fig = plot_figure(seqs, what, track=track, shell_energy=shell_energy)
+    return _save_figure(fig, path, seqs)
+
+
+def half_axes_figure(curves: dict, *, frames=None, figsize=(7.0, 3.6)):
+    """Half-axes of ellipsoid-like shapes along the curve (paper Fig. 3).
+
+    Parameters
+    ----------
+    curves : dict label -> (K+1,3) array or source
+        Half-extents along x, y, z per frame (e.g. from
+        :func:`shellspline.metrics.half_axes`), or a source whose half-axes are computed.
+    frames : (J,) int array-like, optional
+        Keyframe frames, drawn as dashed gray lines (default: those of the first source
+        given, if any).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One axes; one line per label and axis (x solid, y dashed, z dotted).
+    """
+    from .metrics import half_axes
+
+    Figure = _matplotlib("plot_half_axes")
+    if not isinstance(curves, dict) or not curves:
+        raise ShellsplineError("curves must be a non-empty dict label -> (K+1,3) half-axes")
+    fig = Figure(figsize=figsize, layout="constrained")
+    fig._shellspline_sources = []  # loaded sources, so a saved plot never replaces an input
+    ax = fig.add_subplot()
+    key = None if frames is None else np.asarray(frames, dtype=np.int64).ravel()
+    for i, (label, c) in enumerate(curves.items()):
+        if isinstance(c, (np.ndarray, list)):
+            H = np.asarray(c, dtype=np.float64)
+        else:
+            seq = load_source(c, str(label))
+            fig._shellspline_sources.append(seq)
+            H = half_axes(seq.V)
+            if key is None and seq.frames.size:
+                key = seq.frames
+        if H.ndim != 2 or H.shape[1] != 3:
+            raise ShellsplineError(f"curves[{label!r}] must be a (K+1,3) array, got shape "
+                                   f"{H.shape}")
+        col = PALETTE[i % len(PALETTE)]
+        for j, (ls, name) in enumerate(zip(("-", "--", ":"), "xyz")):
+            ax.plot(np.arange(H.shape[0]), H[:, j], color=col, ls=ls, lw=1.8,
+                    label=f"{label}: {name}")
+    if key is not None:
+        for f in key:
+            ax.axvline(f, color=KEYFRAME_COLOR, lw=1.0, ls="--", zorder=0, label="_keyframe")
+    ax.set_xlabel("frame k")
+    ax.set_ylabel("half-axis length")
+    ax.set_title("half-axes along the curve (x solid, y dashed, z dotted)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=max(1, len(curves)), loc="best")
+    return fig
+
+
+def plot_half_axes(curves: dict, path, *, frames=None) -> Path:
+    """Save :func:`half_axes_figure` as PNG, SVG or PDF, atomically.
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    if Path(path).suffix.lower() not in _PLOT_SUFFIXES:
+        raise ShellsplineError(f"'{path}': a plot is written as {', '.join(_PLOT_SUFFIXES)}")
+    fig = half_axes_figure(curves, frames=frames)
+    return _save_figure(fig, path, fig._shellspline_sources)
