@@ -939,9 +939,16 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
         for fmt in spec.formats[1:]:
             ss.write_sequence(staging / fmt, res.V, res.F, report, fmt=fmt, protect=protect,
                               workers=inner_workers)
-        _write_json_atomic(staging / "metrics.json", metrics)
+        _write_json_atomic(staging / "metrics.json",
+                           {**metrics, "keyframe_frames": [int(f) for f in res.frames]})
+        if emit is not None:
+            emit({"kind": "stage_end", "stage": "write", "seconds": time.perf_counter() - t_w})
         if spec.render or spec.plots:
+            t_r = time.perf_counter()
             _render(spec, staging, res)
+            if emit is not None:
+                emit({"kind": "stage_end", "stage": "render",
+                      "seconds": time.perf_counter() - t_r})
         warning = _quality_warning(report)
         manifest = {
             "format": MANIFEST_FORMAT, "key": my_key, "sequence": spec.name, "run": run_id,
@@ -954,8 +961,6 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
         _write_json_atomic(staging / "manifest.json", manifest)
         state = _publish(staging, final, my_key, keep)
         staging = None
-        if emit is not None:
-            emit({"kind": "stage_end", "stage": "write", "seconds": time.perf_counter() - t_w})
         outcome.update(status="done", warning=warning, frames=int(res.K + 1),
                        vertices=int(res.V.shape[1]))
         if state == "existing":
@@ -975,7 +980,7 @@ def _render(spec: SequenceSpec, staging: Path, res) -> None:
     except ImportError as exc:
         raise ShellsplineError(f"rendering needs the viz module and its extra "
                                f"(pip install \"shellspline[viz]\"): {_one_line(exc)}") from None
-    src = (res.V, res.F)
+    src = (res.V, res.F, res.frames)  # keyframes drawn gray
     if "strip" in spec.render:
         viz.render_strip(src, staging / "strip.png")
     if "gif" in spec.render:
@@ -983,7 +988,8 @@ def _render(spec: SequenceSpec, staging: Path, res) -> None:
     if "half_axes" in spec.plots:
         from .metrics import half_axes
 
-        viz.plot_half_axes({spec.name: half_axes(res.V)}, staging / "half_axes.png")
+        viz.plot_half_axes({spec.name: half_axes(res.V)}, staging / "half_axes.png",
+                           frames=res.frames)
 
 
 # --------------------------------------------------------------------------------------
@@ -1374,6 +1380,7 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
         raise ShellsplineError(f"executor must be 'local' or 'dask', got {executor!r}")
     if executor == "dask":
         _import_distributed()
+    _check_viz_available(job)
     if write_expected and (job.regression is None or job.regression["expected_path"] is None):
         raise ShellsplineError(f"{job.path}: --write-expected needs a [regression] section "
                                "whose 'expected' is a JSON file")
@@ -1461,6 +1468,22 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
         finally:
             _log.removeHandler(handler)
             handler.close()
+
+
+def _check_viz_available(job: Job) -> None:
+    """Renders and plots need the viz extra: fail before anything runs, in one line."""
+    import importlib.util
+
+    need = set()
+    for s in job.sequences:
+        if s.render:
+            need |= {"pyvista"} | ({"imageio"} if "gif" in s.render else set())
+        if s.plots:
+            need.add("matplotlib")
+    missing = sorted(m for m in need if importlib.util.find_spec(m) is None)
+    if missing:
+        raise ShellsplineError(f"{job.path}: render/plots need {', '.join(missing)}: pip "
+                               'install "shellspline[viz]"')
 
 
 def _read_metrics(out: Path) -> dict | None:
@@ -1571,12 +1594,13 @@ def regression_table(regression: dict) -> str:
 
 def _job_plots(job: Job, seqs: list, summary: BatchSummary) -> None:
     names = [s.name for s in job.sequences if "half_axes" in s.plots]
-    curves = {}
+    curves, frames = {}, None
     for o in seqs:
         if o["name"] in names and o["status"] in ("done", "skipped"):
             m = _read_metrics(Path(o["out"]))
             if m is not None:
                 curves[o["name"]] = m["half_axes"]
+                frames = m.get("keyframe_frames") if frames is None else frames
     if len(curves) < 2:
         return
     path = job.output / "half_axes.png"
@@ -1586,7 +1610,7 @@ def _job_plots(job: Job, seqs: list, summary: BatchSummary) -> None:
 
         from . import viz
 
-        viz.plot_half_axes({k: np.asarray(v) for k, v in curves.items()}, tmp)
+        viz.plot_half_axes({k: np.asarray(v) for k, v in curves.items()}, tmp, frames=frames)
         os.replace(tmp, path)
     except Exception as exc:
         summary.errors.append(f"job plot {path.name}: {_one_line(exc)}")

@@ -1,0 +1,489 @@
+"""Batch jobs: TOML validation, local and Dask executors, manifests and resume, failures,
+interruption, a killed Dask worker, the shipped pipelines."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import data_synth
+import shellspline as ss
+from shellspline import batch
+from shellspline.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+PIPELINES = REPO / "pipelines"
+
+
+def _job(tmp: Path, body: str, name: str = "job.toml") -> Path:
+    p = tmp / name
+    p.write_text(body)
+    return p
+
+
+def _synth_job(tmp: Path, names, *, workers=2, defaults="", extra="", vertices=150,
+               output="out") -> Path:
+    seqs = "".join(f'\n[[sequences]]\nname = "{n}"\nsynth = "ellipsoids"\n{extra}'
+                   for n in names)
+    return _job(tmp, f'[job]\nname = "t"\noutput = "{output}"\nworkers = {workers}\n\n'
+                     f'[defaults]\nvertices = {vertices}\n{defaults}\n{seqs}')
+
+
+def _cli(capsys, *args):
+    rc = main(["batch", *map(str, args)])
+    return rc, capsys.readouterr().err
+
+
+def _summary(root: Path) -> dict:
+    return json.loads((root / "summary.json").read_text())
+
+
+def _status(root: Path) -> dict:
+    return {o["name"]: o["status"] for o in _summary(root)["sequences"]}
+
+
+def _leftovers(root: Path) -> list:
+    return [p.name for p in root.iterdir() if p.name.startswith(".")
+            and p.name != batch.LOCK_NAME]
+
+
+def _reference(vertices=150, **kw):
+    """The same sequence computed directly through the public API (the oracle)."""
+    d = data_synth.generate("ellipsoids", vertices)
+    return ss.interpolate((d["V"], d["F"]), frames=d["frames"], **kw)
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+# ------------------------------------------------------------------------------------------
+# Job files
+# ------------------------------------------------------------------------------------------
+BAD_JOBS = [
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\netaa = 1\n',
+     "unknown key 'etaa'"),
+    ('[job]\noutput = "o"\n[defaults]\nbc = "clamped"\n[[sequences]]\nname = "a"\n'
+     'synth = "ellipsoids"\n', "key 'bc'"),
+    ('[job]\noutput = "o"\nworkers = 0\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n',
+     "key 'workers'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\neta = -1\n',
+     "key 'eta'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     'formats = ["stl"]\n', "key 'formats'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nglob = "nothing/*"\n', "key 'glob'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     '[[sequences]]\nname = "a"\nsynth = "cactus"\n', "two sequences are named 'a'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "torus"\n', "key 'synth'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     'synth_params = {axes = [[1, 1]]}\n', "key 'synth_params'"),
+    ('[job]\noutput = "o"\nexecutor = "ray"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n',
+     "key 'executor'"),
+    ('[job]\noutput = "o"\nscheduler = "http://x"\n[[sequences]]\nname = "a"\n'
+     'synth = "ellipsoids"\n', "key 'scheduler'"),
+    ('[job]\noutput = "o"\n', "[[sequences]]"),
+    ('[job\noutput = "o"\n', "invalid TOML"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n[regression]\n'
+     'expected = {a = {half_axis = 1}}\n', "unknown metric 'half_axis'"),
+]
+
+
+@pytest.mark.parametrize("body, needle", BAD_JOBS)
+def test_bad_job_file_is_one_line_exit_2(tmp_path, capsys, body, needle):
+    p = _job(tmp_path, body)
+    rc, err = _cli(capsys, p)
+    assert rc == 2
+    assert err.count("\n") == 1 and err.startswith("shellspline: error: ")
+    assert str(p) in err and needle in err
+    assert not (tmp_path / "o").exists()  # nothing ran
+
+
+def test_overrides_and_precedence(tmp_path):
+    d = data_synth.write_batch("ellipsoids", tmp_path / "seqs", 2, 100)
+    (d[1] / "frames.txt").write_text("0 5 10\n")
+    p = _job(tmp_path, '[job]\noutput = "out"\n[defaults]\neta = 0.5\nframes = [0, 4, 8]\n'
+                       'bc = "natural"\n'
+                       '[[sequences]]\nglob = "seqs/*"\nname = "d_{dir}"\nmethod = "linear"\n'
+                       '[[sequences]]\nname = "x"\nkeyframes = ["seqs/ellipsoids_00/pose_00.obj",'
+                       ' "seqs/ellipsoids_00/pose_01.obj"]\nbc = "periodic"\nK = 9\n')
+    job = ss.load_job(p)
+    s = {q.name: q for q in job.sequences}
+    assert sorted(s) == ["d_ellipsoids_00", "d_ellipsoids_01", "x"]
+    assert job.output == (tmp_path / "out").resolve()
+    # a directory's frames.txt beats [defaults].frames; the entry's own values beat defaults
+    assert s["d_ellipsoids_01"].frames_path == str((d[1] / "frames.txt").resolve())
+    assert s["d_ellipsoids_01"].frames is None
+    assert s["d_ellipsoids_01"].params["method"] == "linear"
+    assert s["d_ellipsoids_01"].params["eta"] == 0.5
+    assert s["x"].frames == [0, 4, 8] and s["x"].frames_path is None
+    assert s["x"].params["bc"] == "periodic" and s["x"].params["K"] == 9
+    assert s["x"].keyframes[0] == str((d[0] / "pose_00.obj").resolve())
+
+
+def test_output_may_not_replace_an_input(tmp_path, capsys):
+    data_synth.write_batch("ellipsoids", tmp_path / "seqs", 1, 100)
+    p = _job(tmp_path, '[job]\noutput = "seqs"\n[[sequences]]\nglob = "seqs/*"\n')
+    rc, err = _cli(capsys, p)
+    assert rc == 2 and "would contain the input" in err
+
+
+def test_inner_workers_split():
+    assert batch._inner_workers(5, 2) == [1] * 5
+    assert batch._inner_workers(1, 4) == [4]
+    assert batch._inner_workers(2, 5) == [3, 2]
+
+
+# ------------------------------------------------------------------------------------------
+# Local executor: outputs, manifest, resume
+# ------------------------------------------------------------------------------------------
+def test_local_batch_outputs_manifest_and_resume(tmp_path, capsys):
+    p = _synth_job(tmp_path, ["a", "b", "c"],
+                   extra="")
+    text = p.read_text().replace('name = "b"\nsynth = "ellipsoids"\n',
+                                 'name = "b"\nsynth = "ellipsoids"\neta = 0.1\n')
+    p.write_text(text)
+    root = tmp_path / "out"
+    rc, err = _cli(capsys, p, "-q")
+    assert rc == 0, err
+    assert _status(root) == {"a": "done", "b": "done", "c": "done"}
+    # same arrays as a direct library call on the same keyframes
+    V, F, rep = ss.read_sequence(root / "a")
+    ref = _reference()
+    assert np.array_equal(V, ref.V) and np.array_equal(F, ref.F)
+    assert np.array_equal(ss.read_sequence(root / "b")[0], _reference(eta=0.1).V)
+    m = json.loads((root / "a" / "manifest.json").read_text())
+    assert m["shellspline_version"] == ss.__version__
+    assert m["parameters"]["params"]["eta"] == 1e-3 and m["parameters"]["frames"] == [0, 6, 12]
+    assert m["inputs"]["synth"] == {"name": "ellipsoids", "vertices": 150, "params": {}}
+    assert set(m["outputs"]) >= {"frame_0000.obj", "frame_0012.obj", "report.json",
+                                 "metrics.json"}
+    metrics = json.loads((root / "a" / "metrics.json").read_text())
+    assert metrics["keyframe_error"] == 0.0
+    assert np.allclose(metrics["half_axes"], np.abs(ref.V - ref.V.mean(1, keepdims=True))
+                       .max(1))
+    assert (root / "batch.log").read_text().count("a: done") == 1
+    mtimes = {q: (root / q / "frame_0005.obj").stat().st_mtime_ns for q in "abc"}
+
+    # re-run: everything is up to date, nothing is rewritten
+    rc, err = _cli(capsys, p, "-q")
+    assert rc == 0 and _status(root) == {"a": "skipped", "b": "skipped", "c": "skipped"}
+    assert all((root / q / "frame_0005.obj").stat().st_mtime_ns == mtimes[q] for q in "abc")
+
+    # a changed parameter, an incomplete output and a stale temp dir of a killed run
+    p.write_text(p.read_text().replace("eta = 0.1", "eta = 0.2"))
+    (root / "c" / "frame_0007.obj").unlink()
+    (root / ".a.stage-deadbeef").mkdir()
+    (root / ".a.stage-deadbeef" / "frame_0000.obj").write_text("partial")
+    rc, err = _cli(capsys, p, "-q")
+    assert rc == 0
+    assert _status(root) == {"a": "skipped", "b": "done", "c": "done"}
+    assert np.array_equal(ss.read_sequence(root / "b")[0], _reference(eta=0.2).V)
+    assert (root / "c" / "frame_0007.obj").is_file()
+    assert _leftovers(root) == []
+
+    # --force redoes everything
+    rc, err = _cli(capsys, p, "-q", "--force", "--workers", "1")
+    assert rc == 0 and set(_status(root).values()) == {"done"}
+
+
+def test_python_api_and_progress_events(tmp_path):
+    p = _synth_job(tmp_path, ["one"], workers=2)
+    events = []
+    summary = ss.run_batch(ss.load_job(p), progress=events.append)
+    assert summary.exit_code == 0 and summary.count("done") == 1
+    kinds = [e["kind"] for e in events]
+    assert kinds[0] == "batch_start" and "sequence_end" in kinds
+    stages = [e["event"]["stage"] for e in events if e["kind"] == "sequence_event"
+              and e["event"]["kind"] == "stage_end"]
+    assert "reconstruct" in stages and "write" in stages
+    # one sequence, two workers: the spare worker reconstructs frames inside the sequence
+    rep = json.loads((tmp_path / "out" / "one" / "report.json").read_text())
+    assert rep["parameters"]["workers"] == 2
+
+
+# ------------------------------------------------------------------------------------------
+# Failures
+# ------------------------------------------------------------------------------------------
+def test_shipped_batch_obj_with_corrupt_sequences(tmp_path, capsys):
+    (tmp_path / "pipelines").mkdir()
+    shutil.copy(PIPELINES / "batch_obj.toml", tmp_path / "pipelines")
+    dirs = data_synth.write_batch("ellipsoids", tmp_path / "synth" / "batch", 4, 100)
+    # mismatched connectivity: the second keyframe's faces differ from the first one's
+    text = (dirs[1] / "pose_01.obj").read_text().splitlines()
+    i = next(k for k, line in enumerate(text) if line.startswith("f "))
+    a, b, c = text[i].split()[1:]
+    text[i] = f"f {a} {c} {b}"
+    (dirs[1] / "pose_01.obj").write_text("\n".join(text) + "\n")
+    # an unreadable file
+    (dirs[2] / "pose_02.obj").write_bytes(b"\x00\xffnot a mesh\n")
+    rc, err = _cli(capsys, tmp_path / "pipelines" / "batch_obj.toml", "-q")
+    assert rc == 1
+    root = tmp_path / "out" / "batch_obj"
+    s = _summary(root)
+    by = {o["name"]: o for o in s["sequences"]}
+    assert [by[d.name]["status"] for d in dirs] == ["done", "failed", "failed", "done"]
+    assert "pose_01.obj" in by[dirs[1].name]["reason"] and \
+        "\n" not in by[dirs[1].name]["reason"]
+    assert "pose_02.obj" in by[dirs[2].name]["reason"]
+    assert s["counts"] == {"done": 2, "skipped": 0, "failed": 2, "interrupted": 0}
+    assert s["exit_code"] == 1
+    assert not (root / dirs[1].name).exists() and not (root / dirs[2].name).exists()
+    assert "failed" in err and dirs[2].name in err  # the table is printed on failure
+    assert _leftovers(root) == []
+
+
+# ------------------------------------------------------------------------------------------
+# Interruption and crashes (a real process, real signals)
+# ------------------------------------------------------------------------------------------
+def _start(args, cwd):
+    return subprocess.Popen([sys.executable, "-m", "shellspline", "batch", *map(str, args)],
+                            cwd=cwd, env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(cond, timeout=60.0):
+    t = time.monotonic() + timeout
+    while time.monotonic() < t:
+        if cond():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_interrupt_then_resume(tmp_path, sig):
+    names = ["s0", "s1", "s2", "s3"]
+    p = _synth_job(tmp_path, names, workers=1, defaults="delay = 0.6")
+    root = tmp_path / "out"
+    proc = _start([p, "-q"], tmp_path)
+    try:
+        assert _wait_for(lambda: (root / "s0" / "manifest.json").is_file())
+        time.sleep(0.3)  # s1 is being solved or written
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "re-run" in err and err.strip().splitlines()[-1].startswith("shellspline: interrupt")
+    st = _status(root)
+    assert st["s0"] == "done" and "interrupted" in st.values()
+    assert _summary(root)["interrupted"] is True
+    assert _leftovers(root) == []  # the running sequence's staging directory is gone
+    done_before = [n for n in names if st[n] == "done"]
+    for n in names:  # an output exists exactly when it is complete
+        assert (root / n).exists() == (n in done_before)
+    rc = subprocess.run([sys.executable, "-m", "shellspline", "batch", str(p), "-q"],
+                        cwd=tmp_path, env=_env(), capture_output=True, text=True).returncode
+    assert rc == 0
+    st2 = _status(root)
+    assert all(st2[n] == "skipped" for n in done_before)
+    assert all(st2[n] == "done" for n in names if n not in done_before)
+
+
+def test_killed_local_worker_fails_only_its_sequence(tmp_path):
+    p = _synth_job(tmp_path, ["k0", "k1", "k2"], workers=1, defaults="delay = 1.0")
+    root = tmp_path / "out"
+    proc = _start([p, "-q"], tmp_path)
+    try:
+        def child():
+            kids = Path(f"/proc/{proc.pid}/task/{proc.pid}/children")
+            pids = kids.read_text().split() if kids.exists() else []
+            return pids[0] if pids else None
+        assert _wait_for(lambda: child() is not None)
+        time.sleep(0.3)
+        os.kill(int(child()), signal.SIGKILL)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1, err
+    s = _summary(root)
+    by = {o["name"]: o for o in s["sequences"]}
+    assert by["k0"]["status"] == "failed" and "killed by signal 9" in by["k0"]["reason"]
+    assert by["k1"]["status"] == by["k2"]["status"] == "done"
+    assert not (root / "k0").exists() and _leftovers(root) == []
+
+
+# ------------------------------------------------------------------------------------------
+# Dask
+# ------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed")
+    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                 host="127.0.0.1", dashboard_address=None)
+    yield c
+    c.close()
+
+
+def test_dask_gives_the_same_outputs_as_local(tmp_path, cluster, capsys):
+    p = _synth_job(tmp_path, ["d0", "d1", "d2"], workers=2,
+                   defaults='formats = ["obj", "ply"]')
+    text = p.read_text().replace('name = "d1"\nsynth = "ellipsoids"\n',
+                                 'name = "d1"\nsynth = "ellipsoids"\nbc = "periodic"\nK = 15\n')
+    p.write_text(text)
+    rc, err = _cli(capsys, p, "-q", "-o", tmp_path / "local")
+    assert rc == 0, err
+    rc, err = _cli(capsys, p, "-q", "-o", tmp_path / "dask", "--scheduler",
+                   cluster.scheduler_address)
+    assert rc == 0, err
+    s = _summary(tmp_path / "dask")
+    assert s["executor"] == "dask" and s["counts"]["done"] == 3
+    for n in ("d0", "d1", "d2"):
+        Vl, Fl, _ = ss.read_sequence(tmp_path / "local" / n)
+        Vd, Fd, _ = ss.read_sequence(tmp_path / "dask" / n)
+        assert np.array_equal(Vl, Vd) and np.array_equal(Fl, Fd)
+        assert np.array_equal(ss.read_sequence(tmp_path / "dask" / n / "ply")[0], Vd)
+        ml = json.loads((tmp_path / "local" / n / "manifest.json").read_text())
+        md = json.loads((tmp_path / "dask" / n / "manifest.json").read_text())
+        assert ml["key"] == md["key"]
+    assert Vd.shape[0] == 13 and ss.read_sequence(tmp_path / "dask" / "d1")[0].shape[0] == 16
+    # and a re-run through Dask skips what the local run... wrote elsewhere: its own outputs
+    rc, err = _cli(capsys, p, "-q", "-o", tmp_path / "dask", "--scheduler",
+                   cluster.scheduler_address)
+    assert rc == 0 and set(_status(tmp_path / "dask").values()) == {"skipped"}
+
+
+def test_dask_worker_killed_mid_job_loses_and_duplicates_nothing(tmp_path, cluster):
+    distributed = pytest.importorskip("distributed")
+    names = [f"w{i}" for i in range(4)]
+    p = _synth_job(tmp_path, names, workers=2, defaults="delay = 1.5")
+    job = ss.load_job(p)
+    result = {}
+
+    def run():
+        result["summary"] = ss.run_batch(job, scheduler=cluster.scheduler_address)
+
+    t = threading.Thread(target=run)
+    t.start()
+    killed = {}
+    with distributed.Client(cluster.scheduler_address, timeout="20s") as client:
+        def busy():
+            proc = {w: ks for w, ks in client.processing().items() if ks}
+            return proc or None
+        assert _wait_for(busy, 60)
+        time.sleep(0.5)  # the task is inside its delay (solved, not yet written)
+        pids = client.run(os.getpid)
+        worker, keys = next(iter(busy().items()))
+        killed["pid"] = pids[worker]
+        killed["names"] = [k.split("-")[1] for k in keys]
+        os.kill(pids[worker], signal.SIGKILL)
+    t.join(120)
+    assert not t.is_alive()
+    s = result["summary"]
+    assert s.exit_code == 0, s.table()
+    assert [o["name"] for o in s.sequences] == names  # each exactly once
+    assert all(o["status"] == "done" for o in s.sequences)
+    for o in s.sequences:
+        if o["name"] in killed["names"]:  # retried on another (or the restarted) worker
+            assert not o["worker"].endswith(f":{killed['pid']}")
+    root = tmp_path / "out"
+    assert sorted(q.name for q in root.iterdir() if q.is_dir()) == names
+    ref = _reference()
+    for n in names:
+        V, F, _ = ss.read_sequence(root / n)
+        assert np.array_equal(V, ref.V)
+        assert batch._manifest_matches(root / n, json.loads(
+            (root / n / "manifest.json").read_text())["key"]) is not None
+    assert _leftovers(root) == []
+    log = (root / "batch.log").read_text()
+    assert all(log.count(f"{n}: done") == 1 for n in names)
+
+
+def test_missing_dask_is_a_one_line_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    p = _synth_job(tmp_path, ["a"])
+    rc, err = _cli(capsys, p, "--executor", "dask")
+    assert rc == 2 and 'pip install "shellspline[dask]"' in err and err.count("\n") == 1
+
+
+# ------------------------------------------------------------------------------------------
+# The regression pipeline
+# ------------------------------------------------------------------------------------------
+def test_regression_pipeline_passes_and_catches_a_perturbation(tmp_path, capsys):
+    out = tmp_path / "out"
+    rc, err = _cli(capsys, PIPELINES / "regression_ellipsoids.toml", "-o", out)
+    assert rc == 0, err
+    s = _summary(out)
+    assert s["regression"]["passed"] and len(s["regression"]["checks"]) >= 40
+    assert "regression: passed" in err
+    # the same job with one stored half-axis off by 0.5 %: a regression, exit 1
+    (tmp_path / "p" / "expected").mkdir(parents=True)
+    shutil.copy(PIPELINES / "regression_ellipsoids.toml", tmp_path / "p")
+    exp = json.loads((PIPELINES / "expected" / "regression_ellipsoids.json").read_text())
+    exp["sequences"]["fig3_natural"]["half_axes"][4][1] *= 1.005
+    (tmp_path / "p" / "expected" / "regression_ellipsoids.json").write_text(json.dumps(exp))
+    rc, err = _cli(capsys, tmp_path / "p" / "regression_ellipsoids.toml", "-o", out)
+    assert rc == 1
+    s = _summary(out)
+    assert set(_status(out).values()) == {"skipped"}  # compared from the stored metrics
+    bad = [c for c in s["regression"]["checks"] if not c["ok"]]
+    assert [(c["sequence"], c["metric"]) for c in bad] == [("fig3_natural", "half_axes")]
+    assert "REGRESSION" in err and "regression: FAILED" in err
+
+
+def test_compare_regression_modes():
+    reg = {"expected": {"s": {"gn_iterations_total": 10, "keyframe_kinks": [0.1, 0.2],
+                              "gn_converged": 5}},
+           "tolerances": {"gn_iterations_total": {"rtol": 0.2, "atol": 0, "mode": "max"},
+                          "keyframe_kinks": {"rtol": 0, "atol": 1e-3, "mode": "close"},
+                          "gn_converged": {"rtol": 0, "atol": 0, "mode": "min"}}}
+
+    def ok(**m):
+        return {c["metric"]: c["ok"] for c in batch.compare_regression(
+            reg, {"s": m})["checks"]}
+    base = dict(gn_iterations_total=12, keyframe_kinks=[0.1005, 0.2], gn_converged=5)
+    assert all(ok(**base).values())
+    assert not ok(**{**base, "gn_iterations_total": 13})["gn_iterations_total"]
+    assert ok(**{**base, "gn_iterations_total": 3})["gn_iterations_total"]
+    assert not ok(**{**base, "keyframe_kinks": [0.1, 0.2015]})["keyframe_kinks"]
+    assert not ok(**{**base, "keyframe_kinks": [0.1]})["keyframe_kinks"]
+    assert not ok(**{**base, "gn_converged": 4})["gn_converged"]
+    assert ok(**{**base, "gn_converged": 6})["gn_converged"]
+    assert not batch.compare_regression(reg, {})["passed"]
+
+
+# ------------------------------------------------------------------------------------------
+# Renders and plots (shellspline.viz)
+# ------------------------------------------------------------------------------------------
+def test_renders_and_plots_inside_the_atomic_output(tmp_path, capsys):
+    pytest.importorskip("pyvista")
+    pytest.importorskip("matplotlib")
+    viz = pytest.importorskip("shellspline.viz")
+    if not all(hasattr(viz, f) for f in ("render_strip", "plot_half_axes")):
+        pytest.skip("shellspline.viz has no render_strip/plot_half_axes yet")
+    p = _synth_job(tmp_path, ["r0", "r1"], vertices=100,
+                   defaults='render = ["strip"]\nplots = ["half_axes"]')
+    p.write_text(p.read_text().replace('name = "r1"\nsynth = "ellipsoids"\n',
+                                       'name = "r1"\nsynth = "ellipsoids"\nmethod = "linear"\n'))
+    rc, err = _cli(capsys, p, "-q")
+    assert rc == 0, err
+    root = tmp_path / "out"
+    for n in ("r0", "r1"):
+        for f in ("strip.png", "half_axes.png"):
+            assert (root / n / f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert {"strip.png", "half_axes.png"} <= set(
+            json.loads((root / n / "manifest.json").read_text())["outputs"])
+    assert (root / "half_axes.png").read_bytes()[:4] == b"\x89PNG"  # both sequences compared
+
+
+def test_missing_viz_extra_is_a_one_line_error(tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "pyvista" else real(name, *a))
+    p = _synth_job(tmp_path, ["a"], defaults='render = ["strip"]')
+    rc, err = _cli(capsys, p)
+    assert rc == 2 and 'pip install "shellspline[viz]"' in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()
