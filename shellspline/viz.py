@@ -517,7 +517,8 @@ class SequenceViewer:
         return self.set_frame(value)
 
     def screenshot(self) -> np.ndarray:
-        """The current image, ``(h, w, 3) uint8``."""
+        """The current image, ``(h, w, 3) uint8`` (rendered now)."""
+        self.plotter.render()  # pyvista's screenshot renders by itself only the first time
         return np.asarray(self.plotter.screenshot(return_img=True))
 
     def close(self) -> None:

@@ -1,0 +1,442 @@
+"""Previews, off-screen renders, plots (shellspline.viz), headless."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import shellspline as ss
+from shellspline import viz
+from shellspline._errors import ShellsplineError
+from shellspline.metrics import lta_energies, shell_energies, speed
+
+from conftest import REPO, icosphere
+
+pv = pytest.importorskip("pyvista", reason="viz tests need the viz extra (pip install '.[test]')")
+iio = pytest.importorskip("imageio.v3", reason="viz tests need imageio")
+pytest.importorskip("matplotlib", reason="viz tests need matplotlib")
+
+K = 6
+KEYFRAMES = [0, 3, 6]
+SMALL = (160, 120)
+
+
+def _sequence():
+    """A sphere (162 vertices) that travels along +x and stretches: frames all differ."""
+    V0, F = icosphere(2)
+    t = np.linspace(0.0, 1.0, K + 1)[:, None, None]
+    V = V0[None] * np.array([1.0, 1.0, 1.0]) * (1 + 0.3 * t * np.array([0, 0, 1.0]))
+    V = V + t * np.array([4.0, 0.0, 0.0])
+    return V, F
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return _sequence()
+
+
+@pytest.fixture(scope="module")
+def outdir(tmp_path_factory, seq):
+    V, F = seq
+    report = {"parameters": {"frames": KEYFRAMES, "bc": "natural", "eta": 1e-3, "mu": 1.0,
+                             "lam": 1.0, "method": "lta"}}
+    return ss.write_sequence(tmp_path_factory.mktemp("viz") / "out", V, F, report)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def can_render():
+    """Skip (with the reason) where VTK cannot create an off-screen render window."""
+    V, F = _sequence()
+    try:
+        img = viz.render_frames((V[:1], F), window_size=(32, 32), annotate=False)
+    except Exception as exc:  # pragma: no cover - environment dependent
+        pytest.skip(f"off-screen rendering is not available here: {type(exc).__name__}: {exc}")
+    if not (img != 255).any():  # pragma: no cover
+        pytest.skip("off-screen rendering produced a blank image (no OpenGL?)")
+
+
+def _mask(img):
+    """Pixels that are not the white background."""
+    return (img.astype(int) < 245).any(axis=-1)
+
+
+def _saturation(pixels):
+    p = pixels.reshape(-1, 3).astype(float)
+    return float((p.max(axis=1) - p.min(axis=1)).mean())
+
+
+# ----------------------------------------------------------------------------------------
+# Off-screen renders
+# ----------------------------------------------------------------------------------------
+def test_render_shows_the_mesh_where_it_is_and_frames_differ(seq):
+    V, F = seq
+    imgs = viz.render_frames((V, F, KEYFRAMES), [0, 1, 2, K], window_size=SMALL, view="front",
+                             annotate=False)
+    assert imgs.shape == (4, SMALL[1], SMALL[0], 3) and imgs.dtype == np.uint8
+    masks = [_mask(im) for im in imgs]
+    for m in masks:
+        assert 0.03 < m.mean() < 0.6  # non-blank, not all mesh
+    # front view: +x is to the right; the sphere travels along +x
+    cols = [np.nonzero(m)[1].mean() for m in masks]
+    assert cols[0] < SMALL[0] / 2 < cols[-1]
+    assert cols[0] < cols[1] < cols[2] < cols[3]
+    assert (imgs[1] != imgs[2]).any()
+    # keyframes gray, in-betweens coloured (orange)
+    assert _saturation(imgs[0][masks[0]]) < 10
+    inner = imgs[1][masks[1]].reshape(-1, 3).astype(float)
+    assert _saturation(inner) > 40 and inner[:, 0].mean() > inner[:, 2].mean() + 40
+
+
+def test_camera_is_fitted_to_the_whole_sequence(seq):
+    V, F = seq
+    imgs = viz.render_frames((V, F), window_size=SMALL, view="iso", annotate=False)
+    union = np.zeros(imgs.shape[1:3], dtype=bool)
+    for im in imgs:
+        m = _mask(im)
+        # nothing touches the border in any frame: the camera sees every pose
+        assert not (m[0].any() or m[-1].any() or m[:, 0].any() or m[:, -1].any())
+        union |= m
+    rows, cols = np.nonzero(union)
+    # and the whole motion fills the window reasonably (fitted, not tiny)
+    assert cols.max() - cols.min() > 0.6 * SMALL[0]
+
+
+def test_render_strip_panels(seq, tmp_path):
+    V, F = seq
+    w, h, gap = 80, 60, 6
+    frames = [0, 1, 3, 5]
+    p = viz.render_strip((V, F, KEYFRAMES), tmp_path / "s.png", frames=frames,
+                         window_size=(w, h), gap=gap, view="front", annotate=False)
+    img = iio.imread(p)[..., :3]
+    assert img.shape == (h, 4 * w + 3 * gap, 3)
+    for i, f in enumerate(frames):
+        panel = img[:, i * (w + gap):i * (w + gap) + w]
+        m = _mask(panel)
+        assert m.mean() > 0.02, f"panel {i} is blank"
+        sat = _saturation(panel[m])
+        assert (sat < 10) if f in KEYFRAMES else (sat > 40), (i, sat)
+        if i < 3:
+            assert not _mask(img[:, i * (w + gap) + w:(i + 1) * (w + gap)]).any()  # white gap
+    # same camera: the sphere moves to the right from panel to panel
+    centres = [np.nonzero(_mask(img[:, i * (w + gap):i * (w + gap) + w]))[1].mean()
+               for i in range(4)]
+    assert centres == sorted(centres)
+    # two rows
+    p2 = viz.render_strip((V, F, KEYFRAMES), tmp_path / "s2.png", frames=frames, columns=2,
+                          window_size=(w, h), gap=gap)
+    assert iio.imread(p2).shape[:2] == (2 * h + gap, 2 * w + gap)
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_default_strip_frames():
+    assert viz.default_strip_frames(6, KEYFRAMES).tolist() == [0, 1, 3, 4, 6]
+    assert viz.default_strip_frames(20, []).tolist() == [0, 5, 10, 15, 20]
+    many = np.arange(0, 171, 10)
+    assert viz.default_strip_frames(170, many).tolist() == np.round(
+        np.linspace(0, 170, 12)).astype(int).tolist()
+    assert viz.default_strip_frames(170, many[:7]).tolist() == many[:7].tolist()
+
+
+def test_render_gif_has_every_frame(outdir, tmp_path):
+    p = ss.render_animation(outdir, tmp_path / "a.gif", fps=10, window_size=(64, 48))
+    frames = iio.imread(p, index=None)
+    assert frames.shape[:3] == (K + 1, 48, 64)
+    assert not np.array_equal(frames[0], frames[K])
+    meta = iio.immeta(p, index=0)
+    assert meta.get("duration") == pytest.approx(100, abs=1)
+    sub = ss.render_animation(outdir, tmp_path / "b.gif", frames=[0, 6], window_size=(64, 48))
+    assert iio.imread(sub, index=None).shape[0] == 2
+
+
+def test_render_mp4(outdir, tmp_path):
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg")
+    import imageio.v2 as iio2
+
+    p = ss.render_animation(outdir, tmp_path / "a.mp4", fps=12, window_size=(63, 47))
+    with iio2.get_reader(p, format="FFMPEG") as r:
+        assert r.count_frames() == K + 1
+        assert r.get_meta_data()["fps"] == pytest.approx(12)
+        assert r.get_data(0).shape == (48, 64, 3)  # rounded up to even sizes
+
+
+def test_outputs_are_atomic_and_never_replace_inputs(seq, outdir, tmp_path):
+    V, F = seq
+    frame0 = outdir / "frame_0000.obj"
+    before = frame0.read_bytes()
+    with pytest.raises(ShellsplineError, match=r"\.gif or \.mp4"):
+        ss.render_animation(outdir, tmp_path / "a.avi")
+    with pytest.raises(ShellsplineError, match="png"):
+        ss.render_strip(outdir, frame0)
+    (tmp_path / "d.png").mkdir()
+    with pytest.raises(ShellsplineError, match="directory"):
+        ss.render_strip(outdir, tmp_path / "d.png")
+    assert frame0.read_bytes() == before
+    assert sorted(p.name for p in outdir.iterdir())[-1] == "report.json"  # nothing added
+    # a GLB output directory: exporting over its own animation.glb is refused
+    gout = ss.write_sequence(tmp_path / "g", V, F, {}, fmt="glb")
+    glb = (gout / "animation.glb").read_bytes()
+    with pytest.raises(ShellsplineError, match="input file"):
+        ss.export_glb(gout, gout / "animation.glb", frames=[0, 1])
+    assert (gout / "animation.glb").read_bytes() == glb
+    assert sorted(p.name for p in gout.iterdir()) == ["animation.glb", "report.json"]
+    # a failing writer leaves no temporary file behind
+    def boom(tmp):
+        tmp.write_bytes(b"partial")
+        raise OSError("disk full")
+    with pytest.raises(OSError, match="disk full"):
+        viz._write_atomically(tmp_path / "x.png", boom)
+    assert not (tmp_path / "x.png").exists() and not list(tmp_path.glob(".*tmp*"))
+
+
+def test_bad_render_arguments(seq):
+    V, F = seq
+    with pytest.raises(ShellsplineError, match="outside 0..6"):
+        viz.render_frames((V, F), [0, 7])
+    with pytest.raises(ShellsplineError, match="WIDTHxHEIGHT"):
+        viz.render_frames((V, F), [0], window_size="big")
+    with pytest.raises(ShellsplineError, match="view"):
+        viz.render_frames((V, F), [0], view="diagonal")
+    with pytest.raises(ShellsplineError, match=r"\(K\+1,n,3\)"):
+        viz.render_frames((V[0], F))
+    with pytest.raises(ShellsplineError, match="source"):
+        viz.load_source(42)
+
+
+# ----------------------------------------------------------------------------------------
+# The preview window's logic, driven off-screen
+# ----------------------------------------------------------------------------------------
+def test_viewer_slider_and_playback_drive_the_mesh(seq):
+    V, F = seq
+    short = (V[:4], F, [0, 3])  # a second, shorter source
+    v = ss.preview((V, F, KEYFRAMES), short, track=[0, 5], off_screen=True, window_size=SMALL,
+                   labels=["long", "short"])
+    try:
+        assert v.K == K and v.k == 0
+        np.testing.assert_array_equal(v.meshes[0].points, V[0])
+        for value, k in ((2.6, 3), (5.0, 5), (-3, 0), (99, K)):
+            assert v.on_slider(value) == k
+            np.testing.assert_array_equal(v.meshes[0].points, V[k])
+            np.testing.assert_array_equal(v.meshes[1].points, V[min(k, 3)])  # clamped
+            np.testing.assert_array_equal(v.markers[0].points, V[k, [0, 5]])
+            assert v.slider.GetRepresentation().GetValue() == k
+        # gray at keyframes, coloured between
+        v.set_frame(3)
+        assert v.actors[0].prop.color.hex_rgb == viz.KEYFRAME_COLOR
+        v.set_frame(4)
+        assert v.actors[0].prop.color.hex_rgb == viz.PALETTE[0]
+        assert v.actors[1].prop.color.hex_rgb == viz.KEYFRAME_COLOR  # short: still frame 3
+        # playback: loop wraps, no loop stops and pauses
+        v.set_frame(K)
+        v.play()
+        assert v.playing and v.checkbox.GetRepresentation().GetState() == 1
+        assert v.tick() == 0
+        assert v.step(-1) == K
+        v.toggle_loop()
+        assert not v.loop and v.tick() == K and not v.playing
+        assert v.checkbox.GetRepresentation().GetState() == 0
+        assert v.step(5) == K
+        # views are linked: one camera
+        r = v.plotter.renderers
+        assert r[0].camera is r[1].camera
+        a = v.screenshot()
+        v.set_frame(1)
+        assert (v.screenshot() != a).any()
+    finally:
+        v.close()
+
+
+def test_viewer_key_bindings(seq):
+    V, F = seq
+    v = ss.preview((V, F, KEYFRAMES), off_screen=True, window_size=SMALL)
+    try:
+        callbacks = v.plotter.iren._key_press_event_callbacks
+        for key in ("space", "Left", "Right", "Home", "End", "l"):
+            assert callbacks.get(key), key
+
+        def press(key):
+            for cb in callbacks[key]:
+                cb()
+
+        press("Right"), press("Right")
+        assert v.k == 2
+        press("End")
+        assert v.k == K
+        press("Home")
+        assert v.k == 0
+        press("Left")
+        assert v.k == K  # loop on: wraps
+        press("space")
+        assert v.playing
+        press("l")
+        assert not v.loop
+    finally:
+        v.close()
+
+
+def test_preview_without_a_display_says_so(seq, monkeypatch):
+    V, F = seq
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(ShellsplineError, match="needs a display"):
+        ss.preview((V, F))
+
+
+def test_missing_extra_names_it(seq, monkeypatch, tmp_path):
+    V, F = seq
+    monkeypatch.setitem(sys.modules, "pyvista", None)
+    with pytest.raises(ShellsplineError, match=r'pip install "shellspline\[viz\]"'):
+        viz.render_frames((V, F))
+    monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
+    with pytest.raises(ShellsplineError, match=r'pip install "shellspline\[viz\]"'):
+        viz.plot_figure((V, F), "speed")
+
+
+def test_import_stays_light():
+    code = ("import sys, shellspline; "
+            "print(sorted(m for m in ('pyvista', 'vtk', 'matplotlib', 'imageio') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+# ----------------------------------------------------------------------------------------
+# Plots
+# ----------------------------------------------------------------------------------------
+def _data_lines(ax):
+    return [ln for ln in ax.get_lines() if not ln.get_label().startswith("_")]
+
+
+def test_plot_figure_energy_speed_track(seq, outdir):
+    V, F = seq
+    kink = V.copy()
+    kink[1:3] = V[0] + (V[3] - V[0]) * np.array([1, 2])[:, None, None] / 3  # linear pieces
+    fig = viz.plot_figure([outdir, (kink, F, KEYFRAMES)], ("energy", "speed"), track="0,7",
+                          labels="spline,kinked", shell_energy="step")
+    axes = fig.axes
+    assert len(axes) == 4  # LΘA energy, shell energy, speed, trajectories
+    T = ss.topology(F)
+    for ax in axes[:3]:
+        assert [ln.get_label() for ln in _data_lines(ax)] == ["spline", "kinked"]
+        # keyframes drawn as vertical lines at 0, 3, 6
+        xs = sorted(ln.get_xdata()[0] for ln in ax.get_lines() if ln.get_label() == "_keyframe")
+        assert xs == KEYFRAMES
+    np.testing.assert_allclose(_data_lines(axes[0])[0].get_ydata(), lta_energies(V, T))
+    np.testing.assert_allclose(_data_lines(axes[1])[1].get_ydata(),
+                               shell_energies(kink, T, midpoints=False))
+    np.testing.assert_allclose(_data_lines(axes[2])[0].get_ydata(), speed(V))
+    np.testing.assert_allclose(_data_lines(axes[2])[0].get_xdata(), np.arange(K) + 0.5)
+    # trajectories: one line per source and tracked vertex
+    assert len([ln for ln in axes[3].get_lines() if ln.get_label() != "_keyframe"]) == 4
+    # what="speed" alone: one axes
+    assert len(viz.plot_figure((V, F), "speed").axes) == 1
+    assert len(viz.plot_figure((V, F), "energy", shell_energy="none").axes) == 1
+
+
+def test_lta_energy_from_report_equals_recomputation(tmp_path):
+    V0, F = icosphere(1)
+    Vs = np.stack([V0, V0 * np.array([1.4, 1.0, 0.8]), V0])
+    res = ss.interpolate((Vs, F), frames=[0, 3, 6], eta=0.1)
+    fig = viz.plot_figure(res, "energy", shell_energy="none")
+    (line,) = _data_lines(fig.axes[0])
+    rep = np.asarray(res.report["energies"]["lta_output_energy_per_frame"])
+    np.testing.assert_array_equal(line.get_ydata(), rep)
+    np.testing.assert_allclose(rep, lta_energies(res.V, ss.topology(F), eta=0.1), rtol=1e-9,
+                               atol=1e-15)
+
+
+def test_shell_energy_vanishes_at_a_geodesic_midpoint():
+    V0, F = icosphere(1)
+    T = ss.topology(F)
+    A, B = V0, V0 * np.array([1.5, 1.0, 0.9])
+    M = ss.discrete_geodesic(A, B, 2, T, eta=0.01, tol=1e-12).V[1]
+    e_geo = shell_energies(np.stack([A, M, B]), T, eta=0.01)
+    e_lin = shell_energies(np.stack([A, 0.5 * (A + B) * 1.02, B]), T, eta=0.01)
+    scale = ss.shell_energy(A, B, T, eta=0.01)
+    assert e_geo[0] == e_geo[2] == 0.0
+    assert e_geo[1] < 1e-10 * scale
+    assert e_lin[1] > 1e-4 * scale
+    steps = shell_energies(np.stack([A, M, B]), T, eta=0.01, midpoints=False)
+    np.testing.assert_allclose(steps[:2], [ss.shell_energy(A, M, T, eta=0.01),
+                                           ss.shell_energy(M, B, T, eta=0.01)])
+
+
+def test_plot_files(seq, outdir, tmp_path):
+    V, F = seq
+    png = ss.plot(outdir, tmp_path / "p.png", "speed")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 2000
+    svg = ss.plot([outdir, (V, F)], tmp_path / "p.svg", ("speed",), labels=["a", "b"])
+    text = svg.read_text()
+    assert "<svg" in text and text.count("<path") > 4
+    with pytest.raises(ShellsplineError, match="png"):
+        ss.plot(outdir, tmp_path / "p.txt")
+    with pytest.raises(ShellsplineError, match="unknown plot"):
+        viz.plot_figure(outdir, "accel")
+    with pytest.raises(ShellsplineError, match="labels"):
+        viz.plot_figure([outdir, outdir], "speed", labels="one")
+    with pytest.raises(ShellsplineError, match="outside"):
+        viz.plot_figure(outdir, "speed", track=[10_000])
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_half_axes_plot(seq, outdir, tmp_path):
+    V, F = seq
+    from shellspline.metrics import half_axes
+
+    fig = viz.half_axes_figure({"spline": half_axes(V), "dir": outdir})
+    lines = _data_lines(fig.axes[0])
+    assert [ln.get_label() for ln in lines] == ["spline: x", "spline: y", "spline: z",
+                                                "dir: x", "dir: y", "dir: z"]
+    np.testing.assert_allclose(lines[2].get_ydata(), half_axes(V)[:, 2])
+    keys = sorted(ln.get_xdata()[0] for ln in fig.axes[0].get_lines()
+                  if ln.get_label() == "_keyframe")
+    assert keys == KEYFRAMES  # taken from the directory's report
+    p = ss.plot_half_axes({"a": half_axes(V)}, tmp_path / "h.png")
+    assert p.read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(ShellsplineError, match=r"\(K\+1,3\)"):
+        viz.half_axes_figure({"bad": np.zeros((4, 2))})
+
+
+# ----------------------------------------------------------------------------------------
+# GLB export from an output directory, CLI
+# ----------------------------------------------------------------------------------------
+def test_export_glb_from_outdir(seq, outdir, tmp_path):
+    from shellspline.gltf import read_glb
+
+    V, F = seq
+    p = ss.export_glb(outdir, tmp_path / "a.glb", fps=8, frames=[0, 3, 6])
+    V2, F2, fps = read_glb(p)
+    assert fps == 8.0
+    np.testing.assert_array_equal(F2, F)
+    np.testing.assert_allclose(V2, V[[0, 3, 6]], atol=1e-6)
+
+
+def test_cli_render_plot_preview(outdir, tmp_path, capsys):
+    from shellspline.cli import main
+
+    gif, strip, glb = tmp_path / "a.gif", tmp_path / "s.png", tmp_path / "a.glb"
+    assert main(["render", str(outdir), "--gif", str(gif), "--strip", str(strip), "--glb",
+                 str(glb), "--size", "64x48", "--frames", "0,2,4,6", "-q"]) == 0
+    assert iio.imread(gif, index=None).shape[0] == 4
+    assert iio.imread(strip).shape[:2] == (48, 4 * 64 + 3 * 8)
+    assert glb.stat().st_size > 1000
+    png = tmp_path / "p.png"
+    assert main(["plot", str(outdir), str(outdir), "--labels", "x,y", "--speed", "-o",
+                 str(png), "-q"]) == 0
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    capsys.readouterr()
+    assert main(["render", str(outdir)]) == 2
+    assert "nothing to write" in capsys.readouterr().err
+    assert main(["plot", str(outdir), "-o", str(outdir / "frame_0000.obj")]) == 2
+    assert main(["render", str(outdir), "--strip", str(outdir / "frame_0001.obj")]) == 2
+    assert main(["render", str(outdir), "--gif", str(gif), "--size", "12"]) == 2
+    assert main(["plot", str(tmp_path / "missing"), "-o", str(png)]) == 2
+    with pytest.raises(SystemExit):
+        main(["preview", "--help"])
+    helptext = capsys.readouterr().out
+    for key in ("space", "left, right", "home, end", "loop", "quit"):
+        assert key in helptext
