@@ -1004,6 +1004,13 @@ def _child_main(conn, spec, key, inner_workers, run_id, force):
     signal.signal(signal.SIGTERM, _raise_interrupt)  # unwind (temp dirs removed) on terminate
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
+        from threadpoolctl import threadpool_limits
+
+        # the process pool is the parallelism: BLAS threads on top only oversubscribe
+        threadpool_limits(limits=max(1, inner_workers))
+    except ImportError:  # pragma: no cover - a required dependency
+        pass
+    try:
         outcome = _run_sequence(spec, key, inner_workers,
                                 emit=lambda ev: conn.send(("event", spec.name, ev)),
                                 run_id=run_id, force=force)
@@ -1108,7 +1115,10 @@ def _import_distributed():
 
 def _dask_task(spec: SequenceSpec, key: str | None, run_id: str, force: bool) -> dict:
     """A Dask task: one whole sequence (the task reads or generates its own inputs)."""
-    return _run_sequence(spec, key, 1, emit=None, run_id=run_id, force=force)
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _run_sequence(spec, key, 1, emit=None, run_id=run_id, force=force)
 
 
 def _run_dask(todo, workers, address, on_event, outcomes, run_id, force):
