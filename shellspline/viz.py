@@ -432,6 +432,7 @@ class SequenceViewer:
         if S > 1:
             pl.link_views(views=list(range(S)))
         self.slider = self.checkbox = None
+        self._frame_texts = []
         if widgets:
             self._add_widgets(pl, S)
         self.set_frame(0)
@@ -464,20 +465,23 @@ class SequenceViewer:
         return k
 
     def _label_frame(self):
-        pl = self.plotter
-        h_view = int(self.window_size[1] * (10 / 11 if self.widgets else 1.0))
         short = not self.titles  # renders: a small "k=5" in the upper left corner
-        font = max(6, min(10, self.window_size[0] // (26 * len(self.seqs))))
+        if not self._frame_texts:  # created once; later frames only change the text
+            pl = self.plotter
+            h_view = int(self.window_size[1] * (10 / 11 if self.widgets else 1.0))
+            font = max(6, min(10, self.window_size[0] // (26 * len(self.seqs))))
+            pos = (4, h_view - 2 * font - 4) if short else (8, 6)
+            for i in range(len(self.seqs)):
+                pl.subplot(0, i)
+                self._frame_texts.append(pl.add_text(" ", position=pos, color="#444444",
+                                                     font_size=font if short else 9,
+                                                     name=f"frame{i}"))
         for i, s in enumerate(self.seqs):
             ks = min(self.k, s.K)
             key = _is_keyframe(s, ks)
-            if short:
-                text, pos = f"k={ks}" + (" key" if key else ""), (4, h_view - 2 * font - 4)
-            else:
-                text, pos = f"frame {ks}/{s.K}" + ("  keyframe" if key else ""), (8, 6)
-            pl.subplot(0, i)
-            pl.add_text(text, position=pos, font_size=font if short else 9, color="#444444",
-                        name=f"frame{i}")
+            text = (f"k={ks}" + (" key" if key else "")) if short else \
+                (f"frame {ks}/{s.K}" + ("  keyframe" if key else ""))
+            self._frame_texts[i].SetInput(text)
 
     def step(self, delta: int = 1) -> int:
         """Move ``delta`` frames (wrapping around when looping, else clamped)."""
