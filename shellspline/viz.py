@@ -554,8 +554,10 @@ class SequenceViewer:
         for key, fn in bindings.items():
             pl.add_key_event(key, lambda fn=fn: (fn(), self._render()))
         if pl.iren is not None and not pl.off_screen:
-            pl.add_timer_event(max_steps=2 ** 31 - 1, duration=max(1, int(1000 / self.fps)),
-                               callback=self._on_timer)
+            # our own observer (not add_timer_event, which re-renders on every tick even
+            # while paused): render only when a frame advances
+            pl.iren.add_observer("TimerEvent", lambda obj, event: self._on_timer())
+            pl.iren.create_timer(max(1, int(round(1000 / self.fps))), repeating=True)
         pl.subplot(0, 0)
 
     def _sync_checkbox(self):
@@ -564,7 +566,7 @@ class SequenceViewer:
             if bool(rep.GetState()) != self.playing:
                 rep.SetState(int(self.playing))
 
-    def _on_timer(self, step):
+    def _on_timer(self):
         if self.playing:
             self.tick()
             self._render()

@@ -238,6 +238,14 @@ def test_viewer_slider_and_playback_drive_the_mesh(seq):
         assert not v.loop and v.tick() == K and not v.playing
         assert v.checkbox.GetRepresentation().GetState() == 0
         assert v.step(5) == K
+        # the playback timer advances only while playing
+        v.set_frame(2)
+        v._on_timer()
+        assert v.k == 2
+        v.play()
+        v._on_timer()
+        assert v.k == 3 and v.playing
+        np.testing.assert_array_equal(v.meshes[0].points, V[3])
         # views are linked: one camera
         r = v.plotter.renderers
         assert r[0].camera is r[1].camera
