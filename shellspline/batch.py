@@ -1144,7 +1144,7 @@ def _run_dask(todo, workers, address, on_event, outcomes, run_id, force):
             client = distributed.Client(cluster)
         else:
             try:
-                client = distributed.Client(address, timeout="20s")
+                client = distributed.Client(address, timeout="10s")
             except (OSError, TimeoutError) as exc:
                 raise ShellsplineError(f"cannot connect to the Dask scheduler at {address}: "
                                        f"{_one_line(exc)}") from None
