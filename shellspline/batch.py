@@ -915,10 +915,13 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
             return not force or m.get("run") == run_id
 
         m = _manifest_matches(final, my_key)
-        if m is not None and keep(m):  # an earlier attempt of this very task already completed it
-            outcome.update(status="skipped", reason="up to date (completed by an earlier "
-                                                    "attempt)", warning=m.get("warning", ""),
-                           frames=m.get("frames"), vertices=m.get("vertices"))
+        if m is not None and keep(m):  # complete already: never rewritten
+            this_run = bool(run_id) and m.get("run") == run_id
+            outcome.update(status="done" if this_run else "skipped",
+                           reason="completed by an earlier attempt of this run" if this_run
+                           else "up to date (manifest matches)",
+                           warning=m.get("warning", ""), frames=m.get("frames"),
+                           vertices=m.get("vertices"))
             return outcome
         kf, pinned = _keyframes_of(spec)
         p = spec.params

@@ -515,3 +515,28 @@ def test_missing_viz_extra_is_a_one_line_error(tmp_path, capsys, monkeypatch):
     rc, err = _cli(capsys, p)
     assert rc == 2 and 'pip install "shellspline[viz]"' in err and err.count("\n") == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_a_task_that_runs_twice_does_not_rewrite_or_duplicate(tmp_path):
+    p = _synth_job(tmp_path, ["t"], vertices=100)
+    job = ss.load_job(p)
+    spec = job.sequences[0]
+    key = batch._sequence_key(spec, batch._input_digest(spec))
+    first = batch._run_sequence(spec, key, run_id="run-1")
+    assert first["status"] == "done" and first["reason"] == ""
+    out = Path(spec.out)
+    stamp = (out / "manifest.json").stat().st_mtime_ns
+    # the same task again (a Dask retry after the first attempt had finished): kept as is
+    again = batch._run_sequence(spec, key, run_id="run-1", force=True)
+    assert again["status"] == "done" and "earlier attempt" in again["reason"]
+    assert (out / "manifest.json").stat().st_mtime_ns == stamp
+    # a second writer that finished while the first was writing: its output is discarded
+    staging = tmp_path / "out" / ".t.stage-0123456789ab"
+    shutil.copytree(out, staging)
+    assert batch._publish(staging, out, key, lambda m: True) == "existing"
+    assert not staging.exists() and (out / "manifest.json").stat().st_mtime_ns == stamp
+    # a forced re-run of a new batch replaces the output atomically
+    forced = batch._run_sequence(spec, key, run_id="run-2", force=True)
+    assert forced["status"] == "done" and forced["reason"] == ""
+    assert json.loads((out / "manifest.json").read_text())["run"] == "run-2"
+    assert sorted(q.name for q in (tmp_path / "out").iterdir()) == ["t"]
