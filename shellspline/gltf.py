@@ -26,7 +26,7 @@ import numpy as np
 
 from ._errors import ShellsplineError
 
-__all__ = ["glb_bytes", "write_glb", "read_glb"]
+__all__ = ["glb_bytes", "write_glb", "read_glb", "vertex_normals"]
 
 _GLB_MAGIC = 0x46546C67  # b"glTF"
 _CHUNK_JSON = 0x4E4F534A  # b"JSON"

@@ -687,7 +687,7 @@ def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
     return np.stack(imgs)
 
 
-def render_animation(source, path, *, fps: float = 24.0, window_size=(640, 480), frames=None,
+def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), frames=None, *,
                      view="iso", annotate: bool = True) -> Path:
     """Render a sequence off-screen to an animated GIF or an MP4 movie (by ``path``'s suffix).
 
@@ -780,7 +780,7 @@ def _compose(panels: np.ndarray, columns: int, gap: int, background=255) -> np.n
     return out
 
 
-def render_strip(source, path, *, frames=None, columns=None, window_size=(240, 240),
+def render_strip(source, path, frames=None, columns=None, window_size=(240, 240), *,
                  gap: int = 8, view="iso", annotate: bool = True) -> Path:
     """A PNG filmstrip of chosen frames, like the paper's figures.
 
@@ -1045,7 +1045,7 @@ def _save_figure(fig, path, seqs=()) -> Path:
                              seqs, _PLOT_SUFFIXES)
 
 
-def plot(sources, path, what=("energy", "speed"), *, track=None, labels=None,
+def plot(sources, path, what=("energy", "speed"), track=None, labels=None, *,
          shell_energy: str = "auto") -> Path:
     """Save :func:`plot_figure` as PNG, SVG or PDF (by ``path``'s suffix), atomically.
 

@@ -1,7 +1,8 @@
 import numpy as np
 
 import shellspline as ss
-from shellspline.metrics import edge_strain, half_axes, keyframe_kinks, speed
+from shellspline.metrics import (edge_strain, half_axes, keyframe_kinks, lta_energies,
+                                 shell_energies, speed)
 
 from conftest import icosphere
 
@@ -32,3 +33,31 @@ def test_edge_strain_of_a_uniform_scaling_and_speed_of_a_translation():
     K = 8
     Vs = V[None] + np.linspace(0, 1, K + 1)[:, None, None] * np.array([3.0, 4.0, 0.0])
     np.testing.assert_allclose(speed(Vs), 5.0, rtol=1e-12)
+
+
+def test_shell_energy_vanishes_at_a_geodesic_midpoint():
+    V0, F = icosphere(1)
+    T = ss.topology(F)
+    A, B = V0, V0 * np.array([1.5, 1.0, 0.9])
+    M = ss.discrete_geodesic(A, B, 2, T, eta=0.01, tol=1e-12).V[1]
+    e_geo = shell_energies(np.stack([A, M, B]), T, eta=0.01)
+    e_lin = shell_energies(np.stack([A, 0.5 * (A + B) * 1.02, B]), T, eta=0.01)
+    scale = ss.shell_energy(A, B, T, eta=0.01)
+    assert e_geo[0] == e_geo[2] == 0.0
+    assert e_geo[1] < 1e-10 * scale
+    assert e_lin[1] > 1e-4 * scale
+    steps = shell_energies(np.stack([A, M, B]), T, eta=0.01, midpoints=False)
+    np.testing.assert_allclose(steps[:2], [ss.shell_energy(A, M, T, eta=0.01),
+                                           ss.shell_energy(M, B, T, eta=0.01)])
+
+
+def test_lta_energies_concentrate_at_a_kink():
+    V, F = icosphere(1)
+    T = ss.topology(F)
+    t = np.linspace(0, 1, 7)[:, None, None]
+    straight = V[None] * (1 + 0.5 * t)                    # descriptors L, A change smoothly
+    e = lta_energies(straight, T)
+    assert e[0] == e[-1] == 0.0 and e.shape == (7,)
+    kinked = V[None] * np.where(t <= 0.5, 1 + t, 2 - t)   # grows, then shrinks back
+    ek = lta_energies(kinked, T)
+    assert np.argmax(ek) == 3 and ek[3] > 100 * max(ek[1], ek[5], e.max())

@@ -357,22 +357,6 @@ def test_lta_energy_from_report_equals_recomputation(tmp_path):
                                atol=1e-15)
 
 
-def test_shell_energy_vanishes_at_a_geodesic_midpoint():
-    V0, F = icosphere(1)
-    T = ss.topology(F)
-    A, B = V0, V0 * np.array([1.5, 1.0, 0.9])
-    M = ss.discrete_geodesic(A, B, 2, T, eta=0.01, tol=1e-12).V[1]
-    e_geo = shell_energies(np.stack([A, M, B]), T, eta=0.01)
-    e_lin = shell_energies(np.stack([A, 0.5 * (A + B) * 1.02, B]), T, eta=0.01)
-    scale = ss.shell_energy(A, B, T, eta=0.01)
-    assert e_geo[0] == e_geo[2] == 0.0
-    assert e_geo[1] < 1e-10 * scale
-    assert e_lin[1] > 1e-4 * scale
-    steps = shell_energies(np.stack([A, M, B]), T, eta=0.01, midpoints=False)
-    np.testing.assert_allclose(steps[:2], [ss.shell_energy(A, M, T, eta=0.01),
-                                           ss.shell_energy(M, B, T, eta=0.01)])
-
-
 def test_plot_files(seq, outdir, tmp_path):
     V, F = seq
     png = ss.plot(outdir, tmp_path / "p.png", "speed")
