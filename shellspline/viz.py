@@ -672,19 +672,22 @@ def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
     -------
     (p, h, w, 3) uint8 array
     """
-    seq = load_source(source)
+    return np.stack(list(_iter_frames(load_source(source), frames, window_size, view,
+                                      annotate)))
+
+
+def _iter_frames(seq, frames, window_size, view, annotate):
+    """Yield rendered frames one at a time (the viewer is closed at the end)."""
     frames = np.arange(seq.K + 1) if frames is None else _checked_frames(frames, seq.K)
     size = _checked_size(window_size, (640, 480))
     viewer = SequenceViewer(seq, off_screen=True, window_size=size, view=view, widgets=False,
                             annotate=annotate, titles=False)
     try:
-        imgs = []
         for k in frames:
             viewer.set_frame(k)
-            imgs.append(viewer.screenshot())
+            yield viewer.screenshot()
     finally:
         viewer.close()
-    return np.stack(imgs)
 
 
 def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), frames=None, *,
@@ -726,12 +729,14 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
         import imageio.v3 as iio
     except ImportError:
         raise ShellsplineError(f"render_animation needs the viz extra: {_EXTRA}") from None
-    imgs = render_frames(seq, frames, window_size=size, view=view, annotate=annotate)
+    frames = None if frames is None else _checked_frames(frames, seq.K)
 
     def write(tmp):
-        if suffix == ".gif":
-            iio.imwrite(tmp, imgs, extension=".gif", duration=1000.0 / fps, loop=0)
-        else:
+        imgs = _iter_frames(seq, frames, size, view, annotate)
+        if suffix == ".gif":  # Pillow needs every frame at once
+            iio.imwrite(tmp, np.stack(list(imgs)), extension=".gif", duration=1000.0 / fps,
+                        loop=0)
+        else:  # streamed: one frame in memory at a time
             try:
                 writer = iio2.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264",
                                          quality=7, macro_block_size=2,
