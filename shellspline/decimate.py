@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .topology import topology
+from .topology import Topology, topology
 
 __all__ = ["Decimation", "decimate", "decimate_replay", "hausdorff_fine_to_coarse",
            "canonical_target"]
@@ -144,6 +144,11 @@ def _canonical_poses(Vs, F, name_V="Vs", name_F="F"):
                          f"{np.shape(Vs)}")
     if not np.isfinite(Vs).all():
         raise ValueError(f"`{name_V}` contains non-finite coordinates")
+    if isinstance(F, Topology):
+        if F.n_vertices != Vs.shape[1]:
+            raise ValueError(f"`{name_F}` is a Topology of {F.n_vertices} vertices, `{name_V}` "
+                             f"has {Vs.shape[1]}")
+        return Vs, F
     T = topology(F, Vs.shape[1], name=f"`{name_F}`")
     return Vs, T
 
@@ -171,110 +176,132 @@ def _canonical_pinned(pinned, n):
 # A symmetric 4x4 quadric is stored by its 10 upper coefficients
 # [aa, ab, ac, ad, bb, bc, bd, cc, cd, dd] for the plane (a, b, c, d).
 
-def _plane_quadrics(nrm, d, w):
-    """(..., 10) quadric coefficients of planes ``nrm·x + d = 0`` with weights ``w``."""
-    a, b, c = nrm[..., 0], nrm[..., 1], nrm[..., 2]
-    return w[..., None] * np.stack([a * a, a * b, a * c, a * d, b * b, b * c, b * d,
-                                    c * c, c * d, d * d], axis=-1)
+def _plane_quadrics(a, b, c, d, w):
+    """(k,10) quadric coefficients of the planes ``a x + b y + c z + d = 0`` (unit normals)
+    with weights ``w``; all arguments (k,)."""
+    out = np.empty((a.shape[0], 10))
+    for i, (p, q) in enumerate(((a, a), (a, b), (a, c), (a, d), (b, b), (b, c), (b, d),
+                                (c, c), (c, d), (d, d))):
+        np.multiply(p * q, w, out=out[:, i])
+    return out
 
 
-def _quadric_error(q, x):
-    """``[x,1]ᵀ Q [x,1]`` for coefficient rows ``q (...,10)`` and points ``x (...,3)``."""
-    X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
-    return (q[..., 0] * X * X + q[..., 4] * Y * Y + q[..., 7] * Z * Z + q[..., 9]
-            + 2.0 * (q[..., 1] * X * Y + q[..., 2] * X * Z + q[..., 5] * Y * Z
-                     + q[..., 3] * X + q[..., 6] * Y + q[..., 8] * Z))
+def _setup_pose(x, F, bnd_edges, bnd_faces, boundary_weight, inc, incb):
+    """Quadrics (n,10), unnormalised vertex normals (n,3) and the mean face area of one pose
+    ``x (n,3)``.
 
-
-def _vertex_quadrics(X, F, bnd_edges, bnd_faces, boundary_weight):
-    """Accumulated area-weighted face quadrics of every vertex, per pose: (J,n,10).
-
-    Boundary edges add a plane through the edge perpendicular to its face, weighted by
-    ``boundary_weight * |e|²`` (GH97 §6), so that the boundary keeps its shape.
+    Face planes are weighted by the face area; boundary edges add a plane through the edge
+    perpendicular to its face, weighted by ``boundary_weight * |e|²`` (GH97 §6), so that the
+    boundary keeps its shape.
     """
-    J, n, _ = X.shape
-    m = F.shape[0]
-    P = [X[:, F[:, c]] for c in range(3)]
-    N = np.cross(P[1] - P[0], P[2] - P[0])
-    nn = np.linalg.norm(N, axis=-1)
-    unit = N / np.maximum(nn, 1e-300)[..., None]
-    d = -np.einsum("jmi,jmi->jm", unit, P[0])
-    Qf = _plane_quadrics(unit, d, 0.5 * nn)                      # (J,m,10)
-    inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))),
-                        shape=(n, m))
-    Q = np.stack([inc @ Qf[j] for j in range(J)])               # (J,n,10)
-    if bnd_edges.shape[0] and boundary_weight > 0:
-        a, b = X[:, bnd_edges[:, 0]], X[:, bnd_edges[:, 1]]
-        e = b - a
-        pn = np.cross(e, unit[:, bnd_faces])
-        pl = np.linalg.norm(pn, axis=-1)
-        pn = pn / np.maximum(pl, 1e-300)[..., None]
-        db = -np.einsum("jki,jki->jk", pn, a)
-        Qb = _plane_quadrics(pn, db, boundary_weight * np.einsum("jki,jki->jk", e, e))
-        nb = bnd_edges.shape[0]
-        incb = sp.csr_matrix((np.ones(2 * nb), (bnd_edges.T.ravel(), np.tile(np.arange(nb), 2))),
-                             shape=(n, nb))
-        Q += np.stack([incb @ Qb[j] for j in range(J)])
-    return Q
+    p0 = x[F[:, 0]]
+    N = _cross(x[F[:, 1]] - p0, x[F[:, 2]] - p0)
+    nn = np.sqrt(_dot(N, N))
+    unit = N / np.maximum(nn, 1e-300)[:, None]
+    u0, u1, u2 = unit[:, 0], unit[:, 1], unit[:, 2]
+    d = -(u0 * p0[:, 0] + u1 * p0[:, 1] + u2 * p0[:, 2])
+    Q = inc @ _plane_quadrics(u0, u1, u2, d, 0.5 * nn)
+    if incb is not None:
+        a = x[bnd_edges[:, 0]]
+        e = x[bnd_edges[:, 1]] - a
+        pn = _cross(e, unit[bnd_faces])
+        pn /= np.maximum(np.sqrt(_dot(pn, pn)), 1e-300)[:, None]
+        db = -_dot(pn, a)
+        Q += incb @ _plane_quadrics(pn[:, 0], pn[:, 1], pn[:, 2], db,
+                                    boundary_weight * _dot(e, e))
+    return Q, inc @ N, 0.5 * float(nn.mean())
+
+
+def _length_quadrics(x, w):
+    """(..., 10) coefficients of the quadric ``w |y − x|²`` (centred at points ``x``)."""
+    out = np.zeros(x.shape[:-1] + (10,))
+    out[..., 0] = out[..., 4] = out[..., 7] = w
+    out[..., 3], out[..., 6], out[..., 8] = -w * x[..., 0], -w * x[..., 1], -w * x[..., 2]
+    out[..., 9] = w * _dot(x, x)
+    return out
+
+
+def _point_moments(x):
+    """(..., 10) coefficients of ``x̂ x̂ᵀ`` (``x̂ = (x, 1)``) such that the quadric error of
+    coefficient rows ``q`` at ``x`` is ``(q * m).sum(-1)``."""
+    X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
+    out = np.empty(x.shape[:-1] + (10,))
+    out[..., 0], out[..., 1], out[..., 2], out[..., 3] = X * X, 2 * X * Y, 2 * X * Z, 2 * X
+    out[..., 4], out[..., 5], out[..., 6] = Y * Y, 2 * Y * Z, 2 * Y
+    out[..., 7], out[..., 8], out[..., 9] = Z * Z, 2 * Z, 1.0
+    return out
+
+
+def _quadric_errors(Q, M, iq, im, chunk: int = 8192):
+    """``Σ_j Q[iq, j] · M[im, j]`` for quadric rows ``Q (n,J,10)`` and point moments
+    ``M (n,J,10)`` (coefficients of ``x̂ x̂ᵀ``): the quadric errors summed over the poses in
+    pose order (so J equal poses give exactly J times one pose). Chunked: no temporaries of
+    the size of all halfedges times ``10 J``."""
+    n, J, _ = Q.shape
+    Q2, M2 = Q.reshape(n, 10 * J), M.reshape(n, 10 * J)
+    out = np.zeros(iq.shape[0])
+    for s in range(0, iq.shape[0], chunk):
+        q = np.take(Q2, iq[s:s + chunk], axis=0)
+        q *= np.take(M2, im[s:s + chunk], axis=0)
+        out[s:s + chunk] = q.reshape(-1, J, 10).sum(axis=2).sum(axis=1)
+    return out
 
 
 # -- graph helpers -----------------------------------------------------------------------------
 
 class _Graph:
-    """Vertex adjacency of the current mesh as CSR arrays (sorted rows), plus reductions."""
+    """Vertex adjacency of the current mesh as CSR arrays (sorted rows)."""
 
     def __init__(self, src, dst, n):
         self.n = n
         self.src, self.dst = src, dst              # sorted by (src, dst)
-        counts = np.bincount(src, minlength=n)
         self.indptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(counts, out=self.indptr[1:])
-        self.rows = np.flatnonzero(counts)
-        self.starts = self.indptr[self.rows]
-        self._A = None
+        np.cumsum(np.bincount(src, minlength=n), out=self.indptr[1:])
 
-    @property
-    def A(self):
-        if self._A is None:
-            self._A = sp.csr_matrix((np.ones(self.dst.shape[0], dtype=np.int32), self.dst,
-                                     self.indptr), shape=(self.n, self.n))
-        return self._A
+    def neighbours(self, ys):
+        """Concatenated neighbour lists of the vertices ``ys``: ``(nb, starts, nonempty)``,
+        where row ``i`` is ``nb[starts[i]:starts[i] + deg(ys[i])]``."""
+        lo, hi = self.indptr[ys], self.indptr[ys + 1]
+        deg = hi - lo
+        starts = np.cumsum(deg) - deg
+        nb = self.dst[np.repeat(lo - starts, deg) + np.arange(int(deg.sum()))]
+        return nb, starts, deg > 0
 
-    def closed_min(self, x):
-        """``y[i] = min(x[i], min over neighbours of x)``."""
-        y = x.copy()
-        if self.rows.size:
-            y[self.rows] = np.minimum(x[self.rows], np.minimum.reduceat(x[self.dst], self.starts))
-        return y
+    def closed_min_at(self, x, ys, rows=None):
+        """``min(x[y], min of x over the neighbours of y)`` for each ``y`` in ``ys``
+        (``rows``: ``self.neighbours(ys)`` when already computed)."""
+        nb, starts, nz = self.neighbours(ys) if rows is None else rows
+        out = x[ys]
+        if nb.size:
+            out[nz] = np.minimum(out[nz], np.minimum.reduceat(x[nb], starts[nz]))
+        return out
 
-    def closed_any(self, mask):
-        y = mask.copy()
-        if self.rows.size:
-            y[self.rows] |= np.logical_or.reduceat(mask[self.dst], self.starts)
-        return y
-
-
-def _scatter_min(n, idx, key, big):
-    """``out[x] = min(key[idx == x])``, ``big`` where none (keys are non-negative)."""
-    out = np.full(n, big, dtype=np.int64)
-    if idx.size:
-        o = np.argsort(idx * (int(key.max()) + 1) + key, kind="stable")
-        first = np.r_[True, idx[o][1:] != idx[o][:-1]]
-        out[idx[o][first]] = key[o][first]
-    return out
+    def closed_mark(self, ys):
+        """(n,) bool mask of the closed one-rings ``N[y]`` of the vertices ``ys``."""
+        mask = np.zeros(self.n, dtype=bool)
+        mask[ys] = True
+        mask[self.neighbours(ys)[0]] = True
+        return mask
 
 
 def _conflict_free_winners(g: _Graph, us, vs, key, big):
-    """Positions of the collapses ``us -> vs`` whose key is the smallest among all collapses
-    they conflict with (see :func:`_select_collapses`)."""
-    mu = g.closed_min(_scatter_min(g.n, us, key, big))
-    mv = g.closed_min(_scatter_min(g.n, vs, key, big))
-    return np.flatnonzero((mu[us] == key) & (mu[vs] == key) & (mv[us] == key))
+    """Positions of the collapses ``us -> vs`` (distinct ``us``) whose key is the smallest
+    among all collapses they conflict with (see :func:`_select_collapses`)."""
+    umin = np.full(g.n, big, dtype=np.int64)
+    umin[us] = key
+    vmin = np.full(g.n, big, dtype=np.int64)
+    np.minimum.at(vmin, vs, key)
+    rows_u = g.neighbours(us)
+    win = (g.closed_min_at(umin, us, rows_u) == key) & (g.closed_min_at(vmin, us, rows_u) == key)
+    w = np.flatnonzero(win)
+    w = w[g.closed_min_at(umin, vs[w]) == key[w]]
+    return w
 
 
-_N_BINS = 32      # cost bins of the round's priority (random order inside a bin)
+_N_BINS = 1 << 40
 _SLACK = 2.0      # competitors per round: the _SLACK * budget cheapest u
 _MAX_SWEEPS = 64
+_TAIL = 32        # an excess this small is removed in one round (cheapest independent set)
 
 
 def _select_collapses(g: _Graph, ckey, on_boundary, iu, iv, cost, budget, face_ok, rng,
@@ -309,7 +336,7 @@ def _select_collapses(g: _Graph, ckey, on_boundary, iu, iv, cost, budget, face_o
     and changes neither the one-rings of any ``u_i, v_i`` nor the faces around any ``u_i``,
     so all checks made on the current mesh hold for the simultaneous collapse (a halfedge
     collapse moves no vertex). The set is built by Luby-style sweeps: a candidate is a
-    tentative winner when its priority (cost bin, then random) is the smallest among the
+    tentative winner when its priority (rank of its cost, ties at random) is the smallest among the
     active candidates it conflicts with; tentative winners are checked (link condition, then
     ``face_ok``); valid ones are accepted and deactivate their conflicts, invalid ones move
     on to their next cheapest target. Only the ``_SLACK * budget`` ``u`` with the cheapest
@@ -342,8 +369,9 @@ def _sweeps(g, ckey, on_boundary, iu, iv, work, gstart, gmin, first_min, comp, b
     U = comp.shape[0]
     cur = first_min[comp]
     sorted_best = gmin[comp]                               # increasing
-    nb = max(1, min(_N_BINS, U))
+    # priority: rank of the collapse's cost among the competitors (ties at random)
     tie = rng.permutation(U)
+    nb = max(1, min(_N_BINS, U))
     prio = (np.arange(U) * nb // U) * U + tie
     tries = np.ones(U, dtype=np.int64)
     active = np.ones(U, dtype=bool)
@@ -364,14 +392,11 @@ def _sweeps(g, ckey, on_boundary, iu, iv, work, gstart, gmin, first_min, comp, b
         if ok_w.size:
             accepted.append(ok_w)
             active[ok_w] = False
-            mark_u = np.zeros(g.n, dtype=bool)
-            mark_u[iu[cur[ok_w]]] = True
-            mark_v = np.zeros(g.n, dtype=bool)
-            mark_v[iv[cur[ok_w]]] = True
-            ru, rv = g.closed_any(mark_u), g.closed_any(mark_v)
+            ru, rv = g.closed_mark(iu[cur[ok_w]]), g.closed_mark(iv[cur[ok_w]])
             blocked_u |= ru
-            ca, cb = iu[cur], iv[cur]
-            active &= ~(ru[ca] | rv[ca] | ru[cb])
+            ai = np.flatnonzero(active)
+            ca, cb = iu[cur[ai]], iv[cur[ai]]
+            active[ai[ru[ca] | rv[ca] | ru[cb]]] = False
         if bad_w.size:
             work[cur[bad_w]] = np.inf
             retry = active[bad_w] & (tries[bad_w] < max_alternatives)
@@ -395,8 +420,8 @@ def _sweeps(g, ckey, on_boundary, iu, iv, work, gstart, gmin, first_min, comp, b
             tries[bw] += 1
             # the new target must not touch an accepted collapse's one-ring
             active[bw] &= ~blocked_u[iv[cur[bw]]]
-            bins = np.clip(np.searchsorted(sorted_best, m[fin], side="right") - 1, 0, U - 1)
-            prio[bw] = (bins * nb // U) * U + tie[bw]
+            rank = np.clip(np.searchsorted(sorted_best, m[fin], side="right") - 1, 0, U - 1)
+            prio[bw] = (rank * nb // U) * U + tie[bw]
     if not accepted:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     acc = np.concatenate(accepted)
@@ -412,13 +437,20 @@ def _ranges(lo, hi):
 
 # -- the decimation ----------------------------------------------------------------------------
 
+def _row_positions(ptr, owners):
+    """Positions ``ptr[o]:ptr[o+1]`` of the CSR rows ``o in owners``, concatenated, with the
+    position (into ``owners``) each entry belongs to."""
+    lo = ptr[owners]
+    deg = ptr[owners + 1] - lo
+    who = np.repeat(np.arange(owners.shape[0]), deg)
+    return np.repeat(lo - (np.cumsum(deg) - deg), deg) + np.arange(who.shape[0]), who
+
+
 def _expand(ptr, items, owners):
     """Concatenated CSR rows ``items[ptr[o]:ptr[o+1]]`` for ``o in owners``, with the
     position (into ``owners``) each entry belongs to."""
-    deg = ptr[owners + 1] - ptr[owners]
-    who = np.repeat(np.arange(owners.shape[0]), deg)
-    off = np.arange(who.shape[0]) - np.repeat(np.cumsum(deg) - deg, deg)
-    return items[ptr[owners][who] + off], who
+    pos, who = _row_positions(ptr, owners)
+    return items[pos], who
 
 
 def _link_ok(g: _Graph, ckey, us, vs, on_boundary):
@@ -441,17 +473,7 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
-def _face_geometry(X, F):
-    """Per pose and face: unnormalised normal (J,m,3), its norm (J,m) and the quality
-    ``4√3 a / Σ l²`` (J,m)."""
-    P0, P1, P2 = X[:, F[:, 0]], X[:, F[:, 1]], X[:, F[:, 2]]
-    N = np.cross(P1 - P0, P2 - P0)
-    nn = np.sqrt((N * N).sum(-1))
-    l2 = ((P1 - P0) ** 2).sum(-1) + ((P2 - P1) ** 2).sum(-1) + ((P0 - P2) ** 2).sum(-1)
-    return N, nn, 2.0 * math.sqrt(3.0) * nn / np.maximum(l2, 1e-300)
-
-
-def _face_checks(X, F_cur, geom, vnormals, vf_ptr, vf_idx, us, vs, min_cos, min_quality):
+def _face_checks(X, gid, vnormals, hs, us, vs, min_cos, min_quality):
     """Validity of the collapses ``us -> vs`` w.r.t. the faces around ``u``, in every pose.
 
     A collapse is rejected when, in any pose, a face around ``u`` that survives it turns its
@@ -459,31 +481,73 @@ def _face_checks(X, F_cur, geom, vnormals, vf_ptr, vf_idx, us, vs, min_cos, min_
     ``arccos(min_cos)`` with the fine surface's normal at one of its corners (so that faces
     cannot drift away from the surface over many collapses), or becomes a sliver (quality
     ``4√3 a / Σ l²`` below ``min_quality`` and below its quality before).
+
+    ``hs`` is the round's :class:`_Halfedges`; ``X`` and ``vnormals`` are (n,J,3) arrays
+    indexed by fine vertex (``gid`` maps current to fine indices).
     """
-    f, owner = _expand(vf_ptr, vf_idx, us)
-    corners = F_cur[f]
+    # the faces around u are those of the halfedges u -> a (face (u, a, b))
+    h, owner = _row_positions(hs.g.indptr, us)
+    a, b = hs.g.dst[h], hs.opp[h]
     v = vs[owner]
-    survives = (corners != v[:, None]).all(axis=1)
-    f, corners, owner, v = f[survives], corners[survives], owner[survives], v[survives]
-    # the face (u, a, b) in its own rotation becomes (v, a, b)
-    rot = np.argmax(corners == us[owner][:, None], axis=1)
-    a = corners[np.arange(f.shape[0]), (rot + 1) % 3]
-    b = corners[np.arange(f.shape[0]), (rot + 2) % 3]
-    N0, n0, q0 = geom
-    xv, xa, xb = X[:, v], X[:, a], X[:, b]                    # (J,k,3), all poses at once
+    survives = (b >= 0) & (a != v) & (b != v)
+    owner, a, b, v = owner[survives], a[survives], b[survives], v[survives]
+    gu, gv, ga, gb = gid[us[owner]], gid[v], gid[a], gid[b]
+    xu, xv, xa, xb = X[gu], X[gv], X[ga], X[gb]        # (k,J,3), all poses at once
+    ab = xb - xa
+    lab = _dot(ab, ab)
+    N0 = _cross(xa - xu, xb - xu)
     e1, e2 = xa - xv, xb - xv
     N1 = _cross(e1, e2)
+    n0 = np.sqrt(_dot(N0, N0))
     n1 = np.sqrt(_dot(N1, N1))
-    ok = _dot(N0[:, f], N1) > min_cos * n0[:, f] * n1
-    for w in (v, a, b):
-        ok &= _dot(vnormals[:, w], N1) > min_cos * n1
-    l2 = _dot(e1, e1) + _dot(e2, e2) + _dot(xb - xa, xb - xa)
-    q1 = 2.0 * math.sqrt(3.0) * n1 / np.maximum(l2, 1e-300)
-    ok &= (q1 >= min_quality) | (q1 >= q0[:, f])
-    ok = ok.all(axis=0)
+    ok = _dot(N0, N1) > min_cos * n0 * n1
+    lim = min_cos * n1
+    for w in (gv, ga, gb):
+        ok &= _dot(vnormals[w], N1) > lim
+    c = 2.0 * math.sqrt(3.0)
+    q1 = c * n1 / np.maximum(_dot(e1, e1) + _dot(e2, e2) + lab, 1e-300)
+    d1, d2 = xa - xu, xb - xu
+    q0 = c * n0 / np.maximum(_dot(d1, d1) + _dot(d2, d2) + lab, 1e-300)
+    ok &= (q1 >= min_quality) | (q1 >= q0)
+    ok = ok.all(axis=1)
     bad = np.zeros(us.shape[0], dtype=bool)
     bad[owner[~ok]] = True
     return ~bad
+
+
+class _Halfedges:
+    """Directed edges of the current mesh, sorted by ``(src, dst)``, with the boundary ones'
+    reverses added (so both collapse directions of a boundary edge are candidates).
+
+    Attributes: ``key`` (h,) ``src * n + dst``; ``g`` the :class:`_Graph`; ``bnd`` (h,) bool
+    (on a boundary edge); ``opp`` (h,) the third vertex of the halfedge's face (``-1`` for an
+    added boundary reverse, which has no face).
+    """
+
+    def __init__(self, F, n, is_bnd):
+        src = F.ravel()
+        dst = F[:, [1, 2, 0]].ravel()
+        opp = F[:, [2, 0, 1]].ravel()
+        key = src * n + dst
+        o = np.argsort(key)
+        key, src, dst, opp = key[o], src[o], dst[o], opp[o]
+        # a boundary edge joins two boundary vertices: only those halfedges look for a twin
+        bnd = is_bnd[src] & is_bnd[dst]
+        cand = np.flatnonzero(bnd)
+        if cand.size:
+            rkey = dst[cand] * n + src[cand]
+            p = np.minimum(np.searchsorted(key, rkey), key.shape[0] - 1)
+            bnd[cand] = key[p] != rkey
+            rkey = rkey[bnd[cand]]
+        if bnd.any():
+            rl = np.sort(rkey)
+            pos = np.searchsorted(key, rl)
+            key = np.insert(key, pos, rl)
+            bnd = np.insert(bnd, pos, True)
+            opp = np.insert(opp, pos, -1)
+            src, dst = key // n, key % n
+        self.key, self.bnd, self.opp = key, bnd, opp
+        self.g = _Graph(src, dst, n)
 
 
 def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
@@ -497,8 +561,9 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     ----------
     Vs : (J,n,3) float array_like
         Poses of one mesh (a single ``(n,3)`` pose is accepted).
-    F : (m,3) int array_like
-        Shared faces: consistently oriented, edge-manifold.
+    F : (m,3) int array_like or Topology
+        Shared faces: consistently oriented, edge-manifold (a prebuilt
+        :class:`~shellspline.topology.Topology` of them skips rebuilding it).
     target : int or float
         Number of coarse vertices (``int >= 4``) or the remaining fraction ``γ`` of the
         vertices (``float`` in ``(0, 1]``, as in the paper's Table 2); see
@@ -524,7 +589,8 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
         quality before the collapse.
     round_fraction : float
         At most this fraction of the remaining excess ``n_current − target`` is collapsed per
-        round (smaller: closer to the sequential greedy order, more rounds).
+        round (smaller: closer to the sequential greedy order, more rounds); the last
+        ``_TAIL`` (32) excess vertices go in one round.
     max_rounds : int
         Safety limit on the number of rounds.
 
@@ -558,8 +624,11 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     A round accepts collapses whose closed one-rings are pairwise disjoint, chosen greedily
     by cost, at most ``round_fraction`` of the remaining excess. Such collapses commute, and
     since a halfedge collapse moves no vertex, the checks made before the round hold after
-    it. The work per round is a few sorts and sparse reductions over the current mesh; the
-    number of rounds grows like ``log(n / target)``.
+    it. Candidates compete by the rank of their cost (ties broken at random by ``seed``).
+    Every round works on the current mesh only (removed vertices are compacted away), pair
+    costs are reused unless their ``u`` absorbed a quadric, and the conflict tests touch only
+    the one-rings of the competing collapses, so the work per round is a few sorts over the
+    current mesh; the number of rounds grows like ``log(n / target)``.
 
     Examples
     --------
@@ -585,97 +654,101 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
         raise ValueError(f"`round_fraction` must lie in (0, 1], got {round_fraction!r}")
 
     X = Vs - Vs.mean(axis=1, keepdims=True)          # centred: better conditioned quadrics
-    Fc = T.F.copy()
+    Xn = np.ascontiguousarray(X.transpose(1, 0, 2))   # (n,J,3): one row per vertex
     bnd_e = T.edge_faces[:, 1] < 0
-    Q = _vertex_quadrics(X, Fc, T.E[bnd_e], T.edge_faces[bnd_e, 0], float(boundary_weight))
+    E_b, F_b = T.E[bnd_e], T.edge_faces[bnd_e, 0]
+    m = T.F.shape[0]
+    inc = sp.csr_matrix((np.ones(3 * m), (T.F.T.ravel(), np.tile(np.arange(m), 3))),
+                        shape=(n, m))
+    incb = None
+    if E_b.shape[0] and boundary_weight > 0:
+        nb = E_b.shape[0]
+        incb = sp.csr_matrix((np.ones(2 * nb), (E_b.T.ravel(), np.tile(np.arange(nb), 2))),
+                             shape=(n, nb))
+    Q = np.empty((n, J, 10))                          # accumulated quadrics
+    vnormals = np.empty((n, J, 3))                    # fine vertex normals
+    area = 0.0
+    for j in range(J):
+        Q[:, j], vnormals[:, j], a_j = _setup_pose(X[j], T.F, E_b, F_b,
+                                                    float(boundary_weight), inc, incb)
+        area += a_j / J
+    vnormals /= np.maximum(np.sqrt(_dot(vnormals, vnormals)), 1e-300)[..., None]
     is_bnd = np.zeros(n, dtype=bool)
     is_bnd[T.boundary_vertices] = True
-    geom = _face_geometry(X, Fc)                      # kept aligned with Fc
-    inc = sp.csr_matrix((np.ones(3 * Fc.shape[0]), (Fc.T.ravel(),
-                                                    np.tile(np.arange(Fc.shape[0]), 3))),
-                        shape=(n, Fc.shape[0]))
-    vnormals = np.stack([inc @ geom[0][j] for j in range(J)])
-    vnormals /= np.maximum(np.linalg.norm(vnormals, axis=-1, keepdims=True), 1e-300)
-    lw = float(length_weight) * float(geom[1].mean()) / 2.0
+    lw = float(length_weight) * area
     min_cos, min_q = float(min_normal_cos), float(min_quality)
+    # Cost of u -> v: Σ_j [(Q_u^j + lw L_u^j) + Q_v^j] : m(x_v^j), where m(x) holds the
+    # coefficients of x̂ x̂ᵀ (x̂ = (x, 1)) so that a quadric error is a row dot product, and
+    # L_u = |x − x_u|² is the length term as a quadric. Split as pair(u, v) + vertex(v): the
+    # pair term only changes when u absorbs a quadric, the vertex term is one value per vertex.
+    M = _point_moments(Xn)                            # (n,J,10)
+    Qp = _length_quadrics(Xn, lw)                     # quadric of the pair term
+    Qp += Q
+    evert = _quadric_errors(Q, M, np.arange(n), np.arange(n))     # vertex term, (n,)
 
     parent = np.arange(n, dtype=np.int64)
+    # the current mesh in compact indexing: current vertex c is fine vertex gid[c]
+    gid = np.arange(n, dtype=np.int64)
+    Fc = T.F.copy()
+    pin_c, bnd_c = pin.copy(), is_bnd.copy()
     n_cur = n                       # unreferenced vertices count but are never removed
     rounds = collapses = 0
     rng = np.random.default_rng(seed)
-    prev_key = prev_cost = None
+    prev_key = prev_pair = None
     dirty = np.zeros(n, dtype=bool)
     while n_cur > nt and rounds < max_rounds:
-        # directed edges of the current mesh, sorted by (src, dst); boundary halfedges get
-        # their reverse added so that both collapse directions are candidates
-        key = (Fc * n + np.roll(Fc, -1, axis=1)).ravel()
-        key.sort()
-        rkey = (key % n) * n + key // n
-        p = np.minimum(np.searchsorted(key, rkey), key.shape[0] - 1)
-        lone = key[p] != rkey
-        ckey = np.concatenate([key, rkey[lone]])
-        cbnd = np.concatenate([lone, np.ones(int(lone.sum()), dtype=bool)])
-        order = np.argsort(ckey, kind="stable")
-        ckey, cbnd = ckey[order], cbnd[order]
-        cu, cv = ckey // n, ckey % n
-        g = _Graph(cu, cv, n)
-
+        nl = gid.shape[0]
+        hs = _Halfedges(Fc, nl, bnd_c)
+        cu, cv = hs.g.src, hs.g.dst
         # cheap rules: pinned only into pinned, boundary u only along a boundary edge
-        okc = ~(pin[cu] & ~pin[cv]) & (~is_bnd[cu] | (is_bnd[cv] & cbnd))
+        okc = ~(pin_c[cu] & ~pin_c[cv]) & (~bnd_c[cu] | (bnd_c[cv] & hs.bnd))
         idx_ok = np.flatnonzero(okc)
-        iu, iv, ikey = cu[idx_ok], cv[idx_ok], ckey[idx_ok]
-        if iu.shape[0] == 0:
+        if idx_ok.shape[0] == 0:
             break
-        # costs: reuse last round's unless u or v absorbed a quadric (new halfedges always
-        # end at such a v)
-        cost = np.zeros(iu.shape[0])
+        iu, iv = cu[idx_ok], cv[idx_ok]
+        gu, gv = gid[iu], gid[iv]
+        gkey = gu * n + gv                            # increasing: gid is increasing
+        # pair terms: reuse last round's unless u absorbed a quadric (new halfedges always
+        # touch such a vertex or are new keys)
         if prev_key is None:
-            redo = np.arange(iu.shape[0])
+            pair = _quadric_errors(Qp, M, gu, gv)
         else:
-            p = np.minimum(np.searchsorted(prev_key, ikey), prev_key.shape[0] - 1)
-            hit = (prev_key[p] == ikey) & ~dirty[iu] & ~dirty[iv]
-            cost[hit] = prev_cost[p[hit]]
+            pair = np.zeros(iu.shape[0])
+            p = np.minimum(np.searchsorted(prev_key, gkey), prev_key.shape[0] - 1)
+            hit = (prev_key[p] == gkey) & ~dirty[gu]
+            pair[hit] = prev_pair[p[hit]]
             redo = np.flatnonzero(~hit)
-        ru_, rv_ = iu[redo], iv[redo]
-        for j in range(J):
-            xv = X[j, rv_]
-            c = _quadric_error(Q[j, ru_] + Q[j, rv_], xv)
-            if lw:
-                dd = xv - X[j, ru_]
-                c += lw * (dd * dd).sum(1)
-            cost[redo] += c
-        prev_key, prev_cost = ikey, cost
+            pair[redo] = _quadric_errors(Qp, M, gu[redo], gv[redo])
+        prev_key, prev_pair = gkey, pair
+        cost = pair + evert[gv]
 
-        # vertex -> faces incidence of the current mesh (for the face checks)
-        corner_v = Fc.ravel()
-        vf_idx = np.argsort(corner_v, kind="stable") // 3
-        vf_ptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(np.bincount(corner_v, minlength=n), out=vf_ptr[1:])
-
-        budget = max(1, int(math.ceil(round_fraction * (n_cur - nt))))
-        us, vs = _select_collapses(g, ckey, cbnd[idx_ok], iu, iv, cost, budget,
-                                   lambda u, v: _face_checks(X, Fc, geom, vnormals, vf_ptr, vf_idx, u, v,
+        excess = n_cur - nt
+        budget = excess if excess <= _TAIL else max(1, int(math.ceil(round_fraction * excess)))
+        us, vs = _select_collapses(hs.g, hs.key, hs.bnd[idx_ok], iu, iv, cost, budget,
+                                   lambda u, v: _face_checks(Xn, gid, vnormals, hs, u, v,
                                                              min_cos, min_q),
                                    rng, int(max_alternatives))
         if us.shape[0] == 0:
             break
 
         # apply: u disappears, its faces move to v, the two (one) faces of uv vanish
-        to = np.arange(n, dtype=np.int64)
+        to = np.arange(nl, dtype=np.int64)
         to[us] = vs
         Fn = to[Fc]
-        changed = np.flatnonzero((Fn != Fc).any(axis=1))
         alive_f = (Fn[:, 0] != Fn[:, 1]) & (Fn[:, 1] != Fn[:, 2]) & (Fn[:, 2] != Fn[:, 0])
-        changed = changed[alive_f[changed]]
-        if changed.size:
-            gN, gn, gq = _face_geometry(X, Fn[changed])
-            geom[0][:, changed], geom[1][:, changed], geom[2][:, changed] = gN, gn, gq
-        Fc = Fn[alive_f]
-        geom = tuple(a[:, alive_f] for a in geom)
-        Q[:, vs] += Q[:, us]
+        gus, gvs = gid[us], gid[vs]
+        Q[gvs] += Q[gus]
+        Qp[gvs] = Q[gvs] + _length_quadrics(Xn[gvs], lw)
+        evert[gvs] = _quadric_errors(Q, M, gvs, gvs)
         dirty[:] = False
-        dirty[vs] = True
-        parent[us] = vs
+        dirty[gvs] = True
+        parent[gus] = gvs
+        # compact: drop the removed vertices from the current indexing
+        keep = np.ones(nl, dtype=bool)
+        keep[us] = False
+        new = np.cumsum(keep) - 1
+        Fc = new[Fn[alive_f]]
+        gid, pin_c, bnd_c = gid[keep], pin_c[keep], bnd_c[keep]
         n_cur -= us.shape[0]
         collapses += us.shape[0]
         rounds += 1
@@ -696,7 +769,7 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     cidx = np.full(n, -1, dtype=np.int64)
     cidx[kept] = np.arange(kept.shape[0])
     collapse_map = cidx[root]
-    F_coarse = cidx[Fc]
+    F_coarse = cidx[gid[Fc]]
     pin_c = np.flatnonzero(pin[kept]).astype(np.int64) if pinned is not None else None
     stats = {"rounds": rounds, "collapses": collapses, "seconds": time.perf_counter() - t0,
              "reached": bool(reached), "target": nt, "n_vertices": int(kept.shape[0]),

@@ -112,7 +112,8 @@ def _checked_frames(frames, K):
 
 def _vertex_normals(S, F, n, inc=None):
     """Area-weighted vertex normals (unit) of poses ``S (..., n, 3)``; ``inc`` is the cached
-    vertex-face incidence matrix (built when not given)."""
+    vertex-face incidence matrix (built when not given). A batch of poses costs one sparse
+    product."""
     N = _cross(S[..., F[:, 1], :] - S[..., F[:, 0], :], S[..., F[:, 2], :] - S[..., F[:, 0], :])
     m = F.shape[0]
     if inc is None:
@@ -121,8 +122,10 @@ def _vertex_normals(S, F, n, inc=None):
     if N.ndim == 2:
         vn = inc @ N
     else:
-        vn = np.stack([inc @ Nb for Nb in N.reshape(-1, m, 3)]).reshape(*N.shape[:-2], n, 3)
-    return vn / np.maximum(np.linalg.norm(vn, axis=-1, keepdims=True), 1e-300)
+        B = int(np.prod(N.shape[:-2]))
+        vn = inc @ N.reshape(B, m, 3).transpose(1, 0, 2).reshape(m, 3 * B)
+        vn = vn.reshape(n, B, 3).transpose(1, 0, 2).reshape(*N.shape[:-2], n, 3)
+    return vn / np.maximum(np.sqrt(np.einsum("...i,...i->...", vn, vn)), 1e-300)[..., None]
 
 
 class Prolongation:
@@ -248,8 +251,9 @@ class Prolongation:
         obj = cls(T.F, n, dec.kept, fr.astype(np.int64), Vs.copy(), None,
                   np.flatnonzero(pin).astype(np.int64), solver, B_fc, free, ref_nbr)
         S = obj.base(Vs[:, dec.kept])
-        R = obj.frames_of(S)
-        obj.coeffs = np.einsum("jnab,jna->jnb", R, Vs - S)
+        D = Vs - S
+        obj.coeffs = np.stack([np.einsum("jni,jni->jn", a, D) for a in obj._frame_vectors(S)],
+                              axis=-1)
         return obj
 
     # -- evaluation ----------------------------------------------------------------------------
@@ -293,22 +297,28 @@ class Prolongation:
         R : (..., n, 3, 3) float64 numpy array
             ``R[..., i, :, 0] = t_i``, ``R[..., i, :, 1] = b_i``, ``R[..., i, :, 2] = n_i``.
         """
-        S = np.asarray(S, dtype=np.float64)
+        return np.stack(self._frame_vectors(np.asarray(S, dtype=np.float64)), axis=-1)
+
+    def _frame_vectors(self, S):
+        """The columns ``t, b, n`` (each ``(..., n, 3)``) of :meth:`frames_of`."""
         if getattr(self, "_inc", None) is None:
             m = self.F.shape[0]
-            self._inc = sp.csr_matrix((np.ones(3 * m), (self.F.T.ravel(), np.tile(np.arange(m), 3))),
+            self._inc = sp.csr_matrix((np.ones(3 * m), (self.F.T.ravel(),
+                                                        np.tile(np.arange(m), 3))),
                                       shape=(self.n_vertices, m))
         nrm = _vertex_normals(S, self.F, self.n_vertices, self._inc)
         e = S[..., self._ref_nbr, :] - S
         t = e - np.einsum("...i,...i->...", e, nrm)[..., None] * nrm
-        tl = np.linalg.norm(t, axis=-1, keepdims=True)
-        # fallback for a reference edge along the normal: any direction orthogonal to n
-        alt = _cross(nrm, np.where(np.abs(nrm[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
-        t = np.where(tl > 1e-12 * np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-300),
-                     t / np.maximum(tl, 1e-300), alt / np.maximum(
-                         np.linalg.norm(alt, axis=-1, keepdims=True), 1e-300))
-        b = _cross(nrm, t)
-        return np.stack([t, b, nrm], axis=-1)
+        tl = np.sqrt(np.einsum("...i,...i->...", t, t))[..., None]
+        el = np.sqrt(np.einsum("...i,...i->...", e, e))[..., None]
+        bad = ~(tl > 1e-12 * np.maximum(el, 1e-300))
+        t /= np.maximum(tl, 1e-300)
+        if bad.any():
+            # fallback for a reference edge along the normal: any direction orthogonal to n
+            alt = _cross(nrm, np.where(np.abs(nrm[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
+            alt /= np.maximum(np.linalg.norm(alt, axis=-1, keepdims=True), 1e-300)
+            t = np.where(bad, alt, t)
+        return t, _cross(nrm, t), nrm
 
     def decode(self, Vc, frames=None, K=None, *, time_weights="linear", bc: str = "natural",
                chunk: int = 16, only=None) -> np.ndarray:
@@ -381,9 +391,12 @@ class Prolongation:
         for s in range(0, todo.shape[0], step):
             ks = todo[s:s + step]
             S = self.base(Vc[ks])
-            R = self.frames_of(S)
+            t, b, nrm = self._frame_vectors(S)
             c = np.einsum("kj,jna->kna", W[ks], self.coeffs)
-            out[ks] = S + np.einsum("knab,knb->kna", R, c)
+            S += t * c[..., :1]
+            S += b * c[..., 1:2]
+            S += nrm * c[..., 2:]
+            out[ks] = S
         if self.pinned.size:
             out[:, self.pinned] = self.keyframes[0, self.pinned]
         done = np.flatnonzero(key_of >= 0)
