@@ -516,7 +516,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             from .prolong import Prolongation
 
             with prog.stage("decimate"):
-                dec = decimate(Vkey, T.F, n_coarse, pinned=pinned)
+                dec = decimate(Vkey, T, n_coarse, pinned=pinned)
                 Tc = topology(dec.F, dec.V.shape[1], name="coarse mesh")
             report["multires"] = {"coarse_vertices": int(dec.V.shape[1]),
                                   "coarse_faces": int(dec.F.shape[0]),
@@ -526,7 +526,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 dec.V, Tc, dec.pinned, stage_prefix="coarse ", **lta_args)
             with prog.stage("prolong"):
                 moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
-                P = Prolongation.encode(Vkey, T.F, dec, frames,
+                P = Prolongation.encode(Vkey, T, dec, frames,
                                         pinned=None if moving else pinned)
                 V = _parallel_decode(P, Vc, frames, K, bc, workers)
                 if moving:  # same semantics as full resolution: pins follow the blend

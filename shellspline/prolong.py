@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from ._linalg import SparseCholesky
 from .decimate import Decimation, _canonical_pinned
 from .descriptors import _cross
-from .topology import topology
+from .topology import Topology, topology
 
 __all__ = ["Prolongation", "linear_time_weights", "spline_time_weights", "prolong"]
 
@@ -110,24 +110,6 @@ def _checked_frames(frames, K):
     return fr, int(K)
 
 
-def _vertex_normals(S, F, n, inc=None):
-    """Area-weighted vertex normals (unit) of poses ``S (..., n, 3)``; ``inc`` is the cached
-    vertex-face incidence matrix (built when not given). A batch of poses costs one sparse
-    product."""
-    N = _cross(S[..., F[:, 1], :] - S[..., F[:, 0], :], S[..., F[:, 2], :] - S[..., F[:, 0], :])
-    m = F.shape[0]
-    if inc is None:
-        inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))),
-                            shape=(n, m))
-    if N.ndim == 2:
-        vn = inc @ N
-    else:
-        B = int(np.prod(N.shape[:-2]))
-        vn = inc @ N.reshape(B, m, 3).transpose(1, 0, 2).reshape(m, 3 * B)
-        vn = vn.reshape(n, B, 3).transpose(1, 0, 2).reshape(*N.shape[:-2], n, 3)
-    return vn / np.maximum(np.sqrt(np.einsum("...i,...i->...", vn, vn)), 1e-300)[..., None]
-
-
 class Prolongation:
     """Detail transfer from a coarse mesh to the fine mesh it was decimated from.
 
@@ -188,8 +170,9 @@ class Prolongation:
         ----------
         Vs_fine : (J,n,3) float array_like
             Fine keyframes.
-        F_fine : (m,3) int array_like
-            Fine faces (those given to :func:`~shellspline.decimate.decimate`).
+        F_fine : (m,3) int array_like or Topology
+            Fine faces (those given to :func:`~shellspline.decimate.decimate`), or their
+            prebuilt :class:`~shellspline.topology.Topology`.
         dec : Decimation
             The decimation of these keyframes.
         frames : (J,) int array_like, optional
@@ -217,7 +200,13 @@ class Prolongation:
         if Vs.ndim != 3 or Vs.shape[1:] != (dec.n_fine, 3):
             raise ValueError(f"`Vs_fine` must have shape (J, {dec.n_fine}, 3), got {Vs.shape}")
         J, n, _ = Vs.shape
-        T = topology(F_fine, n, name="`F_fine`")
+        if isinstance(F_fine, Topology):
+            if F_fine.n_vertices != n:
+                raise ValueError(f"`F_fine` is a Topology of {F_fine.n_vertices} vertices, "
+                                 f"expected {n}")
+            T = F_fine
+        else:
+            T = topology(F_fine, n, name="`F_fine`")
         if frames is None:
             frames = np.arange(J)
         fr = np.asarray(frames)
@@ -276,14 +265,19 @@ class Prolongation:
         if Vb.ndim != 3 or Vb.shape[1:] != (self.kept.shape[0], 3):
             raise ValueError(f"`Vc` must have shape (..., {self.kept.shape[0]}, 3), got "
                              f"{Vc.shape}")
+        S = self._base_vm(Vb).transpose(1, 0, 2)
+        return S[0] if single else np.ascontiguousarray(S)
+
+    def _base_vm(self, Vb):
+        """:meth:`base` of coarse poses ``Vb (B,nc,3)`` in vertex-major layout ``(n,B,3)``."""
         nb = Vb.shape[0]
-        S = np.zeros((nb, self.n_vertices, 3))
-        S[:, self.kept] = Vb
+        St = np.zeros((self.n_vertices, nb, 3))
+        Vt = Vb.transpose(1, 0, 2)
+        St[self.kept] = Vt
         if self._free.size:
-            rhs = -(self._B_fc @ Vb.transpose(1, 0, 2).reshape(self.kept.shape[0], 3 * nb))
-            X = self._solver.solve(rhs).reshape(self._free.shape[0], nb, 3)
-            S[:, self._free] = X.transpose(1, 0, 2)
-        return S[0] if single else S
+            rhs = -(self._B_fc @ Vt.reshape(self.kept.shape[0], 3 * nb))
+            St[self._free] = self._solver.solve(rhs).reshape(self._free.shape[0], nb, 3)
+        return St
 
     def frames_of(self, S) -> np.ndarray:
         """Orthonormal frames ``[t, b, n]`` (as columns) of base surfaces.
@@ -300,17 +294,28 @@ class Prolongation:
         return np.stack(self._frame_vectors(np.asarray(S, dtype=np.float64)), axis=-1)
 
     def _frame_vectors(self, S):
-        """The columns ``t, b, n`` (each ``(..., n, 3)``) of :meth:`frames_of`."""
+        """The columns ``t, b, n`` (each shaped like ``S (..., n, 3)``) of :meth:`frames_of`."""
+        n = self.n_vertices
+        St = np.ascontiguousarray(np.moveaxis(S.reshape(-1, n, 3), 1, 0))
+        return tuple(np.moveaxis(a, 0, 1).reshape(S.shape) for a in self._frames_vm(St))
+
+    def _frames_vm(self, St):
+        """Frame columns ``t, b, n`` of base surfaces in vertex-major layout ``St (n,B,3)``
+        (each ``(n,B,3)``): one sparse product for the vertex normals of the whole batch."""
+        n, nb, _ = St.shape
+        F = self.F
         if getattr(self, "_inc", None) is None:
-            m = self.F.shape[0]
-            self._inc = sp.csr_matrix((np.ones(3 * m), (self.F.T.ravel(),
-                                                        np.tile(np.arange(m), 3))),
-                                      shape=(self.n_vertices, m))
-        nrm = _vertex_normals(S, self.F, self.n_vertices, self._inc)
-        e = S[..., self._ref_nbr, :] - S
-        t = e - np.einsum("...i,...i->...", e, nrm)[..., None] * nrm
-        tl = np.sqrt(np.einsum("...i,...i->...", t, t))[..., None]
-        el = np.sqrt(np.einsum("...i,...i->...", e, e))[..., None]
+            m = F.shape[0]
+            self._inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))),
+                                      shape=(n, m))
+        p0 = St[F[:, 0]]
+        N = _cross(St[F[:, 1]] - p0, St[F[:, 2]] - p0)                 # (m,B,3)
+        nrm = (self._inc @ N.reshape(F.shape[0], 3 * nb)).reshape(n, nb, 3)
+        nrm /= np.maximum(np.sqrt(np.einsum("nbi,nbi->nb", nrm, nrm)), 1e-300)[..., None]
+        e = St[self._ref_nbr] - St
+        t = e - np.einsum("nbi,nbi->nb", e, nrm)[..., None] * nrm
+        tl = np.sqrt(np.einsum("nbi,nbi->nb", t, t))[..., None]
+        el = np.sqrt(np.einsum("nbi,nbi->nb", e, e))[..., None]
         bad = ~(tl > 1e-12 * np.maximum(el, 1e-300))
         t /= np.maximum(tl, 1e-300)
         if bad.any():
@@ -390,13 +395,13 @@ class Prolongation:
         step = max(1, int(chunk))
         for s in range(0, todo.shape[0], step):
             ks = todo[s:s + step]
-            S = self.base(Vc[ks])
-            t, b, nrm = self._frame_vectors(S)
-            c = np.einsum("kj,jna->kna", W[ks], self.coeffs)
-            S += t * c[..., :1]
-            S += b * c[..., 1:2]
-            S += nrm * c[..., 2:]
-            out[ks] = S
+            St = self._base_vm(Vc[ks])                          # (n,B,3)
+            t, b, nrm = self._frames_vm(St)
+            c = np.einsum("kj,jna->nka", W[ks], self.coeffs)
+            St += t * c[..., :1]
+            St += b * c[..., 1:2]
+            St += nrm * c[..., 2:]
+            out[ks] = St.transpose(1, 0, 2)
         if self.pinned.size:
             out[:, self.pinned] = self.keyframes[0, self.pinned]
         done = np.flatnonzero(key_of >= 0)
