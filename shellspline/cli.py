@@ -175,7 +175,7 @@ def _interpolate(args) -> int:
     res.report["timings"]["write"] = time.perf_counter() - t0
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)
-    return _summary(res, Path(out), quiet=args.quiet)
+    return _summary(res, Path(out), quiet=args.quiet, fmt=args.format)
 
 
 def _rewrite_report(out: Path, report: dict) -> None:
@@ -199,11 +199,13 @@ def _json_default(o):
     raise TypeError(type(o))
 
 
-def _summary(res, out: Path, quiet: bool) -> int:
+def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
     rep = res.report
     q = rep["quality"]
     gn = rep.get("gauss_newton")
-    lines = [f"wrote {res.K + 1} frames to {out}/ (report.json)"]
+    what = ("animation.glb (one morph target per frame)" if fmt == "glb"
+            else f"frame_0000.{fmt} …")
+    lines = [f"wrote {res.K + 1} frames to {out}/ as {what} and report.json"]
     if "multires" in rep:
         lines.append(f"multiresolution: solved on {rep['multires']['coarse_vertices']} coarse "
                      f"vertices, prolonged to {res.V.shape[1]}"

@@ -994,7 +994,11 @@ def plot_figure(sources, what=("energy", "speed"), *, track=None, labels=None,
         elif panel == "shell":
             for s, c in zip(seqs, colors):
                 e = _shell_energy(s, mode)
-                ax.plot(np.arange(s.K + 1), e, color=c, lw=1.8, marker=".", label=s.label)
+                if mode == "midpoint":
+                    ax.plot(np.arange(s.K + 1), e, color=c, lw=1.8, marker=".", label=s.label)
+                else:  # one value per step k -> k+1, drawn between the frames like the speed
+                    ax.plot(np.arange(s.K) + 0.5, e[:s.K], color=c, lw=1.8, marker=".",
+                            label=s.label)
             ax.set_ylabel("shell energy")
             ax.set_title(r"Discrete Shells energy $W[s_k, \tilde s_k]$ ($\tilde s_k$ geodesic "
                          r"midpoint of $s_{k-1}, s_{k+1}$)" if mode == "midpoint" else

@@ -335,7 +335,8 @@ def test_plot_figure_energy_speed_track(seq, outdir):
         assert xs == KEYFRAMES
     np.testing.assert_allclose(_data_lines(axes[0])[0].get_ydata(), lta_energies(V, T))
     np.testing.assert_allclose(_data_lines(axes[1])[1].get_ydata(),
-                               shell_energies(kink, T, midpoints=False))
+                               shell_energies(kink, T, midpoints=False)[:K])
+    np.testing.assert_allclose(_data_lines(axes[1])[1].get_xdata(), np.arange(K) + 0.5)
     np.testing.assert_allclose(_data_lines(axes[2])[0].get_ydata(), speed(V))
     np.testing.assert_allclose(_data_lines(axes[2])[0].get_xdata(), np.arange(K) + 0.5)
     # trajectories: one line per source and tracked vertex
