@@ -491,23 +491,20 @@ def _face_checks(X, gid, vnormals, hs, us, vs, min_cos, min_quality):
     v = vs[owner]
     survives = (b >= 0) & (a != v) & (b != v)
     owner, a, b, v = owner[survives], a[survives], b[survives], v[survives]
-    gu, gv, ga, gb = gid[us[owner]], gid[v], gid[a], gid[b]
-    xu, xv, xa, xb = X[gu], X[gv], X[ga], X[gb]        # (k,J,3), all poses at once
-    ab = xb - xa
-    lab = _dot(ab, ab)
-    N0 = _cross(xa - xu, xb - xu)
-    e1, e2 = xa - xv, xb - xv
-    N1 = _cross(e1, e2)
-    n0 = np.sqrt(_dot(N0, N0))
-    n1 = np.sqrt(_dot(N1, N1))
-    ok = _dot(N0, N1) > min_cos * n0 * n1
-    lim = min_cos * n1
-    for w in (gv, ga, gb):
-        ok &= _dot(vnormals[w], N1) > lim
+    k = owner.shape[0]
+    gv, ga, gb = gid[v], gid[a], gid[b]
+    P = X[np.concatenate([gid[us[owner]], gv, ga, gb])].reshape(4, k, -1, 3)   # u, v, a, b
+    # edge vectors a-u, b-u (old face), a-v, b-v (new face), b-a (shared), all poses at once
+    D = P[[2, 3, 2, 3, 3]] - P[[0, 0, 1, 1, 2]]                                # (5,k,J,3)
+    L = np.einsum("sxji,sxji->sxj", D, D)
+    N = _cross(D[[0, 2]], D[[1, 3]])                   # old and new face normal
+    nn = np.sqrt(np.einsum("sxji,sxji->sxj", N, N))
+    ok = np.einsum("xji,xji->xj", N[0], N[1]) > min_cos * nn[0] * nn[1]
+    vn = vnormals[np.concatenate([gv, ga, gb])].reshape(3, k, -1, 3)
+    ok &= (np.einsum("sxji,xji->sxj", vn, N[1]) > min_cos * nn[1]).all(axis=0)
     c = 2.0 * math.sqrt(3.0)
-    q1 = c * n1 / np.maximum(_dot(e1, e1) + _dot(e2, e2) + lab, 1e-300)
-    d1, d2 = xa - xu, xb - xu
-    q0 = c * n0 / np.maximum(_dot(d1, d1) + _dot(d2, d2) + lab, 1e-300)
+    q0 = c * nn[0] / np.maximum(L[0] + L[1] + L[4], 1e-300)
+    q1 = c * nn[1] / np.maximum(L[2] + L[3] + L[4], 1e-300)
     ok &= (q1 >= min_quality) | (q1 >= q0)
     ok = ok.all(axis=1)
     bad = np.zeros(us.shape[0], dtype=bool)

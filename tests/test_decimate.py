@@ -192,3 +192,23 @@ def test_large_mesh_to_1000_vertices():
     chi, _ = _euler(dec.F, dec.n_vertices)
     assert chi == 2
     assert np.array_equal(dec.V, d["V"][:, dec.kept])
+
+
+def test_prebuilt_topology_gives_the_same_decimation(bumpy, bumpy_dec):
+    T = topology(bumpy["F"], bumpy["V"].shape[1])
+    dec = decimate(bumpy["V"], T, 150)
+    assert np.array_equal(dec.kept, bumpy_dec.kept)
+    assert np.array_equal(dec.F, bumpy_dec.F)
+    with pytest.raises(ValueError, match="Topology"):
+        decimate(bumpy["V"][:, :-1], T, 100)
+
+
+def test_compacted_rounds_keep_unreferenced_vertices(bumpy):
+    """An isolated vertex is never collapsed (it has no edge) and stays a coarse vertex."""
+    Vs = np.concatenate([bumpy["V"], np.full((3, 1, 3), 5.0)], axis=1)
+    n = Vs.shape[1]
+    dec = decimate(Vs, bumpy["F"], 150)
+    assert n - 1 in dec.kept.tolist() and dec.n_vertices == 150
+    assert dec.collapse_map[n - 1] == dec.n_vertices - 1
+    chi, _ = _euler(dec.F, dec.n_vertices - 1)
+    assert chi == 2

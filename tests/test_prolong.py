@@ -167,3 +167,32 @@ def test_invalid_inputs_raise(bumpy):
         linear_time_weights([0, 5, 3], 9)
     with pytest.raises(ValueError, match="K"):
         linear_time_weights([0, 5], 0)
+
+
+def test_encode_accepts_a_prebuilt_topology(bumpy):
+    from shellspline import topology
+
+    d, dec, P = bumpy
+    T = topology(d["F"], d["V"].shape[1])
+    P2 = Prolongation.encode(d["V"], T, dec, d["frames"])
+    assert np.array_equal(P2.coeffs, P.coeffs)
+    K = int(d["frames"][-1])
+    Vc = linear_blend(dec.V, d["frames"], K)
+    assert np.array_equal(P2.decode(Vc), P.decode(Vc))
+
+
+def test_chunked_decode_equals_one_frame_at_a_time(bumpy):
+    d, dec, P = bumpy
+    K = int(d["frames"][-1])
+    Vc = linear_blend(dec.V, d["frames"], K)
+    Vc[1:-1] += 0.01 * np.sin(np.arange(K - 1))[:, None, None]   # not a blend any more
+    Vc[d["frames"]] = dec.V
+    a, b = P.decode(Vc, chunk=1), P.decode(Vc, chunk=7)
+    assert np.abs(a - b).max() < 1e-12
+    # frame by frame through the public pieces: base, frames_of, coefficients
+    W = linear_time_weights(d["frames"], K)
+    k = 3
+    S = P.base(Vc[k])
+    R = P.frames_of(S)
+    ref = S + np.einsum("nab,nb->na", R, np.einsum("j,jna->na", W[k], P.coeffs))
+    assert np.abs(a[k] - ref).max() < 1e-12
