@@ -134,6 +134,7 @@ class PathSolver:
         indptr, indices, _ = self._lower
         self._diag_mask = indices == np.repeat(np.arange(self.N), np.diff(indptr))
         self._chol = None
+        self._slots: dict = {}
         self._tau_hint = 0.0
         self.backend = backend
         if hasattr(energy, "cache_size"):
@@ -230,18 +231,34 @@ class PathSolver:
         """
         return self.solve_factored(self.factor_at(A, X, B, data=data), rhs, refine=refine)
 
-    def factor_at(self, A, X, B, *, data=None) -> dict:
+    def factor_at(self, A, X, B, *, data=None, slot=None) -> dict:
         """Assemble and factor the Hessian at the path ``(A, X, B)`` for
-        :meth:`solve_factored` (several right-hand sides, one factorization)."""
+        :meth:`solve_factored` (several right-hand sides, one factorization).
+
+        ``slot`` (any hashable): keep the factorization in its own slot, valid until the next
+        ``factor_at`` with the same slot (the symbolic analysis of the slot is reused);
+        without it the factorization is the solver's working one, which the next
+        factorization overwrites.
+        """
         if data is None:
             data = self.hessian_data(A, X, B)
         scale = float(np.abs(data).max())
-        tau = self._damped_factor(data, scale, from_zero=True)
+        if slot is None:
+            tau = self._damped_factor(data, scale, from_zero=True)
+            chol = self._chol
+        else:
+            work, self._chol = self._chol, self._slots.get(slot)
+            try:
+                tau = self._damped_factor(data, scale, from_zero=True)
+                chol = self._slots[slot] = self._chol
+            finally:
+                self._chol = work
         return {"H": self.gpattern.matrix(data), "tau": tau, "modes": self._modes(X),
-                "chol": self._chol}
+                "chol": chol}
 
     def solve_factored(self, ctx: dict, rhs, *, refine: int = 3) -> np.ndarray:
-        """Solve with the factorization of :meth:`factor_at` (must be the latest one)."""
+        """Solve with the factorization of :meth:`factor_at` (the latest one, or the latest
+        one of its slot)."""
         H, modes = ctx["H"], ctx["modes"]
         b = self._project(np.asarray(rhs, np.float64).reshape(self.n_inner, -1)[:, self.free].copy(),
                           modes)

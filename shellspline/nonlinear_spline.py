@@ -20,7 +20,7 @@ previous evaluation), then one linear system with the midpoint Hessian
     ∂F/∂s_{k+1} += 4K³ W,21[s̃_k, s_{k+1}] p_k                            (17)
 
 (``W,12`` has rows indexed by the first argument.) The outer problem is solved with a
-preconditioned L-BFGS (Armijo backtracking, see :func:`nonlinear_spline`) and stopped when the
+Gauss–Newton–CG method (or L-BFGS; Armijo backtracking, see :func:`nonlinear_spline`) and stopped when the
 gradient norm has dropped by ``gtol`` relative to the initial one.
 
 Rigid motions: ``F^K`` is invariant under a rigid motion of every single shell (``W`` is, in
@@ -74,6 +74,14 @@ class NonlinearSplineResult:
         Geodesic midpoints ``s̃_k`` of the energy terms at the solution.
     time_s : float
         Wall time of the optimisation.
+    optimizer : str
+        ``"gauss-newton"`` or ``"lbfgs"``.
+    cg_iterations : list of int
+        Inner CG iterations per outer iteration (Gauss–Newton).
+    step_lengths : list of float
+        Accepted step length per outer iteration (Gauss–Newton; 1 = full step).
+    midpoint_newton_iterations : int
+        Newton iterations of all midpoint solves.
     """
 
     V: np.ndarray
@@ -87,6 +95,10 @@ class NonlinearSplineResult:
     message: str = ""
     midpoints: np.ndarray | None = None
     time_s: float = 0.0
+    optimizer: str = ""
+    cg_iterations: list = field(default_factory=list)
+    step_lengths: list = field(default_factory=list)
+    midpoint_newton_iterations: int = 0
 
 
 class NonlinearSplineProblem:
@@ -151,6 +163,7 @@ class NonlinearSplineProblem:
         if hasattr(energy, "cache_size"):
             energy.cache_size = max(energy.cache_size, 8)
         self.midpoints = None
+        self.last = None
         self.nfev = 0
         self.midpoint_iterations = 0
         self.midpoint_failures = 0
@@ -190,8 +203,18 @@ class NonlinearSplineProblem:
             return 0.5 * (S[self.terms[:, 0]] + S[self.terms[:, 2]])
         return self.midpoints.copy()
 
-    def evaluate(self, S, *, gradient: bool = True):
+    def evaluate(self, S, *, gradient: bool = True, keep: bool = False, warm=None):
         """``F^K`` and its gradient for node poses ``S (n_nodes,n,3)``.
+
+        Parameters
+        ----------
+        S : (n_nodes,n,3) float array
+        gradient : bool
+        keep : bool
+            Keep every term's midpoint factorization and the point (:attr:`last`) for the
+            Gauss–Newton model (:class:`GaussNewtonModel`).
+        warm : (T,n,3) float array, optional
+            Initial midpoints (default: those of the last evaluation).
 
         Returns
         -------
@@ -202,9 +225,10 @@ class NonlinearSplineProblem:
         """
         S = np.asarray(S, dtype=np.float64)
         W = self.energy
-        M = self._warm(S)
+        M = self._warm(S) if warm is None else np.array(warm, dtype=np.float64)
         F = 0.0
         G = np.zeros((self.n_nodes, 3 * self.n))
+        ctxs, geos = [], []
         for t, (a, k, b) in enumerate(self.terms):
             res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol)
             self.midpoint_iterations += res.nit
@@ -212,11 +236,15 @@ class NonlinearSplineProblem:
             m = res.V[1]
             # one more Newton step with the Hessian that the adjoint needs anyway: F is not
             # stationary in the midpoint, so its round-off level follows the midpoint's error
-            ctx = self.solver.factor_at(S[a], m[None], S[b])
+            ctx = self.solver.factor_at(S[a], m[None], S[b], slot=t if keep else None)
+            ctx["m"] = m
+            if keep and hasattr(W, "geometry_of"):
+                geos.append(W.geometry_of(m))
             gm = self.solver.gradient(S[a], m[None], S[b])
             m = m + self.solver.solve_factored(ctx, -gm)[0].reshape(m.shape)
             M[t] = m
             F += W.energy(S[k], m)
+            ctxs.append(ctx)
             if not gradient:
                 continue
             G[k] += W.gradient(S[k], m, 0)
@@ -226,16 +254,30 @@ class NonlinearSplineProblem:
             G[b] += W.mixed_product(m, S[b], p, "21")
         self.midpoints = M
         self.nfev += 1
+        self.last = {"S": S.copy(), "M": M.copy(), "ctx": ctxs} if keep else None
+        if keep and hasattr(W, "retain"):
+            # the Gauss–Newton model evaluates W at the shells and the factored midpoints
+            # (their element Hessians were computed for the factorization: keep them)
+            W.retain(list(S), geometries=geos)
         F *= self.scale4
         if not gradient:
             return F
         G *= self.scale4
-        keep = np.zeros(self.n_nodes, dtype=bool)
-        keep[self.free_nodes] = True
-        G[~keep] = 0.0
+        keep_nodes = np.zeros(self.n_nodes, dtype=bool)
+        keep_nodes[self.free_nodes] = True
+        G[~keep_nodes] = 0.0
         if self.pinned is not None:
             G[:, (3 * self.pinned[:, None] + np.arange(3)).ravel()] = 0.0
         return F, G.reshape(self.n_nodes, self.n, 3)
+
+    def rigid_bases(self, S) -> list:
+        """Per free node: orthonormal basis ``(len(free_dofs), r)`` of the infinitesimal rigid
+        motions of ``S[k]`` that the pins leave free (``r = 0`` for energies without rigid
+        invariance or with three non-collinear pins)."""
+        if not getattr(self.energy, "rigid_invariant", False):
+            return [np.zeros((len(self.free_dofs), 0)) for _ in self.free_nodes]
+        pd = np.setdiff1d(np.arange(3 * self.n), self.free_dofs)
+        return [_rigid_modes(np.asarray(S[k]), self.free_dofs, pd) for k in self.free_nodes]
 
 
 def _checked_keyframes(Vkey, n=None):
@@ -272,9 +314,10 @@ def _blend(Vkey, frames, K, periodic):
 def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "natural",
                      mu: float = 1.0, lam: float = 1.0, eta: float = 1e-3, pinned=None,
                      init=None, energy=None, max_iter: int = 500, gtol: float = 1e-6,
-                     midpoint_tol: float = 1e-10, memory: int = 20, backend: str = "auto",
-                     precondition: bool = False, max_time_s: float | None = None,
-                     callback=None) -> NonlinearSplineResult:
+                     midpoint_tol: float = 1e-10, optimizer: str = "gauss-newton",
+                     cg_tol: float = 0.1, cg_max_iter: int = 200, memory: int = 20,
+                     backend: str = "auto", precondition: bool = True,
+                     max_time_s: float | None = None, callback=None) -> NonlinearSplineResult:
     """Nonlinear time-discrete spline through keyframe shells (paper eqs. 7, 8, 17).
 
     Parameters
@@ -301,18 +344,23 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         A prebuilt energy (overrides ``T, mu, lam, eta``), e.g. ``EuclideanEnergy(n)`` for the
         Euclidean discrete cubic spline.
     max_iter : int
-        Maximum number of L-BFGS iterations.
+        Maximum number of outer (Gauss–Newton or L-BFGS) iterations.
     gtol : float
         Stop when ``‖∇F‖ <= gtol ‖∇F(init)‖``.
     midpoint_tol : float
         Tolerance of the midpoint Newton solves (relative gradient max-norm).
+    optimizer : {"gauss-newton", "lbfgs"}
+        Outer optimiser (see Notes). ``"gauss-newton"`` (default) needs ~10 outer iterations
+        to a gradient reduction of 1e-6 where L-BFGS needs hundreds.
+    cg_tol, cg_max_iter : float, int
+        Relative residual and iteration limit of the inner CG of ``"gauss-newton"``.
     memory : int
         L-BFGS memory.
     max_time_s : float, optional
         Stop (unconverged, with a warning) after this many seconds of optimisation.
     precondition : bool
-        Use the (experimental) metric preconditioner of the Notes; default plain L-BFGS
-        with the usual ``sᵀy/yᵀy`` scaling, which was faster in our measurements.
+        ``"lbfgs"`` only: the quadratic-model preconditioner of the Notes as the initial
+        inverse Hessian (else the usual ``sᵀy/yᵀy`` scaling).
     backend : {"auto", "cholmod", "splu"}
     callback : callable, optional
         ``callback(iteration, energy, grad_norm)`` after every outer iteration (and once with
@@ -330,13 +378,18 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
 
     Notes
     -----
-    Outer optimiser: L-BFGS (two-loop recursion) with an Armijo backtracking line search
-    (the energy is non-increasing) and curvature-checked updates. Its initial inverse Hessian
-    is the inverse of the quadratic model of ``F^K`` near a path of similar shells,
-    ``4K³ (GᵀG)_ff ⊗ W,22[s̄, s̄]``, where ``G`` is the (terms × frames) midpoint-residual
-    matrix (rows ``−½, 1, −½``), ``ff`` its free frames and ``s̄`` the mean initial free shell.
-    It is applied by diagonalising the small ``(GᵀG)_ff`` and factoring one sparse matrix per
-    free frame once; rigid-motion components of each frame are projected out of the step.
+    ``"gauss-newton"``: every outer iteration solves ``H d = −∇F`` approximately (relative
+    residual ``cg_tol``) by CG on the Gauss–Newton model of :class:`GaussNewtonModel`
+    (products reuse the midpoint factorizations of the evaluation, no new factorization), then
+    backtracks from the full step (Armijo, so the energy is non-increasing); the midpoints of
+    the trial point start from their first-order prediction. CG is preconditioned by the
+    quadratic model of ``F^K`` near a path of similar shells,
+    ``P = 4K³ Σ_t g_t g_tᵀ ⊗ W,22[s_k, s_k]`` (``g_t`` the midpoint-residual stencil
+    ``−½, 1, −½`` of term ``t``), a block-banded sparse matrix over all free frames factored
+    once. Rigid motions of every frame (the kernel of both) are projected out.
+
+    ``"lbfgs"``: L-BFGS (two-loop recursion) with Armijo backtracking and curvature-checked
+    updates, ``P⁻¹`` as initial inverse Hessian when ``precondition``.
 
     Examples
     --------
@@ -375,9 +428,15 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     energies, norms = [], []
     last = {}
 
-    def fun(x):
+    optimizer = str(optimizer).strip().lower().replace("_", "-")
+    if optimizer not in ("gauss-newton", "lbfgs"):
+        raise ShellsplineError(f"`optimizer` must be 'gauss-newton' or 'lbfgs', got "
+                               f"{optimizer!r}")
+    keep = optimizer == "gauss-newton"
+
+    def fun(x, warm=None):
         S = prob.nodes_of(x, S0)
-        F, G = prob.evaluate(S)
+        F, G = prob.evaluate(S, keep=keep, warm=warm)
         g = prob.x_of(G)
         last["x"], last["F"], last["g"] = x.copy(), F, g
         return F, g
@@ -394,6 +453,7 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     if callback is not None:
         callback(0, F0, g0n)
     state = {"nit": 0, "done": g0n == 0.0}
+    stats = {"cg_iterations": [], "step_lengths": []}
 
     def cb(intermediate_result):
         x = intermediate_result.x
@@ -418,8 +478,12 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     if state["done"]:
         message = "converged: gradient norm reduced by gtol"
     else:
-        precond = _Preconditioner(prob, S0) if precondition else None
-        x, message = _lbfgs(prob, fun, x0, F0, g0, S0, precond, cb, max_iter, memory)
+        if optimizer == "gauss-newton":
+            x, message = _gauss_newton(prob, fun, x0, F0, g0, S0, cb, max_iter,
+                                       _step_cap(prob, S0, 2.0), cg_tol, cg_max_iter, stats)
+        else:
+            precond = _Preconditioner(prob, S0) if precondition else None
+            x, message = _lbfgs(prob, fun, x0, F0, g0, S0, precond, cb, max_iter, memory)
         if state["done"]:
             message = "converged: gradient norm reduced by gtol"
         elif state.get("timeout"):
@@ -427,50 +491,245 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     S = prob.nodes_of(x, S0)
     if "x" not in last or not np.array_equal(last["x"], x):
         fun(x)
-    return _finish(prob, S, V0, Vkey, energies, norms, state["nit"], state["done"], message, t0,
-                   periodic)
+    prob.last = None  # release the kept factorizations and geometry
+    if hasattr(prob.energy, "retain"):
+        prob.energy.retain([])
+    res = _finish(prob, S, V0, Vkey, energies, norms, state["nit"], state["done"], message, t0,
+                  periodic)
+    res.optimizer = optimizer
+    res.cg_iterations = stats["cg_iterations"]
+    res.step_lengths = stats["step_lengths"]
+    res.midpoint_newton_iterations = prob.midpoint_iterations
+    return res
+
+
+class GaussNewtonModel:
+    """Gauss–Newton approximation of the Hessian of ``F^K`` at the last kept evaluation.
+
+    With ``F = c Σ_t W[s_k, m_t]``, ``c = 4K³``, and the midpoints ``m_t(s_a, s_b)`` defined by
+    ``∇_m (W[s_a, m] + W[m, s_b]) = 0``, the reduced Hessian is ``Zᵀ ∇²L Z``, where
+    ``Z = [I; dm/ds]``, ``dm/ds = −A_t⁻¹ (W,21[s_a, m], W,12[m, s_b])`` and ``L`` the
+    Lagrangian of the constrained problem. The model keeps the Hessian of ``Σ_t f_t``,
+    ``f_t = c W[s_k, m_t]`` (all blocks ``W,11 W,12 W,22`` at ``(s_k, m_t)``), and drops the
+    adjoint-weighted second derivatives of the midpoint constraints (third derivatives of
+    ``W``). The dropped part is proportional to the adjoint states ``p_t = −A_t⁻¹ ∇_m f_t``,
+    which vanish as the midpoints approach the shells; with ``W = ‖s − s̃‖²`` the model is the
+    exact Hessian. A product costs two solves with each midpoint factorization (kept by
+    ``evaluate(keep=True)``) and a few sparse mat-vecs.
+
+    Parameters
+    ----------
+    prob : NonlinearSplineProblem
+        Evaluated with ``keep=True`` at the point of the model.
+    """
+
+    def __init__(self, prob: NonlinearSplineProblem):
+        if prob.last is None:
+            raise ShellsplineError("GaussNewtonModel needs an evaluation with keep=True")
+        self.prob = prob
+        W = prob.energy
+        S = prob.last["S"]
+        self.ctx = prob.last["ctx"]
+        self.idx = np.full(prob.n_nodes, -1, dtype=np.int64)
+        self.idx[prob.free_nodes] = np.arange(len(prob.free_nodes))
+        self.ops = []
+        for t, (a, k, b) in enumerate(prob.terms):
+            m = self.ctx[t]["m"]  # the midpoint where A_t was factored
+            self.ops.append((W.hessian(S[k], m, "11") if self.idx[k] >= 0 else None,
+                             W.hessian(S[k], m, "22"), W.mixed_operator(S[k], m),
+                             W.mixed_operator(S[a], m), W.mixed_operator(m, S[b])))
+
+    def _full(self, x):
+        prob = self.prob
+        V = np.zeros((prob.n_nodes, 3 * prob.n))
+        sub = np.zeros((len(prob.free_nodes), 3 * prob.n))
+        sub[:, prob.free_dofs] = np.asarray(x).reshape(len(prob.free_nodes), -1)
+        V[prob.free_nodes] = sub
+        return V
+
+    def _dm(self, t, V):
+        a, _, b = self.prob.terms[t]
+        rhs = 0.0
+        if self.idx[a] >= 0:
+            rhs = rhs + self.ops[t][3].dot21(V[a])
+        if self.idx[b] >= 0:
+            rhs = rhs + self.ops[t][4].dot12(V[b])
+        if np.isscalar(rhs):
+            return None
+        return -self.prob.solver.solve_factored(self.ctx[t], rhs[None], refine=0)[0]
+
+    def midpoint_change(self, x) -> np.ndarray:
+        """First-order change ``(T,n,3)`` of the midpoints along the step ``x``."""
+        V = self._full(x)
+        out = np.zeros((len(self.prob.terms), 3 * self.prob.n))
+        for t in range(len(self.prob.terms)):
+            dm = self._dm(t, V)
+            if dm is not None:
+                out[t] = dm
+        return out.reshape(len(self.prob.terms), self.prob.n, 3)
+
+    def matvec(self, x) -> np.ndarray:
+        """Model Hessian times ``x`` (flat over free nodes × free DOFs)."""
+        prob = self.prob
+        V = self._full(x)
+        out = np.zeros_like(V)
+        for t, (a, k, b) in enumerate(prob.terms):
+            H11, H22, Mk, Ma, Mb = self.ops[t]
+            dm = self._dm(t, V)
+            fk = self.idx[k] >= 0
+            if dm is None and not fk:
+                continue
+            if fk:
+                out[k] += H11 @ V[k]
+                r = Mk.dot21(V[k])
+                if dm is not None:
+                    out[k] += Mk.dot12(dm)
+                    r = r + H22 @ dm
+            else:
+                r = H22 @ dm
+            q = prob.solver.solve_factored(self.ctx[t], r[None], refine=0)[0]
+            if self.idx[a] >= 0:
+                out[a] -= Ma.dot12(q)
+            if self.idx[b] >= 0:
+                out[b] -= Mb.dot21(q)
+        out *= prob.scale4
+        return out[prob.free_nodes][:, prob.free_dofs].ravel()
 
 
 class _Preconditioner:
-    """``(4K³ (GᵀG)_ff ⊗ H̄ + δ I)⁻¹`` applied frame-wise via the eigenvectors of
-    ``(GᵀG)_ff`` (see :func:`nonlinear_spline`, Notes)."""
+    """Approximate inverse of the quadratic model ``P = 4K³ Σ_t (g_t g_tᵀ) ⊗ H_t`` of ``F^K``.
 
-    def __init__(self, prob: NonlinearSplineProblem, S0):
-        from ._linalg import SparseCholesky
+    ``g_t`` has the entries ``−½, 1, −½`` at the nodes ``a, k, b`` of term ``t`` (the midpoint
+    residual ``m_t − s_k`` of a quadratic energy), restricted to the free nodes;
+    ``H_t = W,22[s_k, s_k]`` is the elastic Hessian of the term's centre shell on the free
+    DOFs (positive semi-definite, zero on its rigid motions). With ``U`` the eigenvectors of
+    the small time matrix ``Σ_t g_t g_tᵀ``, ``P`` is block diagonal in ``U ⊗ I`` when all
+    ``H_t`` are equal; in general its diagonal blocks are ``B_i = 4K³ Σ_t (u_iᵀ g_t)² H_t``
+    and the off-diagonal blocks are dropped. One sparse Cholesky factorization per free node
+    (relative shift ``1e-8`` for the rigid motions), factored once. Measured on the Fig. 3
+    ellipsoids: 1.3× the CG iterations of the exact ``P⁻¹`` at a tenth of its cost per
+    application, and 5× fewer than a single averaged ``H``. :meth:`apply` projects out each
+    node's rigid motions.
+    """
+
+    def __init__(self, prob: NonlinearSplineProblem, S, shift: float = 1e-8):
         import scipy.sparse as sp
 
+        from ._linalg import SparseCholesky
+
+        W = prob.energy
+        fd = prob.free_dofs
         G = np.zeros((len(prob.terms), prob.n_nodes))
         for t, (a, k, b) in enumerate(prob.terms):
             G[t, a] -= 0.5
             G[t, b] -= 0.5
             G[t, k] += 1.0
-        M = (G.T @ G)[np.ix_(prob.free_nodes, prob.free_nodes)]
-        lam, self.U = np.linalg.eigh(M)
-        W = prob.energy
-        sbar = S0[prob.free_nodes].mean(axis=0)
-        H = W.hessian(sbar, sbar, "22")
-        fd = prob.free_dofs
-        H = sp.csc_matrix(H[fd][:, fd])
-        diag = float(np.abs(H.diagonal()).max())
-        I = sp.identity(H.shape[0], format="csc")
-        self.factors = [SparseCholesky(prob.scale4 * max(l, 1e-12) * H
-                                       + prob.scale4 * max(l, 1e-12) * 1e-8 * diag * I)
-                        for l in lam]
+        Gf = G[:, prob.free_nodes]
+        _, self.U = np.linalg.eigh(Gf.T @ Gf)
+        C = (Gf @ self.U) ** 2                   # (T, f) weight of term t in block i
+        Hk: dict = {}
+        for _, k, _ in prob.terms:
+            if k not in Hk:
+                H = W.hessian(S[k], S[k], "22")
+                Hk[k] = sp.csc_matrix(H[fd][:, fd] if len(fd) < 3 * prob.n else H)
+        nf = len(fd)
+        I = sp.identity(nf, format="csc")
+        self.factors = []
+        for i in range(C.shape[1]):
+            B = sum(C[t, i] * Hk[k] for t, (_, k, _) in enumerate(prob.terms) if C[t, i] > 0)
+            d = float(np.abs(B.diagonal()).max())
+            self.factors.append(SparseCholesky(prob.scale4 * (B + shift * d * I)))
         self.prob = prob
+        self.f, self.nf = len(prob.free_nodes), nf
 
-    def apply(self, g, S):
-        prob = self.prob
-        f = len(prob.free_nodes)
-        Y = self.U.T @ g.reshape(f, -1)
-        Z = np.stack([c.solve(y) for c, y in zip(self.factors, Y)])
-        X = self.U @ Z
-        if getattr(prob.energy, "rigid_invariant", False):
-            pd = np.setdiff1d(np.arange(3 * prob.n), prob.free_dofs)
-            for i, k in enumerate(prob.free_nodes):
-                Q = _rigid_modes(S[k], prob.free_dofs, pd)
-                if Q.shape[1]:
-                    X[i] -= Q @ (Q.T @ X[i])
-        return X.ravel()
+    def apply(self, v, S=None, Q=None) -> np.ndarray:
+        """``≈ P⁺ v`` for ``v`` flat over free nodes × free DOFs; rigid motions of the nodes of
+        ``S`` (or the bases ``Q`` of :meth:`NonlinearSplineProblem.rigid_bases`) removed."""
+        Y = self.U.T @ np.asarray(v, dtype=np.float64).reshape(self.f, self.nf)
+        X = self.U @ np.stack([c.solve(y) for c, y in zip(self.factors, Y)])
+        if Q is None and S is not None:
+            Q = self.prob.rigid_bases(S)
+        return _project(X, Q).ravel()
+
+
+def _project(X, Q):
+    """Remove the rigid-motion components ``Q[i]`` from the rows ``X[i]`` (in place)."""
+    if Q is not None:
+        for i, q in enumerate(Q):
+            if q.shape[1]:
+                X[i] -= q @ (q.T @ X[i])
+    return X
+
+
+def _pcg(matvec, precond, b, Q, f, rtol, max_iter):
+    """Preconditioned CG for ``H x = b`` on the complement of the rigid motions ``Q``,
+    truncated at negative curvature (Steihaug). Returns ``(x, iterations, status)``."""
+    def proj(v):
+        return _project(v.reshape(f, -1), Q).ravel()
+
+    r = proj(b.copy())
+    x = np.zeros_like(r)
+    bn = float(np.linalg.norm(r))
+    if bn == 0.0:
+        return x, 0, "zero right-hand side"
+    z = precond(r)
+    p = z.copy()
+    rz = float(r @ z)
+    for it in range(1, int(max_iter) + 1):
+        Hp = proj(matvec(p))
+        pHp = float(p @ Hp)
+        if not pHp > 0:
+            return (x if it > 1 else z), it, "negative curvature"
+        alpha = rz / pHp
+        x += alpha * p
+        r -= alpha * Hp
+        if np.linalg.norm(r) <= rtol * bn:
+            return x, it, "converged"
+        z = precond(r)
+        rz_new = float(r @ z)
+        p = z + (rz_new / rz) * p
+        rz = rz_new
+    return x, int(max_iter), "maximum iterations"
+
+
+def _gauss_newton(prob, fun, x, F, g, S0, cb, max_iter, step_cap, cg_tol, cg_max_iter, stats):
+    """Gauss–Newton–CG on ``F^K``: steps from :class:`GaussNewtonModel` by preconditioned CG
+    (:class:`_Preconditioner`), Armijo backtracking (monotone energy), midpoints warm-started
+    from their first-order prediction. Returns ``(x, message)``."""
+    P = _Preconditioner(prob, prob.nodes_of(x, S0))
+    f = len(prob.free_nodes)
+    for _ in range(int(max_iter)):
+        S = prob.nodes_of(x, S0)
+        Q = prob.rigid_bases(S)
+        model = GaussNewtonModel(prob)
+        d, ncg, status = _pcg(model.matvec, lambda v: P.apply(v, Q=Q), -g, Q, f, cg_tol,
+                              cg_max_iter)
+        stats["cg_iterations"].append(ncg)
+        slope = float(g @ d)
+        if not slope < 0:
+            d = -P.apply(g, Q=Q)
+            slope = float(g @ d)
+            if not slope < 0:
+                d, slope = -g, -float(g @ g)
+        dM = model.midpoint_change(d)
+        M = prob.last["M"]
+        alpha, ok = min(1.0, step_cap / max(float(np.abs(d).max()), 1e-300)), False
+        for ls in range(30):
+            xn = x + alpha * d
+            Fn, gn = fun(xn, warm=M + alpha * dM)
+            if np.isfinite(Fn) and Fn <= F + 1e-4 * alpha * slope:
+                ok = True
+                break
+            alpha *= 0.5
+        stats["step_lengths"].append(alpha)
+        if not ok:
+            return x, "not converged: line search failed (energy does not decrease)"
+        x, F, g = xn, Fn, gn
+        try:
+            cb(_Iterate(x))
+        except StopIteration:
+            return x, "converged"
+    return x, "not converged: maximum number of iterations reached"
 
 
 def _lbfgs(prob, fun, x, F, g, S0, precond, cb, max_iter, memory):
@@ -479,10 +738,7 @@ def _lbfgs(prob, fun, x, F, g, S0, precond, cb, max_iter, memory):
 
     hist = deque(maxlen=int(memory))
     gamma = 1.0
-    from .descriptors import edge_lengths
-
-    step_cap = 0.5 * float(np.mean(edge_lengths(S0[prob.frames[0]], prob.energy.T))) \
-        if hasattr(prob.energy, "T") else np.inf
+    step_cap = _step_cap(prob, S0, 0.5)
 
     def H0(v, x):
         if precond is None:
@@ -535,6 +791,16 @@ def _lbfgs(prob, fun, x, F, g, S0, precond, cb, max_iter, memory):
         except StopIteration:
             return x, "converged"
     return x, "not converged: maximum number of iterations reached"
+
+
+def _step_cap(prob, S0, factor):
+    """``factor`` mean edge lengths of the first keyframe (cap of a trial step's largest
+    coordinate change), infinite for energies without a mesh."""
+    from .descriptors import edge_lengths
+
+    if not hasattr(prob.energy, "T"):
+        return np.inf
+    return factor * float(np.mean(edge_lengths(S0[prob.frames[0]], prob.energy.T)))
 
 
 @dataclass

@@ -41,7 +41,7 @@ from ._errors import ShellsplineError
 from .descriptors import lta_descriptors, lta_jacobian, wrap_angle
 from .topology import Topology
 
-__all__ = ["DiscreteShells", "EuclideanEnergy", "shell_energy", "shell_energy_gradient",
+__all__ = ["DiscreteShells", "EuclideanEnergy", "MixedOperator", "shell_energy", "shell_energy_gradient",
            "shell_energy_hessian", "dihedral_angle_hessians", "face_area_hessians",
            "edge_length_hessians"]
 
@@ -285,6 +285,7 @@ class HessianPattern:
         r, c = keys // N, keys % N
         self.indices = c.astype(np.int32)
         self.indptr = np.searchsorted(r, np.arange(N + 1)).astype(np.int32)
+        self._struct_cache: dict = {}
 
     def positions(self, rows, cols) -> np.ndarray:
         """Positions in the CSR data array of entries ``(rows, cols)`` (must be in the pattern)."""
@@ -295,7 +296,24 @@ class HessianPattern:
         return pos
 
     def data_of(self, A) -> np.ndarray:
-        """Data array on this pattern of a sparse matrix ``A`` whose entries lie in it."""
+        """Data array on this pattern of a sparse matrix ``A`` whose entries lie in it.
+
+        The positions of the last few CSR/CSC structures are cached (products of matrices with
+        fixed structures, e.g. ``Jᵀ Φ J``, repeat theirs), so a repeated structure costs one
+        comparison and one scatter.
+        """
+        if sp.issparse(A) and A.format in ("csr", "csc"):
+            key = (A.format, A.nnz)
+            hit = self._struct_cache.get(key)
+            if hit is not None and np.array_equal(hit[0], A.indptr) and \
+                    np.array_equal(hit[1], A.indices):
+                return np.bincount(hit[2], weights=A.data, minlength=self.nnz)
+            C = A.tocoo()
+            pos = self.positions(C.row, C.col)
+            if len(self._struct_cache) >= 8:
+                self._struct_cache.pop(next(iter(self._struct_cache)))
+            self._struct_cache[key] = (A.indptr.copy(), A.indices.copy(), pos)
+            return np.bincount(pos, weights=A.data, minlength=self.nnz)
         A = sp.coo_matrix(A)
         return np.bincount(self.positions(A.row, A.col), weights=A.data, minlength=self.nnz)
 
@@ -400,6 +418,7 @@ class DiscreteShells:
         self._iA0, self._iA1 = e + i + self._f0, e + i + self._f1
         self._d = e + i + m
         self._cache: dict = {}
+        self._retained: dict = {}
 
     # -- descriptor-space terms ---------------------------------------------------------
     def _split(self, z):
@@ -502,7 +521,9 @@ class DiscreteShells:
         """Descriptors, Jacobian and (lazily) element Hessians of pose ``V``, cached for the
         last few poses (Newton solvers evaluate several blocks at the same pose)."""
         key = V.tobytes()
-        g = self._cache.get(key)
+        g = self._retained.get(key)
+        if g is None:
+            g = self._cache.get(key)
         if g is None:
             J, z = lta_jacobian(V, self.T, return_values=True)
             g = {"J": J, "z": z, "V": V.copy()}
@@ -510,6 +531,25 @@ class DiscreteShells:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = g
         return g
+
+    def retain(self, poses, geometries=()) -> None:
+        """Keep the cached geometry (descriptors, Jacobian, element Hessians) of these poses
+        regardless of :attr:`cache_size`, replacing the previously retained ones (``[]``
+        releases them). Solvers retain the shells they will evaluate again.
+
+        ``geometries``: further entries of :meth:`geometry_of` to keep (taken while they were
+        still cached, e.g. with their element Hessians)."""
+        kept = {}
+        for g in geometries:
+            kept[g["V"].tobytes()] = g
+        for V in poses:
+            g = self.geometry_of(V)
+            kept[g["V"].tobytes()] = g
+        self._retained = kept
+
+    def geometry_of(self, V) -> dict:
+        """The (cached) geometry record of pose ``V (n,3)`` (see :meth:`retain`)."""
+        return self._geometry(_checked_pose(V, self.n_vertices, "V"))
 
     def _local_second(self, g, coef) -> np.ndarray:
         """Pattern data of ``Σ_i coef_i ∇²z_i(V)`` (per-element closed forms)."""
@@ -595,12 +635,52 @@ class DiscreteShells:
             return gX["J"].T @ (Phi @ (gY["J"] @ v))
         return gY["J"].T @ (Phi.T @ (gX["J"] @ v))
 
+    def mixed_operator(self, V, Vt) -> "MixedOperator":
+        """``W,12[s, s̃]`` and ``W,21[s, s̃]`` as a reusable matrix-free operator (the
+        descriptor Hessian is built once; each product is three sparse mat-vecs)."""
+        gX, gY = self._geometries(V, Vt)
+        Phi = self._hess_desc(gX["z"], gY["z"], "12").tocsr()
+        return MixedOperator(gX["J"], Phi, gY["J"])
+
     def scale(self, V) -> float:
         """A gradient scale ``Σ a_t / mean l_e`` of the shell ``V`` (for tolerances)."""
         from .descriptors import edge_lengths, face_areas
 
         V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
         return float(face_areas(V, self.T).sum() / edge_lengths(V, self.T).mean())
+
+
+class MixedOperator:
+    """``W,12 = J[s]ᵀ Φ_qr J[s̃]`` and its transpose ``W,21`` at one pair of shells.
+
+    Parameters
+    ----------
+    JX, JY : (d,3n) sparse matrices
+        Descriptor Jacobians of the undeformed and the deformed shell.
+    Phi : (d,d) sparse matrix
+        Mixed descriptor Hessian ``Φ_qr`` (``None``: ``W,12 = c I`` with ``c = scale``).
+    scale : float
+        Only for ``Phi=None``.
+    """
+
+    def __init__(self, JX, Phi, JY, scale: float = 0.0):
+        self._c = float(scale)
+        self._ops = None if Phi is None else (
+            JX.T.tocsr(), Phi, JY, JY.T.tocsr(), Phi.T.tocsr(), JX)
+
+    def dot12(self, v) -> np.ndarray:
+        """``W,12 v``: ``v (3n,)`` over ``s̃``, result over ``s``."""
+        if self._ops is None:
+            return self._c * np.asarray(v, dtype=np.float64)
+        JXT, Phi, JY = self._ops[:3]
+        return JXT @ (Phi @ (JY @ v))
+
+    def dot21(self, v) -> np.ndarray:
+        """``W,21 v``: ``v (3n,)`` over ``s``, result over ``s̃``."""
+        if self._ops is None:
+            return self._c * np.asarray(v, dtype=np.float64)
+        JYT, PhiT, JX = self._ops[3:]
+        return JYT @ (PhiT @ (JX @ v))
 
 
 class EuclideanEnergy:
@@ -643,6 +723,12 @@ class EuclideanEnergy:
         if block not in ("12", "21"):
             raise ShellsplineError(f"`block` must be '12' or '21', got {block!r}")
         return -2.0 * np.asarray(v, dtype=np.float64).ravel()
+
+    def mixed_operator(self, V, Vt) -> MixedOperator:
+        return MixedOperator(None, None, None, scale=-2.0)
+
+    def retain(self, poses, geometries=()) -> None:
+        """No cache to keep (interface of :meth:`DiscreteShells.retain`)."""
 
     def scale(self, V) -> float:
         V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
