@@ -90,7 +90,13 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--lam", type=float, default=1.0, help="area weight (default 1)")
     q.add_argument("--reference", default="constant",
                    help="reference meshes for the weights: constant (first keyframe), "
-                        "keyframe (nearest keyframe per frame), or a keyframe index")
+                        "keyframe (nearest keyframe per frame), geodesic (piecewise discrete "
+                        "geodesic between the keyframes at every frame, paper §9), or a "
+                        "keyframe index")
+    q.add_argument("--fixpoint", type=int, default=0, metavar="N",
+                   help="N fixpoint iterations (paper §9, Fig. 9): reference meshes <- "
+                        "current result, re-solve the LΘA spline and reconstruct; the change "
+                        "per iteration goes to report.json 'fixpoint' (default 0)")
     q.add_argument("--pinned", help="file of vertex indices held fixed (e.g. a base)")
     q.add_argument("--fix-boundary", action="store_true",
                    help="hold the mesh boundary vertices fixed")
@@ -149,9 +155,18 @@ def _interpolate(args) -> int:
         if bv.size == 0:
             raise ValueError("--fix-boundary: the mesh has no boundary")
         pinned = bv if pinned is None else np.union1d(pinned, bv)
+    from .pipeline import REFERENCES
+
     reference = args.reference
     if str(reference).lstrip("-").isdigit():
         reference = int(reference)
+    elif str(reference).strip().lower() not in REFERENCES:
+        raise ValueError(f"--reference must be one of {', '.join(REFERENCES)} or a keyframe "
+                         f"index, got {reference!r}")
+    if args.fixpoint < 0:
+        raise ValueError(f"--fixpoint must be >= 0, got {args.fixpoint}")
+    if args.fixpoint and args.method not in ("lta", "nonlinear"):
+        raise ValueError("--fixpoint applies to --method lta (and nonlinear, whose start it is)")
     gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
     solver_options = {}
     if args.max_time is not None and args.method != "nonlinear":
@@ -165,7 +180,7 @@ def _interpolate(args) -> int:
                          lam=args.lam, reference=reference, pinned=pinned,
                          workers=args.workers, gn_options=gn_options,
                          solver_options=solver_options, coarse=args.coarse, fine=args.fine,
-                         progress=bar)
+                         fixpoint=args.fixpoint, progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     protect = list(args.keyframes) + [p for p in (args.pinned, args.frames)

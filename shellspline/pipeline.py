@@ -27,7 +27,7 @@ __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS
 
 METHODS = ("lta", "linear", "geodesic", "nonlinear")
 BOUNDARY_CONDITIONS = ("natural", "periodic", "hermite")
-REFERENCES = ("constant", "keyframe")
+REFERENCES = ("constant", "keyframe", "geodesic")
 DEFAULT_STEP = 10
 MAX_FRAMES = 1_000_000
 FULL_RESOLUTION_WARN = 50_000
@@ -352,7 +352,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 mu: float = 1.0, lam: float = 1.0, reference="constant", *, frames=None,
                 pinned=None, workers: int = 1, gn_options: dict | None = None,
                 warm_start: bool = True, solver_options: dict | None = None,
-                coarse="auto", fine: bool = False,
+                coarse="auto", fine: bool = False, fixpoint: int = 0,
                 progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
@@ -373,9 +373,18 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         ``K-1`` (they fix the end velocities).
     eta, mu, lam : float
         Bending (``η = thickness²``), length and area weights (paper eq. 9–10).
-    reference : {"constant", "keyframe"} or int
+    reference : {"constant", "keyframe", "geodesic"} or int
         Reference meshes for the LΘA weights: one keyframe for all frames (``"constant"`` = the
-        first keyframe, or an int keyframe index), or the nearest keyframe per frame.
+        first keyframe, or an int keyframe index), the nearest keyframe per frame
+        (``"keyframe"``), or the piecewise discrete geodesic between the keyframes evaluated at
+        every frame (``"geodesic"``, paper §7/§9: physically closer to the undeformed shell of
+        each energy term; costs one geodesic solve per keyframe gap, on the coarse mesh under
+        multiresolution).
+    fixpoint : int
+        Fixpoint iterations of the LΘA model (paper §9, Fig. 9): after the LΘA sequence, set
+        the reference meshes to the current result, re-solve the spline and reconstruct
+        (started from the current result); repeat ``fixpoint`` times. ``report["fixpoint"]``
+        records the change per iteration. Paper: converges, with minor corrections.
     frames : (J,) int array, optional
         Keyframe frames (overrides ``keyframes.frames``).
     pinned : (p,) int array, optional
@@ -473,6 +482,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             "pinned_vertices": 0 if pinned is None else int(pinned.size),
             "gn_options": dict(gn_options or {}),
             "solver_options": dict(solver_options or {}), "coarse": coarse, "fine": bool(fine),
+            "fixpoint": int(fixpoint),
         },
         "mesh": {"vertices": int(n), "faces": int(T.n_faces), "edges": int(T.n_edges),
                  "keyframes": int(J), "names": list(kf.names)},
@@ -500,9 +510,15 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         if not g.success:
             prog.message(f"geodesic: {g.message}")
     else:
+        fixpoint = int(fixpoint)
+        if fixpoint < 0:
+            raise ValueError(f"`fixpoint` must be a non-negative number of iterations, got "
+                             f"{fixpoint}")
+        fixpoint_log: list = []
         lta_args = dict(frames=frames, K=K, bc=bc, mu=mu, lam=lam, eta=eta, reference=reference,
                         workers=workers, gn_options=dict(gn_options or {}),
-                        warm_start=warm_start, prog=prog)
+                        warm_start=warm_start, prog=prog, fixpoint=fixpoint,
+                        fixpoint_log=fixpoint_log)
         n_coarse = _coarse_target(coarse, n)
         if fine and n_coarse is None:
             raise ValueError("`fine=True` refines a multiresolution run: it needs `coarse` "
@@ -527,6 +543,14 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                                  if isinstance(v, (int, float, str, bool))}}
             Vc, Zc, Wc, coarse_records = _lta_sequence(
                 dec.V, Tc, dec.pinned, stage_prefix="coarse ", **lta_args)
+            if method == "nonlinear" and not fine:
+                # the nonlinear spline on the coarse meshes (started from their LΘA spline),
+                # prolonged like the LΘA result
+                Vc, report["nonlinear"] = _nonlinear_stage(
+                    dec.V, Tc, dec.pinned, Vc, frames, K, bc, mu, lam, eta, solver_options,
+                    prog, "coarse ")
+                report["nonlinear"]["resolution"] = "coarse"
+                Zc = None
             with prog.stage("prolong"):
                 moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
                 P = Prolongation.encode(Vkey, T, dec, frames,
@@ -545,29 +569,15 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 # frame would cost more than the whole coarse run)
                 energy_source = (Vc, Zc, Tc, Wc)
             V = _placed(V, blend, frames, K, periodic, pinned, Vkey)
+        if fixpoint:
+            report["fixpoint"] = fixpoint_log
         if W_report is None:
             W_report = lta_weights(Vkey[0], T, mu=mu, lam=lam, eta=eta)
-        if method == "nonlinear":
-            from .nonlinear_spline import nonlinear_spline
-
-            opts = dict(solver_options or {})
-            max_iter = int(opts.pop("max_iter", 500))
-            with prog.stage("nonlinear", total=max_iter):
-                nl = nonlinear_spline(Vkey, frames, K, T, bc=bc, mu=mu, lam=lam, eta=eta,
-                                      pinned=pinned, init=V, max_iter=max_iter,
-                                      callback=lambda it, e, g: prog.advance(
-                                          "nonlinear", it, max_iter), **opts)
-            V = _placed(nl.V, blend, frames, K, periodic, pinned, Vkey)
+        if method == "nonlinear" and "nonlinear" not in report:
+            Vn, report["nonlinear"] = _nonlinear_stage(Vkey, T, pinned, V, frames, K, bc, mu,
+                                                       lam, eta, solver_options, prog)
+            V = _placed(Vn, blend, frames, K, periodic, pinned, Vkey)
             energy_source = None  # energies of the final (full-resolution) sequence
-            report["nonlinear"] = {
-                "success": bool(nl.success), "nit": int(nl.nit), "nfev": int(nl.nfev),
-                "message": nl.message, "energy_initial": float(nl.energies[0]),
-                "energy_final": float(nl.energy),
-                "grad_norm_initial": float(nl.grad_norms[0]),
-                "grad_norm_final": float(nl.grad_norms[-1]), "seconds": float(nl.time_s),
-                "energy_history": [float(e) for e in nl.energies]}
-            if not nl.success:
-                prog.message(f"nonlinear spline: {nl.message}")
     with prog.stage("energies"):
         if energy_source is not None:
             Ve, Ze, Te, We, resolution = (*energy_source, "coarse")
@@ -636,8 +646,10 @@ def _coarse_target(coarse, n):
 
 
 def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, workers,
-                  gn_options, warm_start, prog, Vinit=None, stage_prefix=""):
-    """The LΘA stages on one resolution: describe, solve, reconstruct, place.
+                  gn_options, warm_start, prog, Vinit=None, stage_prefix="", fixpoint=0,
+                  fixpoint_log=None):
+    """The LΘA stages on one resolution: describe, solve, reconstruct, place (and the
+    optional fixpoint iterations, appending their records to ``fixpoint_log``).
 
     Returns ``(V (K+1,n,3), Z (K+1,d), W (d,) or (K+1,d), frame_records)``.
     """
@@ -662,6 +674,12 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
 
             def W_of(k):
                 return w_const
+        elif ref_kind == "geodesic":
+            W_spline = W_report = _geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta,
+                                                    prog, stage_prefix)
+
+            def W_of(k):
+                return W_spline[k]
         else:
             Wkey = lta_weights(Vkey, T, mu=mu, lam=lam, eta=eta)
             j0, j1, t = _bracketing(frames, K, periodic)
@@ -687,7 +705,88 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         for k in ks:
             V[k] = results[k][0]
         V = _placed(V, blend, frames, K, periodic, pinned, Vkey)
-    return V, Z, W_report, [results[k][1] for k in ks]
+    records = [results[k][1] for k in ks]
+    for it in range(int(fixpoint)):
+        t0 = time.perf_counter()
+        with prog.stage(stage_prefix + f"fixpoint {it + 1} solve"):
+            W_spline = lta_weights(V, T, mu=mu, lam=lam, eta=eta)
+            Znew = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
+        stage = stage_prefix + f"fixpoint {it + 1} reconstruct"
+        with prog.stage(stage, total=len(ks)):
+            results = _run_reconstruction(T, ks, Znew, lambda k: W_spline[k], V, pinned,
+                                          gn_options, workers, prog, False, stage=stage)
+        Vnew = blend.copy()
+        for k in ks:
+            Vnew[k] = results[k][0]
+        Vnew = _placed(Vnew, blend, frames, K, periodic, pinned, Vkey)
+        if fixpoint_log is not None:
+            fixpoint_log.append(dict(_fixpoint_change(V, Vnew, Z, Znew, T, Vkey),
+                                     iteration=it + 1, resolution=stage_prefix.strip() or "full",
+                                     seconds=time.perf_counter() - t0))
+        V, Z, W_report, records = Vnew, Znew, W_spline, [results[k][1] for k in ks]
+    return V, Z, W_report, records
+
+
+def _nonlinear_stage(Vkey, T, pinned, Vinit, frames, K, bc, mu, lam, eta, solver_options,
+                     prog, stage_prefix=""):
+    """The nonlinear spline started from ``Vinit``; returns ``(V, report record)``."""
+    from .nonlinear_spline import nonlinear_spline
+
+    opts = dict(solver_options or {})
+    max_iter = int(opts.pop("max_iter", 500))
+    stage = stage_prefix + "nonlinear"
+    with prog.stage(stage, total=max_iter):
+        nl = nonlinear_spline(Vkey, frames, K, T, bc=bc, mu=mu, lam=lam, eta=eta,
+                              pinned=pinned, init=Vinit, max_iter=max_iter,
+                              callback=lambda it, e, g: prog.advance(stage, it, max_iter),
+                              **opts)
+    rec = {"success": bool(nl.success), "nit": int(nl.nit), "nfev": int(nl.nfev),
+           "message": nl.message, "optimizer": nl.optimizer,
+           "energy_initial": float(nl.energies[0]), "energy_final": float(nl.energy),
+           "grad_norm_initial": float(nl.grad_norms[0]),
+           "grad_norm_final": float(nl.grad_norms[-1]), "seconds": float(nl.time_s),
+           "cg_iterations": [int(c) for c in nl.cg_iterations],
+           "midpoint_newton_iterations": int(nl.midpoint_newton_iterations),
+           "vertices": int(Vkey.shape[1]),
+           "energy_history": [float(e) for e in nl.energies]}
+    if not nl.success:
+        prog.message(f"nonlinear spline: {nl.message}")
+    return nl.V, rec
+
+
+def _geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_prefix=""):
+    """LΘA weights ``(K+1, d)`` at the piecewise discrete geodesic through the keyframes."""
+    from .geodesic import geodesic_interpolation
+
+    n_seg = len(frames) - (0 if bc == "periodic" else 1)
+    stage = stage_prefix + "reference geodesic"
+    with prog.stage(stage, total=n_seg):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            g = geodesic_interpolation(Vkey, frames, K, T, mu=mu, lam=lam, eta=eta,
+                                       pinned=pinned, bc=bc,
+                                       callback=lambda s, r: prog.advance(stage, s + 1, n_seg))
+        if not g.success:
+            prog.message(f"reference geodesic: {g.message} (weights from the current iterates)")
+    return lta_weights(g.V, T, mu=mu, lam=lam, eta=eta)
+
+
+def _fixpoint_change(V, Vnew, Z, Znew, T, Vkey) -> dict:
+    """Change of one fixpoint iteration: vertices (absolute and relative to the keyframes'
+    bounding-box diagonal) and spline descriptors (lengths and areas relative to their
+    magnitude, angles in radians)."""
+    diag = float(np.linalg.norm(Vkey.reshape(-1, 3).max(0) - Vkey.reshape(-1, 3).min(0)))
+    dv = float(np.abs(Vnew - V).max())
+    sL, sT, sA = T.descriptor_slices()
+    out = {"max_vertex_change": dv, "rel_vertex_change": dv / max(diag, 1e-300)}
+    for name, sl, rel in (("lengths", sL, True), ("angles", sT, False), ("areas", sA, True)):
+        d = np.abs(Znew[:, sl] - Z[:, sl])
+        if d.size == 0:
+            continue
+        out[f"max_{name}_change"] = float(d.max() / (np.abs(Z[:, sl]).max() if rel else 1.0))
+    return out
 
 
 def _safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):

@@ -129,7 +129,7 @@ def test_report_contents(ellipsoids):
 
 @pytest.mark.parametrize("kwargs, phrase", [
     ({"method": "cubic"}, "method"), ({"bc": "clamped"}, "bc"), ({"eta": -1.0}, "eta"),
-    ({"reference": "geodesic"}, "reference"), ({"reference": 7}, "reference"),
+    ({"reference": "geodesics"}, "reference"), ({"reference": 7}, "reference"),
     ({"frames": [0, 5, 5]}, "strictly increasing"), ({"frames": [0, 5]}, "one entry per"),
     ({"K": 3, "frames": [0, 6, 12]}, "smaller than"), ({"workers": 0}, "workers"),
     ({"pinned": [10**6]}, "pinned"),
