@@ -79,7 +79,8 @@ def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals
         Animation sampler interpolation between frames.
     normals : bool
         Also store smooth vertex normals (base and per-target deltas); without them viewers
-        shade flat.
+        shade flat. A vertex without a defined normal (no face uses it, or its face normals
+        cancel) gets ``(0, 0, 1)``: glTF requires unit normals.
     name : str
         Name of the mesh, node and animation.
 
@@ -146,7 +147,11 @@ def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals
                                   minmax=True)}
     N = None
     if normals:
-        N = vertex_normals(V, F).astype(np.float32)
+        N = vertex_normals(V, F)
+        # glTF requires unit normals: a vertex that no face uses, or whose face normals
+        # cancel, gets +z instead of the zero vector
+        N[~np.any(N, axis=-1)] = (0.0, 0.0, 1.0)
+        N = N.astype(np.float32)
         attributes["NORMAL"] = add(N[0], ctype=_FLOAT, atype="VEC3", target=_ARRAY_BUFFER,
                                    minmax=False)
     targets = []
