@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 _KEYS = """keys in the window:
@@ -99,6 +100,18 @@ def _render(args) -> int:
         raise ValueError("render: nothing to write; give --gif, --mp4, --strip and/or --glb")
     seq = viz.load_source(args.out)
     frames = None if args.frames is None else viz._checked_frames(args.frames, seq.K)
+    # every option and output checked before the first (slow) render
+    for option, path, suffixes in (("--gif", args.gif, (".gif",)), ("--mp4", args.mp4, (".mp4",)),
+                                   ("--strip", args.strip, (".png",)),
+                                   ("--glb", args.glb, (".glb",))):
+        if path:
+            viz._checked_output(path, suffixes, [seq], option)
+    viz._checked_size(args.size, None)
+    viz._view_vectors(args.view)
+    if not (math.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be a positive number, got {args.fps}")
+    if args.columns is not None and args.columns < 1:
+        raise ValueError(f"--columns must be >= 1, got {args.columns}")
     annotate = not args.no_labels
     for path in (args.gif, args.mp4):
         if path:

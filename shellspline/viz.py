@@ -55,6 +55,7 @@ _VIEWS = {
 }
 _VIEW_ANGLE = 30.0  # VTK's default vertical view angle, degrees
 _FRAME_FILE_NAMES = ("report.json", "animation.glb")
+_ANIMATION_SUFFIXES = (".gif", ".mp4")
 
 
 # ----------------------------------------------------------------------------------------
@@ -171,19 +172,24 @@ def _labels(labels, count: int) -> list:
     return labels
 
 
+def _int_list(value, what: str, example: str) -> np.ndarray:
+    """``value`` (a comma/space separated string or an array-like) as a flat int64 array."""
+    if isinstance(value, str):
+        try:
+            value = [int(t) for t in value.replace(",", " ").split()]
+        except ValueError:
+            raise ShellsplineError(f"{what}: expected integers such as '{example}', got "
+                                   f"{value!r}") from None
+    a = np.asarray(value).ravel()
+    if a.size and not np.issubdtype(a.dtype, np.integer):
+        raise ShellsplineError(f"{what} must be integers, got {a.tolist()}")
+    return a.astype(np.int64)
+
+
 def _track_indices(track, seqs) -> np.ndarray:
     if track is None:
         return np.zeros(0, dtype=np.int64)
-    if isinstance(track, str):
-        try:
-            track = [int(t) for t in track.replace(",", " ").split()]
-        except ValueError:
-            raise ShellsplineError(f"track: expected vertex indices such as '12,345', got "
-                                   f"{track!r}") from None
-    idx = np.asarray(track).ravel()
-    if idx.size and not np.issubdtype(idx.dtype, np.integer):
-        raise ShellsplineError(f"track: vertex indices must be integers, got {idx.tolist()}")
-    idx = idx.astype(np.int64)
+    idx = _int_list(track, "track", "12,345")
     for s in seqs:
         n = s.V.shape[1]
         bad = (idx < 0) | (idx >= n)
@@ -200,23 +206,57 @@ def _is_keyframe(seq: _Sequence, k: int) -> bool:
 # ----------------------------------------------------------------------------------------
 # Output files: atomic, never over an input
 # ----------------------------------------------------------------------------------------
-def _write_atomically(path, write, seqs=(), suffixes=None) -> Path:
-    """Call ``write(tmp)`` for a temporary sibling of ``path`` and rename it into place."""
+def _checked_output(path, suffixes, seqs=(), what: str = "output") -> Path:
+    """The absolute target of an output file, checked before any work is done.
+
+    Parameters
+    ----------
+    path : str or path-like
+    suffixes : sequence of str
+        Allowed suffixes (lower case, with the dot).
+    seqs : sequence of _Sequence
+        Sources whose input files may not be overwritten.
+    what : str
+        Names the output in messages (e.g. ``"--strip"`` or ``"filmstrip"``).
+
+    Raises
+    ------
+    ShellsplineError
+        Wrong suffix, a directory, an input file, or a directory that cannot be written.
+    """
     out = Path(path)
-    suffix = out.suffix.lower()
-    if suffixes is not None and suffix not in suffixes:
-        raise ShellsplineError(f"'{out}': unsupported file type '{out.suffix}' (use "
-                               f"{', '.join(suffixes)})")
+    if out.suffix.lower() not in suffixes:
+        allowed = " or ".join([", ".join(suffixes[:-1]), suffixes[-1]]) if len(suffixes) > 1 \
+            else suffixes[0]
+        raise ShellsplineError(f"{what} '{out}': expected a {allowed} file")
     target = out.resolve()
     if target.is_dir():
-        raise ShellsplineError(f"'{out}' is a directory; give a file name")
+        raise ShellsplineError(f"{what} '{out}' is a directory; give a file name")
     for s in seqs:
         for p in s.inputs:
             if Path(p).resolve() == target:
                 raise ShellsplineError(f"refusing to write '{out}': it is an input file of "
                                        f"'{s.label}'")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.parent / f".{target.stem}.tmp-{os.getpid()}-{secrets.token_hex(4)}{suffix}"
+    probe = _temporary_sibling(target)
+    try:  # a file created and removed: os.access does not know read-only mounts or sysfs
+        target.parent.mkdir(parents=True, exist_ok=True)
+        probe.touch(exist_ok=False)
+        probe.unlink()
+    except OSError as exc:
+        raise ShellsplineError(f"{what} '{out}': cannot write in '{target.parent}': "
+                               f"{exc.strerror or exc}") from None
+    return target
+
+
+def _temporary_sibling(target: Path) -> Path:
+    return target.parent / (f".{target.stem}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+                            f"{target.suffix.lower()}")
+
+
+def _write_atomically(path, write, seqs=(), suffixes=None, what: str = "output") -> Path:
+    """Call ``write(tmp)`` for a temporary sibling of ``path`` and rename it into place."""
+    target = _checked_output(path, suffixes or (Path(path).suffix.lower(),), seqs, what)
+    tmp = _temporary_sibling(target)
     try:
         write(tmp)
         os.chmod(tmp, 0o644)
@@ -620,18 +660,9 @@ def preview(*sources, track=None, fps: float = 24.0, loop: bool = True, labels=N
 # Off-screen renders
 # ----------------------------------------------------------------------------------------
 def _checked_frames(frames, K: int) -> np.ndarray:
-    if isinstance(frames, str):
-        try:
-            frames = [int(t) for t in frames.replace(",", " ").split()]
-        except ValueError:
-            raise ShellsplineError(f"frames: expected integers such as '0,5,10', got "
-                                   f"{frames!r}") from None
-    f = np.asarray(frames).ravel()
+    f = _int_list(frames, "frames", "0,5,10")
     if f.size == 0:
         raise ShellsplineError("frames: no frame given")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise ShellsplineError(f"frames must be integers, got {f.tolist()}")
-    f = f.astype(np.int64)
     bad = (f < 0) | (f > K)
     if bad.any():
         raise ShellsplineError(f"frames: {int(f[bad][0])} is outside 0..{K}")
@@ -641,6 +672,7 @@ def _checked_frames(frames, K: int) -> np.ndarray:
 def _checked_size(window_size, default):
     if window_size is None:
         return default
+    given = window_size
     if isinstance(window_size, str):
         parts = window_size.lower().replace("×", "x").split("x")
         try:
@@ -649,7 +681,7 @@ def _checked_size(window_size, default):
             window_size = ()
     if len(window_size) != 2 or min(window_size) < 16 or max(window_size) > 8192:
         raise ShellsplineError(f"window size must be WIDTHxHEIGHT with 16..8192 pixels, got "
-                               f"{window_size!r}")
+                               f"{given!r}")
     return int(window_size[0]), int(window_size[1])
 
 
@@ -718,9 +750,7 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
     fps = float(fps)
     if not (np.isfinite(fps) and fps > 0):
         raise ShellsplineError(f"fps must be a positive number, got {fps!r}")
-    suffix = Path(path).suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise ShellsplineError(f"'{path}': an animation must be .gif or .mp4")
+    suffix = _checked_output(path, _ANIMATION_SUFFIXES, [seq], "animation").suffix.lower()
     size = _checked_size(window_size, (640, 480))
     if suffix == ".mp4":
         size = (size[0] + size[0] % 2, size[1] + size[1] % 2)
@@ -748,7 +778,7 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
                 for img in imgs:
                     writer.append_data(img)
 
-    return _write_atomically(path, write, [seq])
+    return _write_atomically(path, write, [seq], _ANIMATION_SUFFIXES, "animation")
 
 
 def default_strip_frames(K: int, keyframes, max_panels: int = 12) -> np.ndarray:
@@ -815,8 +845,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
         ``rows × h + (rows−1) × gap`` by ``columns × w + (columns−1) × gap`` pixels.
     """
     seq = load_source(source)
-    if Path(path).suffix.lower() != ".png":
-        raise ShellsplineError(f"'{path}': a filmstrip is written as .png")
+    _checked_output(path, (".png",), [seq], "filmstrip")
     frames = default_strip_frames(seq.K, seq.frames) if frames is None else \
         _checked_frames(frames, seq.K)
     if columns is None:
@@ -835,7 +864,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
     panels = render_frames(seq, frames, window_size=size, view=view, annotate=annotate)
     strip = _compose(panels, min(columns, len(frames)), gap)
     return _write_atomically(path, lambda tmp: iio.imwrite(tmp, strip, extension=".png"),
-                             [seq])
+                             [seq], (".png",), "filmstrip")
 
 
 def export_glb(source, path, *, fps: float = 24.0, frames=None,
@@ -859,9 +888,10 @@ def export_glb(source, path, *, fps: float = 24.0, frames=None,
     from .gltf import glb_bytes
 
     seq = load_source(source)
+    _checked_output(path, (".glb",), [seq], "GLB")
     V = seq.V if frames is None else seq.V[_checked_frames(frames, seq.K)]
     data = glb_bytes(V, seq.F, fps=fps, interpolation=interpolation)
-    return _write_atomically(path, lambda tmp: tmp.write_bytes(data), [seq], (".glb",))
+    return _write_atomically(path, lambda tmp: tmp.write_bytes(data), [seq], (".glb",), "GLB")
 
 
 # ----------------------------------------------------------------------------------------
@@ -1047,11 +1077,9 @@ def _trajectory_panel(ax, seqs, idx, colors):
 
 
 def _save_figure(fig, path, seqs=()) -> Path:
-    suffix = Path(path).suffix.lower()
-    if suffix not in _PLOT_SUFFIXES:
-        raise ShellsplineError(f"'{path}': a plot is written as {', '.join(_PLOT_SUFFIXES)}")
+    suffix = _checked_output(path, _PLOT_SUFFIXES, seqs, "plot").suffix.lower()
     return _write_atomically(path, lambda tmp: fig.savefig(tmp, format=suffix[1:], dpi=120),
-                             seqs, _PLOT_SUFFIXES)
+                             seqs, _PLOT_SUFFIXES, "plot")
 
 
 def plot(sources, path, what=("energy", "speed"), track=None, labels=None, *,
@@ -1068,9 +1096,8 @@ def plot(sources, path, what=("energy", "speed"), track=None, labels=None, *,
     ``plot(["out/spline", "out/geodesic"], "energy.png", what="energy")`` compares a spline
     with a piecewise geodesic as in the paper's Fig. 11.
     """
-    if Path(path).suffix.lower() not in _PLOT_SUFFIXES:
-        raise ShellsplineError(f"'{path}': a plot is written as {', '.join(_PLOT_SUFFIXES)}")
     seqs = _load_all(sources, labels)
+    _checked_output(path, _PLOT_SUFFIXES, seqs, "plot")  # before the (slow) energies
     fig = plot_figure(seqs, what, track=track, shell_energy=shell_energy)
     return _save_figure(fig, path, seqs)
 
@@ -1135,7 +1162,6 @@ def plot_half_axes(curves: dict, path, *, frames=None) -> Path:
     -------
     pathlib.Path
     """
-    if Path(path).suffix.lower() not in _PLOT_SUFFIXES:
-        raise ShellsplineError(f"'{path}': a plot is written as {', '.join(_PLOT_SUFFIXES)}")
+    _checked_output(path, _PLOT_SUFFIXES, (), "plot")
     fig = half_axes_figure(curves, frames=frames)
     return _save_figure(fig, path, fig._shellspline_sources)

@@ -433,3 +433,40 @@ def test_cli_render_plot_preview(outdir, tmp_path, capsys):
     helptext = capsys.readouterr().out
     for key in ("space", "left, right", "home, end", "loop", "quit"):
         assert key in helptext
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--strip", "{t}/s.jpg"], "--strip '"),                      # wrong suffix
+    (["--glb", "{t}/a.gltf"], "--glb '"),
+    (["--strip", "{t}/blocker/s.png"], "cannot write in"),        # parent is a file
+    (["--strip", "{t}/s.png", "--columns", "0"], "--columns"),
+    (["--strip", "{t}/s.png", "--size", "garbage"], "'garbage'"),
+    (["--strip", "{t}/s.png", "--view", "diagonal"], "view"),
+    (["--strip", "{t}/s.png", "--fps", "nan"], "--fps"),
+])
+def test_cli_render_checks_every_output_before_rendering(outdir, tmp_path, capsys, args,
+                                                          needle):
+    from shellspline.cli import main
+
+    (tmp_path / "blocker").write_text("a file, not a directory")
+    gif = tmp_path / "a.gif"
+    rc = main(["render", str(outdir), "--gif", str(gif),
+               *[a.replace("{t}", str(tmp_path)) for a in args]])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and err.startswith("shellspline: error: ")
+    assert needle in err
+    assert not gif.exists()  # nothing was rendered before the bad option was found
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker"]  # no temporary files
+
+
+def test_unwritable_output_is_one_line_before_any_work(seq, tmp_path, monkeypatch):
+    (tmp_path / "blocker").write_text("")
+    calls = []
+    monkeypatch.setattr(viz, "plot_figure", lambda *a, **k: calls.append(a))
+    with pytest.raises(ShellsplineError, match=r"plot '.*x\.png': cannot write in"):
+        viz.plot([seq], tmp_path / "blocker" / "x.png")
+    assert calls == []  # the energies were not computed for nothing
+    with pytest.raises(ShellsplineError, match=r"filmstrip '.*s\.png': cannot write in"):
+        viz.render_strip(seq, tmp_path / "blocker" / "s.png")
+    with pytest.raises(ShellsplineError, match=r"animation '.*a\.mp4': cannot write in"):
+        viz.render_animation(seq, tmp_path / "blocker" / "a.mp4")
