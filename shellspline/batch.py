@@ -32,6 +32,7 @@ Paths in a job file are relative to the directory of the job file.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import hashlib
@@ -539,6 +540,9 @@ def _expand_entry(where, base, output, kind, e, own, defaults):
                 not all(isinstance(p, str) and p for p in kfs):
             raise _err(f"{where} key 'keyframes'", f"must list at least 2 files, got {kfs!r}")
         paths = [str(_resolve(base, p)) for p in kfs]
+        missing = [p for p in paths if not Path(p).is_file()]
+        if missing:
+            raise _err(f"{where} key 'keyframes'", f"file '{missing[0]}' does not exist")
         fp = frames_pinned(None, None)
         return [SequenceSpec(name=name, out=str(output / name), source="files",
                              keyframes=paths, **fp, **common)]
@@ -875,14 +879,9 @@ def _publish(staging: Path, final: Path, key: str, keep: Callable[[dict], bool])
         shutil.rmtree(staging, ignore_errors=True)
         raise ShellsplineError(f"refusing to replace '{final}': it does not look like an "
                                "earlier output (no manifest.json or report.json)")
-    aside = final.parent / f".{final.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
-    os.rename(final, aside)
-    try:
-        os.rename(staging, final)
-    except BaseException:
-        os.rename(aside, final)
-        raise
-    shutil.rmtree(aside, ignore_errors=True)
+    from .io import _move_into_place
+
+    _move_into_place(staging, final, overwrite=True)  # old output set aside, then removed
     return "published"
 
 
@@ -1014,10 +1013,35 @@ def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def _stop_signals_blocked():
+    """Hold SIGINT/SIGTERM while a worker is started: it inherits the mask and unblocks them
+    once its own handlers are set, and the parent has registered it before a pending
+    Ctrl-C interrupts the parent."""
+    if not hasattr(signal, "pthread_sigmask"):  # pragma: no cover - not POSIX
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def _child_main(conn, spec, key, inner_workers, run_id, force):
-    """Entry point of a local worker process: run one sequence, send events and the outcome."""
-    signal.signal(signal.SIGTERM, _raise_interrupt)  # unwind (temp dirs removed) on terminate
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    """Entry point of a local worker process: run one sequence, send events and the outcome.
+
+    Ctrl-C is the parent's business (a terminal sends SIGINT to every process of the job):
+    the worker ignores SIGINT and unwinds on the parent's SIGTERM, removing its staging
+    directory.
+    """
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     try:
         from threadpoolctl import threadpool_limits
 
@@ -1079,9 +1103,10 @@ def _run_local(todo, workers, on_event, outcomes, run_id, force):
                 proc = ctx.Process(target=_child_main, args=(child_conn, spec, key, n_inner,
                                                                     run_id, force),
                                    name=f"shellspline-batch-{spec.name}")
-                proc.start()
+                with _stop_signals_blocked():
+                    proc.start()
+                    running[parent_conn] = (proc, spec)
                 child_conn.close()
-                running[parent_conn] = (proc, spec)
                 on_event({"kind": "sequence_start", "name": spec.name})
             ready = set(wait(list(running) + [r[0].sentinel for r in running.values()],
                              timeout=1.0))
@@ -1416,7 +1441,14 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
                                "with --write-expected)")
     emit = progress or (lambda ev: None)
     root = job.output
-    root.mkdir(parents=True, exist_ok=True)
+    if root.exists() and not root.is_dir():
+        raise ShellsplineError(f"output root '{root}' exists and is not a directory")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        (root / LOCK_NAME).touch()
+    except OSError as exc:
+        raise ShellsplineError(f"output root '{root}': cannot write there: "
+                               f"{exc.strerror or exc}") from None
     outcomes: dict[str, dict] = {}
     interrupted = False
     run_id = f"{_dt.datetime.now():%Y%m%dT%H%M%S}-{secrets.token_hex(4)}"

@@ -94,6 +94,8 @@ BAD_JOBS = [
      'synth = "ellipsoids"\n', "key 'scheduler'"),
     ('[job]\noutput = "o"\n', "[[sequences]]"),
     ('[job\noutput = "o"\n', "invalid TOML"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nkeyframes = ["a.obj", "typo.obj"]\n',
+     "key 'keyframes': file"),
     ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n[regression]\n'
      'expected = {a = {half_axis = 1}}\n', "unknown metric 'half_axis'"),
 ]
@@ -317,6 +319,40 @@ def test_interrupt_then_resume(tmp_path, sig):
     assert all(st2[n] == "done" for n in names if n not in done_before)
 
 
+@pytest.mark.parametrize("kind", ["file", "under_a_file"])
+def test_unusable_output_root_is_one_line_exit_2(tmp_path, capsys, kind):
+    p = _synth_job(tmp_path, ["a"])
+    (tmp_path / "blocker").write_text("")
+    out = tmp_path / "blocker" if kind == "file" else tmp_path / "blocker" / "out"
+    rc, err = _cli(capsys, p, "-o", out, "-q")
+    assert rc == 2 and err.count("\n") == 1 and f"output root '{out}'" in err
+    assert (tmp_path / "blocker").read_text() == ""
+
+
+def _worker_pid(proc):
+    kids = Path(f"/proc/{proc.pid}/task/{proc.pid}/children")
+    pids = kids.read_text().split() if kids.exists() else []
+    return int(pids[0]) if pids else None
+
+
+def test_ctrl_c_belongs_to_the_parent_not_the_worker(tmp_path):
+    """A terminal's Ctrl-C reaches every process of the job; only the parent acts on it
+    (it stops the workers itself). A SIGINT reaching a worker alone changes nothing."""
+    if not Path("/proc/self/task").is_dir():
+        pytest.skip("finds the worker process through /proc (Linux)")
+    p = _synth_job(tmp_path, ["w0"], workers=1, defaults="delay = 1.0")
+    proc = _start([p, "-q"], tmp_path)
+    try:
+        assert _wait_for(lambda: _worker_pid(proc) is not None)
+        time.sleep(0.3)
+        os.kill(_worker_pid(proc), signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert _status(tmp_path / "out") == {"w0": "done"}
+
+
 def test_killed_local_worker_fails_only_its_sequence(tmp_path):
     if not Path("/proc/self/task").is_dir():
         pytest.skip("finds the worker process through /proc (Linux)")
@@ -324,13 +360,9 @@ def test_killed_local_worker_fails_only_its_sequence(tmp_path):
     root = tmp_path / "out"
     proc = _start([p, "-q"], tmp_path)
     try:
-        def child():
-            kids = Path(f"/proc/{proc.pid}/task/{proc.pid}/children")
-            pids = kids.read_text().split() if kids.exists() else []
-            return pids[0] if pids else None
-        assert _wait_for(lambda: child() is not None)
+        assert _wait_for(lambda: _worker_pid(proc) is not None)
         time.sleep(0.3)
-        os.kill(int(child()), signal.SIGKILL)
+        os.kill(_worker_pid(proc), signal.SIGKILL)
         out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
