@@ -187,7 +187,8 @@ class Job:
     def with_output(self, output) -> "Job":
         """The same job writing to another output root."""
         output = Path(output).resolve()
-        seqs = [dataclasses.replace(s, out=str(output / s.name)) for s in self.sequences]
+        seqs = [dataclasses.replace(s, out=str(output / s.name)) for s in self.sequences
+                if s.directory is None or not _holds(Path(s.directory), output)]
         job = dataclasses.replace(self, output=output, sequences=seqs)
         _check_outputs_do_not_hold_inputs(job)
         return job
@@ -321,6 +322,13 @@ def _unknown(where: str, table: dict, allowed: set) -> None:
     for k in table:
         if k not in allowed:
             raise _err(where, f"unknown key '{k}' (allowed: {', '.join(sorted(allowed))})")
+
+
+def _holds(d: Path, root: Path) -> bool:
+    """Whether directory ``d`` is the output root ``root`` or one of its ancestors: a glob
+    such as ``shots/*`` with ``output = "shots/_out"`` must not take the job's own output
+    root for a sequence directory on the next run."""
+    return d == root or d in root.parents
 
 
 def _natural_key(p: Path):
@@ -510,7 +518,8 @@ def _expand_entry(where, base, output, kind, e, own, defaults):
             rel = str(gp.relative_to(anchor))
         else:
             anchor, rel = base, pat
-        dirs = sorted((p.resolve() for p in anchor.glob(rel) if p.is_dir()), key=_natural_key)
+        dirs = sorted((p.resolve() for p in anchor.glob(rel)
+                       if p.is_dir() and not _holds(p.resolve(), output)), key=_natural_key)
         if not dirs:
             raise _err(f"{where} key 'glob'", f"'{pat}' matches no directory (relative to "
                                               f"{base})")

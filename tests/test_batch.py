@@ -133,6 +133,20 @@ def test_overrides_and_precedence(tmp_path):
     assert s["x"].keyframes[0] == str((d[0] / "pose_00.obj").resolve())
 
 
+def test_glob_never_takes_the_output_root_for_a_sequence(tmp_path, capsys):
+    data_synth.write_batch("ellipsoids", tmp_path / "shots", 2, 100)
+    p = _job(tmp_path, '[job]\noutput = "shots/_out/all"\n[[sequences]]\nglob = "shots/*"\n')
+    for _ in range(2):  # the second run finds shots/_out, which holds the output root
+        rc, err = _cli(capsys, p, "-q")
+        assert rc == 0, err
+        assert sorted(_status(tmp_path / "shots" / "_out" / "all")) == \
+            ["ellipsoids_00", "ellipsoids_01"]
+    # an output root given on the command line is left out in the same way
+    for _ in range(2):
+        assert _cli(capsys, p, "-q", "-o", tmp_path / "shots" / "_o2")[0] == 0
+    assert sorted(_status(tmp_path / "shots" / "_o2")) == ["ellipsoids_00", "ellipsoids_01"]
+
+
 def test_output_may_not_replace_an_input(tmp_path, capsys):
     data_synth.write_batch("ellipsoids", tmp_path / "seqs", 1, 100)
     p = _job(tmp_path, '[job]\noutput = "seqs"\n[[sequences]]\nglob = "seqs/*"\n')
