@@ -349,38 +349,35 @@ def _worker_pid(proc):
     return int(pids[0]) if pids else None
 
 
-def test_ctrl_c_belongs_to_the_parent_not_the_worker(tmp_path):
-    """A terminal's Ctrl-C reaches every process of the job; only the parent acts on it
-    (it stops the workers itself). A SIGINT reaching a worker alone changes nothing."""
+def _signal_first_worker(p, cwd, sig):
+    """Run job ``p``, send ``sig`` to its first worker process mid-sequence; (rc, stderr)."""
     if not Path("/proc/self/task").is_dir():
         pytest.skip("finds the worker process through /proc (Linux)")
-    p = _synth_job(tmp_path, ["w0"], workers=1, defaults="delay = 1.0")
-    proc = _start([p, "-q"], tmp_path)
+    proc = _start([p, "-q"], cwd)
     try:
         assert _wait_for(lambda: _worker_pid(proc) is not None)
         time.sleep(0.3)
-        os.kill(_worker_pid(proc), signal.SIGINT)
+        os.kill(_worker_pid(proc), sig)
         out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
-    assert proc.returncode == 0, err
+    return proc.returncode, err
+
+
+def test_ctrl_c_belongs_to_the_parent_not_the_worker(tmp_path):
+    """A terminal's Ctrl-C reaches every process of the job; only the parent acts on it
+    (it stops the workers itself). A SIGINT reaching a worker alone changes nothing."""
+    p = _synth_job(tmp_path, ["w0"], workers=1, defaults="delay = 1.0")
+    rc, err = _signal_first_worker(p, tmp_path, signal.SIGINT)
+    assert rc == 0, err
     assert _status(tmp_path / "out") == {"w0": "done"}
 
 
 def test_killed_local_worker_fails_only_its_sequence(tmp_path):
-    if not Path("/proc/self/task").is_dir():
-        pytest.skip("finds the worker process through /proc (Linux)")
     p = _synth_job(tmp_path, ["k0", "k1", "k2"], workers=1, defaults="delay = 1.0")
     root = tmp_path / "out"
-    proc = _start([p, "-q"], tmp_path)
-    try:
-        assert _wait_for(lambda: _worker_pid(proc) is not None)
-        time.sleep(0.3)
-        os.kill(_worker_pid(proc), signal.SIGKILL)
-        out, err = proc.communicate(timeout=60)
-    finally:
-        proc.kill()
-    assert proc.returncode == 1, err
+    rc, err = _signal_first_worker(p, tmp_path, signal.SIGKILL)
+    assert rc == 1, err
     s = _summary(root)
     by = {o["name"]: o for o in s["sequences"]}
     assert by["k0"]["status"] == "failed" and "killed by signal 9" in by["k0"]["reason"]

@@ -222,20 +222,17 @@ def test_cli_interpolate_format_glb(tmp_path):
     assert main(["interpolate", *paths, "-o", str(tmp_path / "o2"), "--fps", "0", "-q"]) == 2
 
 
-def test_glb_normals_are_unit_where_vertex_normals_vanish(tmp_path):
+def test_glb_normals_are_unit_where_vertex_normals_vanish():
     # vertex 4 is used by no face: its vertex normal is zero, which glTF forbids
     V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [5, 5, 5]], dtype=float)
     F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     Vs = np.stack([V, 1.5 * V, 2.0 * V])
     assert not vertex_normals(Vs, F)[:, 4].any()
-    p = tmp_path / "iso.glb"
-    write_glb(p, Vs, F)
-    g = pygltflib.GLTF2().load(str(p))
-    data = g.binary_blob()
+    g = pygltflib.GLTF2().load_from_bytes(glb_bytes(Vs, F))
     prim = g.meshes[0].primitives[0]
-    N0 = _accessor_array(g, data, prim.attributes.NORMAL)
-    for t in [None] + list(prim.targets):
-        N = N0 if t is None else N0 + _accessor_array(g, data, t["NORMAL"])
+    N0 = _accessor_array(g, g.binary_blob(), prim.attributes.NORMAL)
+    for N in [N0] + [N0 + _accessor_array(g, g.binary_blob(), t["NORMAL"])
+                     for t in prim.targets]:
         np.testing.assert_allclose(np.linalg.norm(N, axis=1), 1.0, atol=1e-6)
     np.testing.assert_array_equal(N0[4], [0, 0, 1])
     np.testing.assert_allclose(N0[:4], vertex_normals(V, F)[:4], atol=1e-7)

@@ -305,7 +305,8 @@ def test_missing_extra_names_it(seq, monkeypatch, tmp_path):
 
 def test_import_stays_light():
     code = ("import sys, shellspline; "
-            "print(sorted(m for m in ('pyvista', 'vtk', 'matplotlib', 'imageio') "
+            "print(sorted(m for m in ('pyvista', 'vtk', 'matplotlib', 'imageio', 'dask', "
+            "'distributed') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, check=True)
