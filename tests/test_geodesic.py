@@ -116,3 +116,56 @@ def test_validation(ellipsoids):
         discrete_geodesic(d["V"][0], d["V"][1], 3, T, init=d["V"][:1])
     with pytest.raises(ValueError, match="`pinned`"):
         discrete_geodesic(d["V"][0], d["V"][1], 3, T, pinned=[10 ** 6])
+
+
+def test_geodesic_reference_equals_constant_for_rigid_copies():
+    """Keyframes that are rigid copies of one shell: the geodesic reference meshes are rigid
+    copies too, so their LΘA weights equal the constant reference's."""
+    import shellspline as ss
+
+    V, F = icosphere(1)
+    V = V * [1.4, 1.0, 0.8]
+    Vkey = np.stack([V, V @ _rotation(0.5, [0, 0, 1]).T + [0.2, 0, 0],
+                     V @ _rotation(1.0, [1, 1, 0]).T])
+    a = ss.interpolate((Vkey, F), frames=[0, 3, 6], K=6, eta=0.05, reference="constant")
+    b = ss.interpolate((Vkey, F), frames=[0, 3, 6], K=6, eta=0.05, reference="geodesic")
+    assert np.abs(a.V - b.V).max() < 1e-6 * np.abs(V).max()
+
+
+def test_geodesic_reference_keyframes_exact_and_smooth(ellipsoids):
+    import shellspline as ss
+    from shellspline.metrics import keyframe_kinks
+
+    d = ellipsoids
+    frames, K = d["frames"], 12
+    res = ss.interpolate((d["V"], d["F"]), frames=frames, K=K, eta=0.1, reference="geodesic")
+    const = ss.interpolate((d["V"], d["F"]), frames=frames, K=K, eta=0.1)
+    for j, f in enumerate(frames):
+        assert np.array_equal(res.V[f], d["V"][j])
+    assert res.report["parameters"]["reference"] == "geodesic"
+    geo = geodesic_interpolation(d["V"], frames, K, topology(d["F"]), eta=0.1)
+    kink_geo = keyframe_kinks(geo.V, frames)
+    kink = keyframe_kinks(res.V, frames)
+    assert np.all(kink < 0.5 * kink_geo), (kink, kink_geo)
+    # the weights really differ from the constant reference's
+    assert np.abs(res.V - const.V).max() > 1e-4 * np.abs(d["V"]).max()
+
+
+def test_fixpoint_iteration_converges(ellipsoids):
+    import shellspline as ss
+
+    d = ellipsoids
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], K=12, eta=0.1, fixpoint=4)
+    log = res.report["fixpoint"]
+    assert [r["iteration"] for r in log] == [1, 2, 3, 4]
+    change = [r["rel_vertex_change"] for r in log]
+    assert all(c1 < 0.5 * c0 for c0, c1 in zip(change, change[1:])), change
+    for j, f in enumerate(d["frames"]):
+        assert np.array_equal(res.V[f], d["V"][j])
+    # a fixpoint within tolerance: one more iteration from the result hardly moves it
+    assert change[-1] < 1e-3
+    again = ss.interpolate((d["V"], d["F"]), frames=d["frames"], K=12, eta=0.1, fixpoint=5)
+    diag = np.linalg.norm(np.ptp(d["V"].reshape(-1, 3), axis=0))
+    assert np.abs(again.V - res.V).max() <= 2 * change[-1] * diag
+    with pytest.raises(ValueError, match="fixpoint"):
+        ss.interpolate((d["V"], d["F"]), frames=d["frames"], K=12, fixpoint=-1)

@@ -7,7 +7,8 @@ from conftest import icosphere
 
 from shellspline.geodesic import geodesic_interpolation
 from shellspline.lta_spline import lta_spline
-from shellspline.nonlinear_spline import NonlinearSplineProblem, _blend, nonlinear_spline
+from shellspline.nonlinear_spline import (GaussNewtonModel, NonlinearSplineProblem, _blend,
+                                          _pcg, _Preconditioner, _project, nonlinear_spline)
 from shellspline.shell_energy import DiscreteShells, EuclideanEnergy
 from shellspline.topology import topology
 
@@ -86,3 +87,77 @@ def test_hermite_and_validation(tiny):
         nonlinear_spline(Vkey[:, :-1], [0, 2, 4], 4, T)
     with pytest.raises(ValueError, match="`bc`"):
         nonlinear_spline(Vkey, [0, 2, 4], 4, T, bc="clamped")
+
+
+def test_gauss_newton_reaches_the_lbfgs_minimiser_in_fewer_iterations(tiny):
+    Vkey, T = tiny
+    kw = dict(eta=0.1, gtol=1e-6, max_iter=2000)
+    gn = nonlinear_spline(Vkey, [0, 2, 4], 4, T, optimizer="gauss-newton", **kw)
+    lb = nonlinear_spline(Vkey, [0, 2, 4], 4, T, optimizer="lbfgs", precondition=False, **kw)
+    assert gn.success and lb.success, (gn.message, lb.message)
+    assert gn.optimizer == "gauss-newton" and len(gn.cg_iterations) == gn.nit
+    assert np.all(np.diff(gn.energies) <= 1e-12 * gn.energies[0])
+    assert abs(gn.energy - lb.energy) <= 1e-8 * lb.energy
+    scale = np.abs(Vkey).max()
+    assert np.abs(gn.V - lb.V).max() <= 1e-4 * scale
+    assert 3 * gn.nit < lb.nit, (gn.nit, lb.nit)
+
+
+def test_gauss_newton_model_is_the_exact_hessian_for_the_euclidean_energy():
+    rng = np.random.default_rng(3)
+    Vkey = rng.standard_normal((3, 5, 3))
+    prob = NonlinearSplineProblem(EuclideanEnergy(5), [0, 3, 6], 6)
+    S = _blend(Vkey, prob.frames, 6, False) + 0.1 * rng.standard_normal((7, 5, 3))
+    prob.evaluate(S, keep=True)
+    model = GaussNewtonModel(prob)
+    x, v = prob.x_of(S), rng.standard_normal(prob.n_variables)
+    h = 1e-4  # F is quadratic: central differences of the gradient are exact up to round-off
+    gp = prob.x_of(prob.evaluate(prob.nodes_of(x + h * v, S))[1])
+    gm = prob.x_of(prob.evaluate(prob.nodes_of(x - h * v, S))[1])
+    Hv = model.matvec(v)
+    assert np.abs(Hv - (gp - gm) / (2 * h)).max() <= 1e-7 * np.abs(Hv).max()
+
+
+def test_gauss_newton_model_matches_finite_differences_near_the_solution(tiny):
+    """For Discrete Shells the model drops the adjoint-weighted third derivatives, which are
+    small when the midpoints are close to the shells: check it against central differences of
+    the exact (adjoint) gradient on a fine time grid."""
+    Vkey, T = tiny
+    spl = nonlinear_spline(Vkey, [0, 3, 6], 6, T, eta=0.1, gtol=1e-4)
+    prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.1), [0, 3, 6], 6, midpoint_tol=1e-13)
+    S = spl.V
+    prob.evaluate(S, keep=True)
+    model = GaussNewtonModel(prob)
+    rng = np.random.default_rng(4)
+    x = prob.x_of(S)
+    Q = prob.rigid_bases(S)
+    v = rng.standard_normal((len(prob.free_nodes), 3 * 42))
+    for i, q in enumerate(Q):  # a direction off the rigid motions (F is invariant along them)
+        v[i] -= q @ (q.T @ v[i])
+    v = v.ravel()
+    h = 1e-5
+    gp = prob.x_of(prob.evaluate(prob.nodes_of(x + h * v, S))[1])
+    gm = prob.x_of(prob.evaluate(prob.nodes_of(x - h * v, S))[1])
+    fd = (gp - gm) / (2 * h)
+    Hv = model.matvec(v)
+    assert np.linalg.norm(Hv - fd) <= 0.1 * np.linalg.norm(fd)
+    assert v @ Hv > 0
+
+
+def test_preconditioner_cuts_cg_iterations(tiny):
+    Vkey, T = tiny
+    prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.1), [0, 3, 6], 6)
+    S = _blend(Vkey, prob.frames, 6, False)
+    F, G = prob.evaluate(S, keep=True)
+    model = GaussNewtonModel(prob)
+    Q = prob.rigid_bases(S)
+    P = _Preconditioner(prob, S)
+    f = len(prob.free_nodes)
+    g = prob.x_of(G)
+    xp, itp, stp = _pcg(model.matvec, lambda v: P.apply(v, Q=Q), -g, Q, f, 1e-6, 500)
+    xi, iti, sti = _pcg(model.matvec, lambda v: _project(v.copy().reshape(f, -1), Q).ravel(), -g,
+                        Q, f, 1e-6, 500)
+    assert stp == "converged" and sti == "converged", (stp, sti)
+    assert 2 * itp < iti, (itp, iti)
+    # both solve the same projected system
+    assert np.linalg.norm(xp - xi) <= 1e-4 * np.linalg.norm(xi)
