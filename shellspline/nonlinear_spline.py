@@ -19,9 +19,10 @@ previous evaluation), then one linear system with the midpoint Hessian
     ∂F/∂s_{k-1} += 4K³ W,12[s_{k-1}, s̃_k] p_k
     ∂F/∂s_{k+1} += 4K³ W,21[s̃_k, s_{k+1}] p_k                            (17)
 
-(``W,12`` has rows indexed by the first argument.) The outer problem is solved with a
-Gauss–Newton–CG method (or L-BFGS; Armijo backtracking, see :func:`nonlinear_spline`) and stopped when the
-gradient norm has dropped by ``gtol`` relative to the initial one.
+(``W,12`` has rows indexed by the first argument.) The outer problem is solved by
+Gauss–Newton–CG (:class:`GaussNewtonModel`, or L-BFGS; Armijo backtracking, see
+:func:`nonlinear_spline`) and stopped when the gradient norm has dropped by ``gtol`` relative to
+the initial one.
 
 Rigid motions: ``F^K`` is invariant under a rigid motion of every single shell (``W`` is, in
 both arguments, and so is the midpoint up to a rigid motion), so the problem is solved modulo
@@ -203,7 +204,8 @@ class NonlinearSplineProblem:
             return 0.5 * (S[self.terms[:, 0]] + S[self.terms[:, 2]])
         return self.midpoints.copy()
 
-    def evaluate(self, S, *, gradient: bool = True, keep: bool = False, warm=None):
+    def evaluate(self, S, *, gradient: bool = True, keep: bool = False, warm=None,
+                 max_newton: int = 50, abort_on_failure: bool = False):
         """``F^K`` and its gradient for node poses ``S (n_nodes,n,3)``.
 
         Parameters
@@ -215,6 +217,11 @@ class NonlinearSplineProblem:
             Gauss–Newton model (:class:`GaussNewtonModel`).
         warm : (T,n,3) float array, optional
             Initial midpoints (default: those of the last evaluation).
+        max_newton : int
+            Newton iteration limit of each midpoint solve.
+        abort_on_failure : bool
+            Return ``F = inf`` (and ``G = None``) as soon as a midpoint solve fails (cheap
+            rejection of line-search trials far from the current point).
 
         Returns
         -------
@@ -230,8 +237,12 @@ class NonlinearSplineProblem:
         G = np.zeros((self.n_nodes, 3 * self.n))
         ctxs, geos = [], []
         for t, (a, k, b) in enumerate(self.terms):
-            res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol)
+            res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol,
+                                    max_iter=max_newton)
             self.midpoint_iterations += res.nit
+            if abort_on_failure and not res.success:
+                self.nfev += 1
+                return (np.inf, None) if gradient else np.inf
             self.midpoint_failures += not res.success
             m = res.V[1]
             # one more Newton step with the Hessian that the adjoint needs anyway: F is not
@@ -434,9 +445,14 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
                                f"{optimizer!r}")
     keep = optimizer == "gauss-newton"
 
-    def fun(x, warm=None):
+    def fun(x, warm=None, trial=False):
         S = prob.nodes_of(x, S0)
-        F, G = prob.evaluate(S, keep=keep, warm=warm)
+        if trial:  # a line-search trial: cheap rejection when a midpoint does not converge
+            F, G = prob.evaluate(S, keep=keep, warm=warm, max_newton=10, abort_on_failure=True)
+            if G is None:
+                return F, None
+        else:
+            F, G = prob.evaluate(S, keep=keep, warm=warm)
         g = prob.x_of(G)
         last["x"], last["F"], last["g"] = x.copy(), F, g
         return F, g
@@ -716,7 +732,7 @@ def _gauss_newton(prob, fun, x, F, g, S0, cb, max_iter, step_cap, cg_tol, cg_max
         alpha, ok = min(1.0, step_cap / max(float(np.abs(d).max()), 1e-300)), False
         for ls in range(30):
             xn = x + alpha * d
-            Fn, gn = fun(xn, warm=M + alpha * dM)
+            Fn, gn = fun(xn, warm=M + alpha * dM, trial=True)
             if np.isfinite(Fn) and Fn <= F + 1e-4 * alpha * slope:
                 ok = True
                 break

@@ -41,7 +41,8 @@ from ._errors import ShellsplineError
 from .descriptors import lta_descriptors, lta_jacobian, wrap_angle
 from .topology import Topology
 
-__all__ = ["DiscreteShells", "EuclideanEnergy", "MixedOperator", "shell_energy", "shell_energy_gradient",
+__all__ = ["DiscreteShells", "EuclideanEnergy", "MixedOperator", "shell_energy",
+           "shell_energy_gradient",
            "shell_energy_hessian", "dihedral_angle_hessians", "face_area_hessians",
            "edge_length_hessians"]
 
