@@ -1,13 +1,20 @@
-"""Benchmark of the nonlinear model (paper Fig. 3): piecewise geodesic vs nonlinear spline vs LΘA.
+"""Benchmark of the nonlinear model (paper Figs. 3 and 10): piecewise geodesic vs nonlinear
+spline vs LΘA.
 
-Three ellipsoids (data_synth, N≈500, K=12, η=0.1): half-axes (max |x|, max |y|) per frame for
-the three methods, the max difference nonlinear−LΘA vs spline−geodesic (paper: ~10× smaller),
-the time of the nonlinear spline to a gradient-norm reduction of 1e-6 (or the reduction reached
-within the time limit), iterations, time per iteration, and a pyinstrument summary of where
-the time goes. Also ../shared/data/unit_sphere (frames 0, 3, 6, η=0.01) when present.
+* Fig. 3, three ellipsoids (data_synth, N≈500, K=12, η=0.1): half-axes (max |x|, max |y|) per
+  frame for the three methods, the max difference nonlinear−LΘA vs spline−geodesic (paper:
+  ~10× smaller), the time of the nonlinear spline to a gradient-norm reduction of 1e-6 (or the
+  reduction reached within the time limit), outer iterations, CG iterations, time per outer
+  iteration, and a pyinstrument summary of where the time goes. ``--lbfgs`` also runs the
+  L-BFGS optimiser on the same problem (same time limit) for the ratio.
+* ../shared/data/unit_sphere (sphere → stretched X → stretched Y at frames 0, 3, 6, η=0.01)
+  when present.
+* Fig. 10, hexagon folds (data_synth "hexagon", periodic, K=12): η = 1e-4 vs η = 10, the max
+  edge strain against the flat rest hexagon along the curve for the three methods (small η:
+  near-isometric).
 
-Usage: ``python benchmarks/bench_nonlinear.py [--vertices 500] [--time-limit 120]``.
-Prints a table and writes ``benchmarks/results/bench_nonlinear.json``.
+Usage: ``python benchmarks/bench_nonlinear.py [--vertices 500] [--time-limit 120] [--lbfgs]``.
+Prints tables and writes ``benchmarks/results/bench_nonlinear.json``.
 """
 from __future__ import annotations
 
@@ -25,6 +32,7 @@ sys.path.insert(0, str(REPO))
 
 import data_synth  # noqa: E402
 import shellspline as ss  # noqa: E402
+from shellspline import metrics  # noqa: E402
 from shellspline.geodesic import geodesic_interpolation  # noqa: E402
 from shellspline.nonlinear_spline import nonlinear_spline  # noqa: E402
 
@@ -32,24 +40,26 @@ SHARED = REPO.parent / "shared" / "data" / "unit_sphere"
 
 
 def half_axes(V):
-    return np.abs(V[..., 0]).max(axis=-1), np.abs(V[..., 1]).max(axis=-1)
+    ha = metrics.half_axes(V)
+    return ha[..., 0], ha[..., 1]
 
 
-def run_case(name, Vkey, F, frames, K, eta, time_limit, profile=False):
+def run_case(name, Vkey, F, frames, K, eta, time_limit, profile=False, bc="natural",
+             lbfgs=False):
     T = ss.topology(F)
-    out = {"name": name, "n_vertices": int(Vkey.shape[1]), "K": int(K), "eta": eta,
+    out = {"name": name, "n_vertices": int(Vkey.shape[1]), "K": int(K), "eta": eta, "bc": bc,
            "frames": [int(f) for f in frames]}
     t = time.perf_counter()
-    geo = geodesic_interpolation(Vkey, frames, K, T, eta=eta)
+    geo = geodesic_interpolation(Vkey, frames, K, T, eta=eta, bc=bc)
     out["geodesic"] = {"time_s": time.perf_counter() - t, "success": geo.success,
                        "newton_iterations": geo.nit,
                        "segment_energies": geo.segment_energies}
     t = time.perf_counter()
-    lta = ss.interpolate((Vkey, F), frames=frames, K=K, eta=eta)
+    lta = ss.interpolate((Vkey, F), frames=frames, K=K, eta=eta, bc=bc)
     out["lta"] = {"time_s": time.perf_counter() - t}
     trace = []
     t = time.perf_counter()
-    kwargs = dict(eta=eta, init=lta.V, gtol=1e-6, max_iter=100000, max_time_s=time_limit,
+    kwargs = dict(eta=eta, init=lta.V, gtol=1e-6, max_iter=100000, max_time_s=time_limit, bc=bc,
                   callback=lambda i, F_, g: trace.append((time.perf_counter() - t, F_, g)))
     profiler = None
     if profile:
@@ -68,14 +78,29 @@ def run_case(name, Vkey, F, frames, K, eta, time_limit, profile=False):
         out["profile_text"] = profiler.output_text(unicode=False, color=False, show_all=False)
     red = spl.grad_norms[-1] / spl.grad_norms[0]
     out["nonlinear"] = {"time_s": wall, "success": spl.success, "message": spl.message,
-                        "nit": spl.nit, "nfev": spl.nfev,
+                        "optimizer": spl.optimizer, "nit": spl.nit, "nfev": spl.nfev,
+                        "cg_iterations": spl.cg_iterations, "step_lengths": spl.step_lengths,
+                        "midpoint_newton_iterations": spl.midpoint_newton_iterations,
                         "time_per_iteration_s": wall / max(spl.nit, 1),
                         "grad_reduction": red, "energy_initial": spl.energies[0],
                         "energy_final": spl.energies[-1],
                         "trace": [[a, b, c] for a, b, c in trace]}
+    if lbfgs:
+        t = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            lb = nonlinear_spline(Vkey, frames, K, T, eta=eta, init=lta.V, gtol=1e-6, bc=bc,
+                                  max_iter=100000, max_time_s=time_limit, optimizer="lbfgs",
+                                  precondition=False)
+        wall = time.perf_counter() - t
+        out["lbfgs"] = {"time_s": wall, "success": lb.success, "nit": lb.nit, "nfev": lb.nfev,
+                        "grad_reduction": lb.grad_norms[-1] / lb.grad_norms[0],
+                        "energy_final": lb.energies[-1]}
     for tag, V in (("geodesic", geo.V), ("lta", lta.V), ("nonlinear", spl.V)):
         ax, ay = half_axes(V)
         out[tag]["half_axes_x"], out[tag]["half_axes_y"] = ax.tolist(), ay.tolist()
+        out[tag]["keyframe_kinks"] = metrics.keyframe_kinks(V, frames).tolist()
+    out["_V"] = {"geodesic": geo.V, "lta": lta.V, "nonlinear": spl.V}
 
     def dist(A, B):  # max over frames of the half-axis difference
         (ax, ay), (bx, by) = half_axes(A), half_axes(B)
@@ -98,11 +123,15 @@ def main(argv=None):
     ap.add_argument("--vertices", type=int, default=500)
     ap.add_argument("--time-limit", type=float, default=120.0)
     ap.add_argument("--no-profile", action="store_true")
+    ap.add_argument("--lbfgs", action="store_true",
+                    help="also run the L-BFGS optimiser on the ellipsoids (same time limit)")
+    ap.add_argument("--hexagon-vertices", type=int, default=300,
+                    help="vertices of the Fig. 10 hexagon (0 skips it)")
     args = ap.parse_args(argv)
     results = []
     d = data_synth.generate("ellipsoids", n_vertices=args.vertices)
     results.append(run_case("ellipsoids", d["V"], d["F"], d["frames"], 12, 0.1, args.time_limit,
-                            profile=not args.no_profile))
+                            profile=not args.no_profile, lbfgs=args.lbfgs))
     if all((SHARED / f).exists() for f in ("unitSphere1.ply", "unitSphere1_defX.ply",
                                            "unitSphere1_defY.ply")):
         meshes = [ss.read_mesh(SHARED / f) for f in ("unitSphere1.ply", "unitSphere1_defX.ply",
@@ -112,6 +141,22 @@ def main(argv=None):
                                 args.time_limit))
     else:
         print(f"skipping unit_sphere: {SHARED} not present")
+    hexagon = []
+    if args.hexagon_vertices:
+        h = data_synth.generate("hexagon", n_vertices=args.hexagon_vertices)
+        T = ss.topology(h["F"])
+        bc = "periodic" if h.get("periodic") else "natural"
+        for eta in (1e-4, 10.0):
+            r = run_case(f"hexagon η={eta:g}", h["V"], h["F"], h["frames"], 12, eta,
+                         args.time_limit, bc=bc)
+            for tag in ("geodesic", "lta", "nonlinear"):
+                strain = metrics.edge_strain(r["_V"][tag], h["rest"], T)
+                r[tag]["max_edge_strain"] = float(strain.max())
+                r[tag]["edge_strain_per_frame"] = strain.tolist()
+            r["keyframe_max_edge_strain"] = float(metrics.edge_strain(h["V"], h["rest"],
+                                                                      T).max())
+            results.append(r)
+            hexagon.append(r)
     hdr = (f"{'case':12s} {'N':>5s} {'K':>3s} {'geo s':>7s} {'lta s':>6s} {'nl s':>7s} "
            f"{'nit':>5s} {'s/it':>6s} {'|g|/|g0|':>9s} {'F0':>10s} {'F':>10s} "
            f"{'ax nl-lta':>9s} {'ax nl-geo':>9s} {'ratio':>6s}")
@@ -135,13 +180,32 @@ def main(argv=None):
               f"{r0['geodesic']['half_axes_y'][k]:7.4f} {r0['nonlinear']['half_axes_x'][k]:7.4f} "
               f"{r0['nonlinear']['half_axes_y'][k]:7.4f} {r0['lta']['half_axes_x'][k]:7.4f} "
               f"{r0['lta']['half_axes_y'][k]:7.4f}")
+    if hexagon:
+        print("\nFig. 10, hexagon folds: max edge strain against the flat hexagon along the "
+              "curve")
+        print(f"{'eta':>8s} {'keyframes':>9s} {'geodesic':>9s} {'lta':>9s} {'nonlinear':>9s}")
+        for r in hexagon:
+            print(f"{r['eta']:8.0e} {r['keyframe_max_edge_strain']:9.2e} "
+                  f"{r['geodesic']['max_edge_strain']:9.2e} {r['lta']['max_edge_strain']:9.2e} "
+                  f"{r['nonlinear']['max_edge_strain']:9.2e}")
+    if "lbfgs" in r0:
+        lb, nl = r0["lbfgs"], r0["nonlinear"]
+        print(f"\nellipsoids, same problem and time limit: gauss-newton {nl['time_s']:.1f} s, "
+              f"{nl['nit']} iterations, |g|/|g0| = {nl['grad_reduction']:.1e}; lbfgs "
+              f"{lb['time_s']:.1f} s, {lb['nit']} iterations, |g|/|g0| = "
+              f"{lb['grad_reduction']:.1e}")
+    print(f"\nellipsoids CG iterations per outer iteration: {r0['nonlinear']['cg_iterations']}")
     if "profile_text" in r0:
         print("\nprofile (pyinstrument, ellipsoids nonlinear spline):")
         print(summarise_profile(r0["profile_text"]))
     outdir = REPO / "benchmarks" / "results"
     outdir.mkdir(parents=True, exist_ok=True)
     path = outdir / "bench_nonlinear.json"
-    path.write_text(json.dumps(results, indent=1, default=float))
+    for r in results:
+        r.pop("_V", None)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(results, indent=1, default=float))
+    tmp.replace(path)
     print(f"\nwrote {path}")
     return 0
 
