@@ -694,7 +694,10 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
     is_key[frames] = True
     is_key[K] |= periodic
     ks = np.flatnonzero(~is_key)
-    warm = warm_start and Vinit is None
+    # with a given initial sequence (the prolonged coarse result of ``fine=True``) a warm
+    # start moves frame k-1's solution by the change of that sequence: it cancels most of
+    # the prolongation's misfit and keeps the cached preconditioner good from frame to frame
+    warm = warm_start
     Vinit = _safe_init(blend, Vkey, frames, K, bc, T) if Vinit is None else \
         np.asarray(Vinit, dtype=np.float64)
     with prog.stage(stage_prefix + "reconstruct", total=len(ks)):

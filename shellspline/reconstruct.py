@@ -11,6 +11,16 @@ frame, so one factorization (and one symbolic analysis) serves many steps and fr
 refreshed only when CG stops converging quickly. A backtracking line search on ``f`` makes
 every accepted step decrease the energy and rejects steps that collapse a triangle.
 
+The factorization is *rotated* to the current pose: the descriptors are invariant under
+rotations, so if the pose moved from ``s_a`` (where ``H_a = J_aᵀ W J_a`` was factored) to
+``s_b`` by local rotations ``R_v`` (one per vertex, fitted to its edges by polar
+decomposition), then ``J_b ≈ J_a Rᵀ`` and ``H_b ≈ R H_a Rᵀ`` with ``R = blockdiag(R_v)``; the
+preconditioner applies ``R H_a⁻¹ Rᵀ``. For a thin shell (membrane much stiffer than bending)
+an unrotated factor from a pose a few degrees away is a poor preconditioner (its stiff
+membrane directions point the wrong way: CG hits its limit and the factor must be rebuilt);
+rotated, it stays good across Gauss–Newton iterations and neighbouring frames, so large
+meshes rarely refactor.
+
 Rigid motions are in the kernel of ``f``: they are removed by pinned vertices when given, and
 otherwise by the small Levenberg–Marquardt term ``δ I`` (steps never move along the kernel
 because the gradient is orthogonal to it); :func:`rigid_placement` then places each frame.
@@ -102,11 +112,16 @@ class GaussNewton:
         A CG solve that needs more iterations than this marks the preconditioner as stale:
         the next Gauss–Newton step refactors at its iterate (numeric factorization only; the
         symbolic analysis is done once).
+    rotate_preconditioner : bool
+        Apply the cached factorization rotated by the per-vertex rotations from the pose it
+        was computed at to the current pose (see the module notes); ``False`` applies it
+        as is.
     """
 
     def __init__(self, T: Topology, *, pinned=None, backend: str = "auto", max_iter: int = 60,
                  ftol: float = 1e-6, gtol: float = 1e-5, damping: float = 1e-8,
-                 cg_tol: float = 1e-2, cg_max_iter: int = 40, refresh_cg: int = 8):
+                 cg_tol: float = 1e-2, cg_max_iter: int = 40, refresh_cg: int = 8,
+                 rotate_preconditioner: bool = True):
         self.T = T
         self.backend = backend
         self.max_iter = int(max_iter)
@@ -114,6 +129,9 @@ class GaussNewton:
         self.damping = float(damping)
         self.cg_tol, self.cg_max_iter = float(cg_tol), int(cg_max_iter)
         self.refresh_cg = int(refresh_cg)
+        self.rotate_preconditioner = bool(rotate_preconditioner)
+        self._x_fact = None  # pose (3n,) at which the cached factorization was computed
+        self._incidence = None
         N = 3 * T.n_vertices
         self.pinned = np.unique(np.asarray(pinned, dtype=np.int64)) if pinned is not None \
             and len(pinned) else np.zeros(0, dtype=np.int64)
@@ -137,8 +155,8 @@ class GaussNewton:
             self._asm = _LowerAssembler(self.T)
         return self._asm
 
-    def _refresh(self, J, w):
-        """Factor ``Jᵀ W J + D`` at the current iterate (the CG preconditioner)."""
+    def _refresh(self, J, w, x):
+        """Factor ``Jᵀ W J + D`` at the current iterate ``x`` (the CG preconditioner)."""
         asm = self._assembler()
         data, diag = asm.values(J.data, w)
         scale = diag[self._free].mean() if self._free.any() else 1.0
@@ -149,7 +167,42 @@ class GaussNewton:
                                                            backend=self.backend)
         else:
             self._chol.refactor_lower(data)
+        self._x_fact = np.array(x, dtype=np.float64, copy=True)
         self._stale = False
+
+    def _rotations(self, x):
+        """Per-vertex rotations ``(n,3,3)`` from the factored pose to ``x``, or None when
+        ``x`` is that pose (or rotation is switched off)."""
+        if not self.rotate_preconditioner or self._x_fact is None or \
+                np.array_equal(self._x_fact, x):
+            return None
+        if self._incidence is None:
+            self._incidence = _edge_incidence(self.T.E, self.T.n_vertices)
+        return _vertex_rotations(self._x_fact.reshape(-1, 3), x.reshape(-1, 3), self.T.E,
+                                 self._incidence)
+
+    def _preconditioner(self, x_cur):
+        """``v ↦ P v`` with ``P ≈ (JᵀWJ + δI)⁻¹`` at ``x_cur``: the cached factor, rotated
+        to ``x_cur``, zero on pinned DOFs and (without pins) off the rigid modes of
+        ``x_cur``: a factorization from an earlier pose amplifies *its* rigid modes by 1/δ,
+        which are not rigid for the current pose."""
+        free = self._free
+        Q = self._free_rigid_modes(x_cur) if x_cur is not None else None
+        R = self._rotations(x_cur) if x_cur is not None else None
+        chol = self._chol
+
+        def precond(v):
+            if R is not None:
+                v = np.einsum("nji,nj->ni", R, v.reshape(-1, 3)).ravel()  # Rᵀ v
+            out = chol.solve(v)
+            if R is not None:
+                out = np.einsum("nij,nj->ni", R, out.reshape(-1, 3)).ravel()
+            out[~free] = 0.0
+            if Q is not None:
+                out -= np.einsum("ij,j->i", Q, np.einsum("ij,i->j", Q, out))
+            return out
+
+        return precond
 
     def _free_rigid_modes(self, x):
         """Orthonormal (3n,r) basis of the rigid motions the pins leave free (all six without
@@ -164,27 +217,15 @@ class GaussNewton:
         Q[free] = Qf
         return Q
 
-    def _pcg(self, J, w, b, delta, x_cur=None):
-        """Solve (JᵀWJ + δI) x = b on the free DOFs, preconditioned by the cached factor.
-
-        Without pinned vertices the search space is the complement of the rigid motions of the
-        current iterate ``x_cur``: a factorization from an earlier pose amplifies *its* rigid
-        modes by 1/δ, which are not rigid for the current pose, so preconditioned vectors are
-        projected on the complement of the current rigid modes.
-        """
+    def _pcg(self, J, w, b, delta, precond):
+        """Solve (JᵀWJ + δI) x = b on the free DOFs by CG preconditioned with ``precond``
+        (from :meth:`_preconditioner`; without pins its range excludes the current rigid
+        motions, so CG runs on their complement)."""
         free = self._free
-        Q = self._free_rigid_modes(x_cur) if x_cur is not None else None
 
         def matvec(v):
             out = J.T @ (w * (J @ v)) + delta * v
             out[~free] = 0.0
-            return out
-
-        def precond(v):
-            out = self._chol.solve(v)
-            out[~free] = 0.0
-            if Q is not None:
-                out -= np.einsum("ij,j->i", Q, np.einsum("ij,i->j", Q, out))
             return out
 
         x = np.zeros_like(b)
@@ -254,16 +295,16 @@ class GaussNewton:
         for it in range(1, self.max_iter + 1):
             fresh = self._stale or self._chol is None
             if fresh:
-                self._refresh(J, w)
-            p, ncg, ok = self._pcg(J, w, -g, self._delta, x)
+                self._refresh(J, w, x)
+            precond = self._preconditioner(x)
+            p, ncg, ok = self._pcg(J, w, -g, self._delta, precond)
             res.cg_iterations += ncg
             if not ok or ncg > self.refresh_cg:
                 self._stale = True
             # backtracking line search (Armijo) with a no-collapse safeguard
             slope = float(g @ p)
             if slope >= 0:  # not a descent direction: fall back to preconditioned gradient
-                p = -self._chol.solve(g)
-                p[self._dof_pinned] = 0.0
+                p = -precond(g)
                 slope = float(g @ p)
                 self._stale = True
             alpha, accepted = 1.0, False
@@ -315,7 +356,16 @@ class GaussNewton:
 class _LowerAssembler:
     """Assembles the lower triangle of ``Jᵀ W J`` straight from the per-element gradient
     blocks stored in the Jacobian's data array (lengths: 6, angles: 12, areas: 9 entries per
-    row), on a fixed CSC pattern: one gather and one ``bincount`` per assembly."""
+    row), on a fixed CSC pattern.
+
+    Each element's DOFs are sorted once (a per-row permutation), so its lower-triangle pairs
+    are the same ``k(k+1)/2`` local index pairs for every element; ``values`` forms those
+    products and scatters them with ``bincount`` a chunk of elements at a time, so its
+    temporaries stay bounded (about 64 MB) however large the mesh. Persistent memory: one
+    int32 position per element pair (≈ 230 MB at 150k vertices; forked workers share it).
+    """
+
+    CHUNK = 4_000_000  # element pairs per bincount in ``values``
 
     def __init__(self, T: Topology):
         from .descriptors import _pattern
@@ -323,42 +373,80 @@ class _LowerAssembler:
         P = _pattern(T)
         N = 3 * T.n_vertices
         e, i, m = T.n_edges, T.n_interior, T.n_faces
-        blocks, r0, off = [], 0, 0
+        self._blocks, r0, off = [], 0, 0
         for rows, k in ((e, 6), (i, 12), (m, 9)):
-            cols = P.indices[off:off + rows * k].astype(np.int64).reshape(rows, k)
-            blocks.append((r0, rows, k, off, cols))
+            cols = P.indices[off:off + rows * k].reshape(rows, k)
+            # DOFs of one vertex are consecutive: sorting by column sorts the vertices
+            perm = np.argsort(cols, axis=1, kind="stable").astype(np.int8)
+            a, b = np.tril_indices(k)  # sorted order: a >= b  <=>  col[a] >= col[b]
+            self._blocks.append((r0, rows, k, off, perm, a, b))
             r0 += rows
             off += rows * k
-        keys_parts, self._blocks = [], []
-        for r0, rows, k, off, cols in blocks:
-            a, b = cols[:, :, None], cols[:, None, :]
-            lower = (a >= b)
-            key = (np.broadcast_to(b, (rows, k, k)) * np.int64(N) +
-                   np.broadcast_to(a, (rows, k, k)))[lower]
-            keys_parts.append(key)
-            self._blocks.append((r0, rows, k, off, np.flatnonzero(lower.ravel())))
+        self.N = N
+
+        def block_keys(blk, lo, hi):
+            r0, rows, k, off, perm, a, b = blk
+            cols = np.take_along_axis(
+                P.indices[off:off + rows * k].reshape(rows, k)[lo:hi], perm[lo:hi], axis=1
+            ).astype(np.int64)
+            return (cols[:, b] * np.int64(N) + cols[:, a]).ravel()  # CSC key: col*N + row
+
         diag_keys = np.arange(N, dtype=np.int64) * (N + 1)
-        keys = np.sort(np.concatenate(keys_parts + [diag_keys]))
+        keys = np.concatenate([block_keys(blk, 0, blk[1]) for blk in self._blocks] +
+                              [diag_keys])
+        keys.sort()
         # sort-then-mask: numpy 2.4's np.unique is ~80x slower on large int64 arrays
         keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
-        self.N = N
         self.indices = (keys % N).astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(keys // N, minlength=N))]
                                      ).astype(np.int32)
         self.nnz = len(keys)
-        self._pos = [np.searchsorted(keys, kp).astype(np.int32) for kp in keys_parts]
-        self._pos_all = np.concatenate(self._pos)
         self.diag_pos = np.searchsorted(keys, diag_keys)
+        self._pos = []  # per block: (rows, k(k+1)/2) int32 positions in the CSC data
+        for blk in self._blocks:
+            rows, npairs = blk[1], len(blk[5])
+            step = max(1, self.CHUNK // npairs)
+            self._pos.append(np.concatenate([
+                np.searchsorted(keys, block_keys(blk, lo, min(lo + step, rows))).astype(np.int32)
+                for lo in range(0, rows, step)]).reshape(rows, npairs) if rows else
+                np.zeros((0, npairs), dtype=np.int32))
 
     def values(self, jdata, w):
         """Lower-triangle values of ``Jᵀ diag(w) J`` and its diagonal."""
-        parts = []
-        for (r0, rows, k, off, sel), pos in zip(self._blocks, self._pos):
-            g = jdata[off:off + rows * k].reshape(rows, k)
-            outer = (w[r0:r0 + rows, None, None] * g[:, :, None]) * g[:, None, :]
-            parts.append(outer.ravel()[sel])
-        data = np.bincount(self._pos_all, weights=np.concatenate(parts), minlength=self.nnz)
+        data = np.zeros(self.nnz)
+        for (r0, rows, k, off, perm, a, b), pos in zip(self._blocks, self._pos):
+            g_all = jdata[off:off + rows * k].reshape(rows, k)
+            step = max(1, self.CHUNK // len(a))
+            for lo in range(0, rows, step):
+                hi = min(lo + step, rows)
+                g = np.take_along_axis(g_all[lo:hi], perm[lo:hi], axis=1)
+                prod = (w[r0 + lo:r0 + hi, None] * g[:, a]) * g[:, b]
+                data += np.bincount(pos[lo:hi].ravel(), weights=prod.ravel(),
+                                    minlength=self.nnz)
         return data, data[self.diag_pos].copy()
+
+
+def _edge_incidence(E, n):
+    """Unsigned vertex–edge incidence ``(n,e)`` sparse matrix (sums per-edge values onto both
+    end vertices)."""
+    e = len(E)
+    return sp.csr_matrix((np.ones(2 * e), (E.T.ravel(), np.tile(np.arange(e), 2))),
+                         shape=(n, e))
+
+
+def _vertex_rotations(Xa, Xb, E, incidence=None):
+    """Rotation ``R_v`` per vertex best mapping its incident edge vectors in ``Xa (n,3)`` to
+    those in ``Xb (n,3)`` (least squares, the local step of as-rigid-as-possible fitting):
+    ``R_v = polar(Σ_e e_b e_aᵀ)`` with the determinant forced to +1. Returns ``(n,3,3)``."""
+    ea = Xa[E[:, 1]] - Xa[E[:, 0]]
+    eb = Xb[E[:, 1]] - Xb[E[:, 0]]
+    if incidence is None:
+        incidence = _edge_incidence(E, len(Xa))
+    S = np.asarray(incidence @ (eb[:, :, None] * ea[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)
+    U, _, Vt = np.linalg.svd(S)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= np.where(d == 0, 1.0, d)[:, None]
+    return U @ Vt
 
 
 def _dot(a, b) -> float:
@@ -379,7 +467,7 @@ def _rigid_modes(V, free, pinned_dofs):
         B[:, :, 3 + a] = np.cross(w, c)
     B = B.reshape(3 * n, 6)
     if len(pinned_dofs):
-        _, s, Vh = np.linalg.svd(B[pinned_dofs], full_matrices=True)
+        _, s, Vh = np.linalg.svd(B[pinned_dofs], full_matrices=False)  # Vh is (6,6) either way
         rank = int(np.sum(s > 1e-10 * max(s[0], 1e-300)))
         C = Vh[rank:].T
         if C.shape[1] == 0:
