@@ -41,6 +41,10 @@ __all__ = ["PathSolver", "GeodesicResult", "discrete_geodesic", "geodesic_interp
 _ARMIJO = 1e-4
 #: Relative Levenberg–Marquardt shift that makes the rigid-motion kernel invertible.
 _EPS_SHIFT = 1e-10
+#: Relative Levenberg–Marquardt shifts tried in turn (ratio ~3: a ladder of 100× steps
+#: over-damps the indefinite Hessians of compressed paths by up to 100×, and Newton then
+#: crawls like gradient descent; see :meth:`PathSolver._damped_factor`).
+_TAUS = (0.0, 1e-8) + tuple(float(f"{10.0 ** (e / 2):.0e}") for e in range(-15, 5))
 
 
 @dataclass
@@ -199,8 +203,8 @@ class PathSolver:
         """Factor ``H + (ε + τ) I`` with the smallest ``τ`` in ``0, 1e-8, 1e-6, …`` (times
         ``scale``) that is positive definite; returns ``τ``."""
         eps = _EPS_SHIFT * scale
-        taus = (0.0, 1e-8, 1e-6, 1e-4, 1e-2, 1.0, 1e2)
-        start = 0 if from_zero else max(0, taus.index(self._tau_hint) - 1)
+        taus = _TAUS
+        start = 0 if from_zero else max(0, taus.index(self._tau_hint) - 2)
         for tau in taus[start:]:
             if self._factor(data, eps + tau * scale):
                 self._tau_hint = tau
