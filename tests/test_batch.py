@@ -438,17 +438,22 @@ def test_dask_worker_killed_mid_job_loses_and_duplicates_nothing(tmp_path, clust
     t = threading.Thread(target=run)
     t.start()
     killed = {}
-    with distributed.Client(cluster.scheduler_address, timeout="20s") as client:
-        def busy():
-            proc = {w: ks for w, ks in client.processing().items() if ks}
-            return proc or None
-        assert _wait_for(busy, 60)
-        time.sleep(0.5)  # the task is inside its delay (solved, not yet written)
-        pids = client.run(os.getpid)
-        worker, keys = next(iter(busy().items()))
-        killed["pid"] = pids[worker]
-        killed["names"] = [k.split("-")[1] for k in keys]
-        os.kill(pids[worker], signal.SIGKILL)
+    # Read the in-process scheduler's state instead of opening a second Client in this
+    # process: closing a second client next to the batch's own could leave the batch's
+    # as_completed waiting forever (seen intermittently).
+    sched = cluster.scheduler
+
+    def busy():
+        proc = {a: [ts.key for ts in ws.processing] for a, ws in list(sched.workers.items())
+                if ws.processing}
+        return proc or None
+
+    assert _wait_for(busy, 60)
+    time.sleep(0.5)  # the task is inside its delay (solved, not yet written)
+    worker, keys = next(iter(busy().items()))
+    killed["pid"] = sched.workers[worker].pid
+    killed["names"] = [k.split("-")[1] for k in keys]
+    os.kill(killed["pid"], signal.SIGKILL)
     t.join(120)
     assert not t.is_alive()
     s = result["summary"]
