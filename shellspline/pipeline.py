@@ -537,9 +537,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                              f"(a vertex count or fraction below the {n} vertices), got "
                              f"coarse={coarse!r}")
         if (n_coarse is None or fine) and n > FULL_RESOLUTION_WARN:
-            prog.message(f"Gauss–Newton at full resolution on {n} vertices: memory and time grow "
-                         "fast (measured: 40k vertices ≈ 3.4 GB and ~1 min per frame; 150k does "
-                         "not fit in 24 GB); the multiresolution path (--coarse) avoids this")
+            prog.message(f"Gauss–Newton at full resolution on {n} vertices takes minutes and "
+                         "gigabytes (measured: 154k vertices, K = 50, --fine from 1000 coarse "
+                         "vertices, 2 workers: 10.6 min, 7.9 GiB)" +
+                         ("" if fine else "; here frames start from the keyframe blend, "
+                          "not from a prolonged coarse result; the multiresolution path "
+                          "(--coarse, default above 20 000 vertices) takes seconds"))
         if n_coarse is None:
             V, Z, W_report, frame_records = _lta_sequence(Vkey, T, pinned, **lta_args)
         else:

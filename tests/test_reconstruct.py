@@ -188,7 +188,7 @@ def test_vertex_rotations_are_the_rotation_part_of_an_affine_map():
     A = np.array([[1.3, 0.0, 0.0], [0.2, 1.0, 0.0], [0.0, 0.0, 1.0]])
     U, _, Vt = np.linalg.svd(A)
     R = _vertex_rotations(V, V @ A.T, T.E, F=T.F)
-    assert np.abs(R - U @ Vt).max() < 1e-12
+    assert np.abs(R - U @ Vt).max() < 1e-8  # O(1e-9) ridge; Procrustes is off by 0.066
 
 
 def test_rotated_factorization_is_exact_for_a_rotated_pose():
