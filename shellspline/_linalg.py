@@ -140,8 +140,14 @@ class SparseCholesky:
             import cvxopt
             import cvxopt.cholmod
 
-            # the pattern's CSC order equals the sorted key order used at construction
-            M = cvxopt.spmatrix(cvxopt.matrix(data), self._I, self._J, size=(n, n))
+            # the pattern's CSC order equals the sorted key order used at construction, so
+            # later refactorizations only swap the values (building from triplets sorts)
+            M = getattr(self, "_M", None)
+            if M is None:
+                M = self._M = cvxopt.spmatrix(cvxopt.matrix(data), self._I, self._J,
+                                              size=(n, n))
+            else:
+                M.V = cvxopt.matrix(data)
             if self._symbolic is None:
                 cvxopt.cholmod.options["supernodal"] = 2
                 self._symbolic = cvxopt.cholmod.symbolic(M, uplo="L")

@@ -234,9 +234,10 @@ class GaussNewton:
         (from :meth:`_preconditioner`; without pins its range excludes the current rigid
         motions, so CG runs on their complement)."""
         free = self._free
+        JT = J.T  # one transposed view per solve, not one per CG iteration
 
         def matvec(v):
-            out = J.T @ (w * (J @ v)) + delta * v
+            out = JT @ (w * (J @ v)) + delta * v
             out[~free] = 0.0
             return out
 
