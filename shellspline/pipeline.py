@@ -767,7 +767,10 @@ def _nonlinear_stage(Vkey, T, pinned, Vinit, frames, K, bc, mu, lam, eta, solver
            "cg_iterations": [int(c) for c in nl.cg_iterations],
            "midpoint_newton_iterations": int(nl.midpoint_newton_iterations),
            "vertices": int(Vkey.shape[1]),
-           "energy_history": [float(e) for e in nl.energies]}
+           "energy_history": [float(e) for e in nl.energies],
+           "grad_norm_history": [float(g) for g in nl.grad_norms],
+           "step_lengths": [float(a) for a in nl.step_lengths],
+           "hessian": [str(h) for h in nl.hessian]}
     if not nl.success:
         prog.message(f"nonlinear spline: {nl.message}")
     return nl.V, rec

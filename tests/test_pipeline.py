@@ -203,6 +203,10 @@ def test_nonlinear_method_starts_from_lta_and_decreases_the_energy():
     nl = res.report["nonlinear"]
     assert nl["nit"] <= 5 and nl["energy_final"] <= nl["energy_initial"]
     assert np.all(np.diff(nl["energy_history"]) <= 1e-12 * nl["energy_initial"])
+    # per-iteration records: one step length and Hessian kind per outer iteration
+    assert len(nl["step_lengths"]) == len(nl["hessian"]) == nl["nit"]
+    assert len(nl["grad_norm_history"]) == len(nl["energy_history"])
+    assert set(nl["hessian"]) <= {"gauss-newton", "exact"}
     for j, f in enumerate([0, 2, 4]):
         assert np.array_equal(res.V[f], d["V"][j])
 
