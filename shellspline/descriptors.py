@@ -51,7 +51,7 @@ def edge_lengths(V, T: Topology) -> np.ndarray:
     L : (..., e) float64 array
     """
     V = np.asarray(V, dtype=np.float64)
-    d = V[..., T.E[:, 1], :] - V[..., T.E[:, 0], :]
+    d = np.take(V, T.E[:, 1], axis=-2) - np.take(V, T.E[:, 0], axis=-2)
     return np.sqrt(np.einsum("...i,...i->...", d, d))
 
 
@@ -78,8 +78,7 @@ def face_areas(V, T: Topology) -> np.ndarray:
 
 
 def _flap_geometry(V, flaps):
-    v0, v1 = V[..., flaps[:, 0], :], V[..., flaps[:, 1], :]
-    v2, v3 = V[..., flaps[:, 2], :], V[..., flaps[:, 3], :]
+    v0, v1, v2, v3 = (np.take(V, flaps[:, i], axis=-2) for i in range(4))
     e = v1 - v0
     n1 = _cross(e, v2 - v0)          # normal of face (v0, v1, v2)
     n2 = _cross(v0 - v1, v3 - v1)    # normal of face (v1, v0, v3)

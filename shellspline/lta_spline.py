@@ -688,10 +688,13 @@ def _energy_terms(Z, bc, weights) -> tuple[np.ndarray, int]:
     else:
         k = np.arange(1, K)
         km, kp = k - 1, k + 1
-    wm, wk = W[km], W[k]
-    r = Z2[k] - (wm * Z2[km] + wk * Z2[kp]) / (wm + wk)
+    # One frame at a time: vectorised over the descriptors, without (K+1, d) temporaries
+    # (at 150k vertices d ≈ 1M, and the stacked form allocated several GB).
     out = np.zeros(K + 1)
-    out[k] = np.sum(wk * r * r, axis=1)
+    for i, a, b in zip(k.tolist(), km.tolist(), kp.tolist()):
+        wa, wi = W[a], W[i]
+        r = Z2[i] - (wa * Z2[a] + wi * Z2[b]) / (wa + wi)
+        out[i] = np.sum(wi * r * r)
     return out, K
 
 
