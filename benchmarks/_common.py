@@ -1,6 +1,10 @@
 """Shared helpers of the benchmark scripts (run as `python benchmarks/bench_*.py`)."""
 from __future__ import annotations
 
+import resource
+import sys
+import time
+
 
 def _fmt(x, nd=2) -> str:
     if x is None:
@@ -24,3 +28,17 @@ def format_table(headers, rows) -> str:
         return "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
                          for i, (c, w) in enumerate(zip(r, widths)))
     return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, cells)])
+
+
+def _timed(fn, *args, **kwargs):
+    """``(fn(*args, **kwargs), wall seconds)``."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - t0
+
+
+def _peak_rss_mb() -> dict:
+    """Peak resident memory (MiB) of this process and of its largest waited-for child."""
+    scale = 1024 if sys.platform != "darwin" else 1024 * 1024  # ru_maxrss: KiB on Linux
+    return {"self": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / scale,
+            "children": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / scale}

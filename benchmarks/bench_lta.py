@@ -58,7 +58,6 @@ import json
 import multiprocessing as mp
 import os
 import platform
-import resource
 import signal
 import subprocess
 import sys
@@ -68,7 +67,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from _common import _fmt, format_table  # noqa: E402  (benchmarks/ is on sys.path)
+from _common import _fmt, _peak_rss_mb, _timed, format_table  # noqa: E402  (benchmarks/ is on sys.path)
 
 REPO = Path(__file__).resolve().parents[1]
 CACTUS_DIR = REPO.parent / "shared" / "data" / "cactus"
@@ -137,19 +136,6 @@ def selected_cases(names, quick: bool, workers: int, synth_K: int) -> list[Case]
 # --------------------------------------------------------------------------------------
 # inside the case process
 # --------------------------------------------------------------------------------------
-def _timed(fn, *args, **kwargs):
-    t0 = time.perf_counter()
-    out = fn(*args, **kwargs)
-    return out, time.perf_counter() - t0
-
-
-def _peak_rss_mb() -> dict:
-    """Peak resident memory (MiB) of this process and of its (waited-for) children."""
-    scale = 1024 if sys.platform != "darwin" else 1024 * 1024  # ru_maxrss: KiB on Linux
-    return {"self": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / scale,
-            "children": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / scale}
-
-
 def _keyframes(case: Case, tmp: Path):
     """Read the case's keyframes; returns (Keyframes, input-timing dict)."""
     import shellspline as ss

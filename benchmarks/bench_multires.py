@@ -85,7 +85,6 @@ import argparse
 import json
 import os
 import platform
-import resource
 import signal
 import subprocess
 import sys
@@ -94,7 +93,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from _common import format_table  # noqa: E402  (benchmarks/ is on sys.path)
+from _common import _peak_rss_mb, _timed, format_table  # noqa: E402  (benchmarks/ is on sys.path)
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -165,19 +164,6 @@ def selected_cases(names, quick: bool, workers, repeat: int) -> list[Case]:
 # --------------------------------------------------------------------------------------
 # inside the case process
 # --------------------------------------------------------------------------------------
-def _timed(fn, *args, **kwargs):
-    t0 = time.perf_counter()
-    out = fn(*args, **kwargs)
-    return out, time.perf_counter() - t0
-
-
-def _peak_rss_mb() -> dict:
-    """Peak resident memory (MiB) of this process and of its largest waited-for child."""
-    scale = 1024 if sys.platform != "darwin" else 1024 * 1024  # ru_maxrss: KiB on Linux
-    return {"self": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / scale,
-            "children": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / scale}
-
-
 class TreeMemorySampler:
     """Peak summed PSS and RSS (MiB) of this process and its children, sampled by a thread
     from ``/proc/<pid>/smaps_rollup`` (Linux; elsewhere the peaks stay None)."""
