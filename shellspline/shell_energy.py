@@ -54,9 +54,15 @@ _EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
 _EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
 
 
-def _skew(v):
-    """``[v]_×`` for ``v (..., 3)``: matrices ``(..., 3, 3)`` with ``[v]_× w = v × w``."""
-    return -np.einsum("abc,...c->...ab", _EPS, v)
+_EYE5 = np.eye(3)[None, None, :, None, :]
+
+
+def _skew3(a):
+    """``[a]_×`` for ``a (i,3)``: ``(i,3,3)`` (direct assignment, no Levi-Civita einsum)."""
+    S = np.zeros((len(a), 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
+    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = a[:, 2], -a[:, 1], a[:, 0]
+    return S
 
 
 # --------------------------------------------------------------------------------------
@@ -104,18 +110,24 @@ def face_area_hessians(V, F) -> np.ndarray:
     (m,9,9) float64 array, coordinates ordered by corner then ``x, y, z``.
     """
     X = V[F]                                     # (m,3,3) corners
+    E = X[:, [2, 0, 1]] - X[:, [1, 2, 0]]        # e_i = v_{i+2} - v_{i+1}
     N = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
-    nN = np.sqrt(np.einsum("ij,ij->i", N, N))
-    nu = N / nN[:, None]
-    e = X[:, [2, 0, 1]] - X[:, [1, 2, 0]]        # e_i = v_{i+2} - v_{i+1}
-    M = _skew(e)                                 # (m,3,3,3): corner, 3x3
-    Pn = np.eye(3)[None] - nu[:, :, None] * nu[:, None, :]
-    H = np.einsum("miba,mbc,mjcd->miajd", M, Pn, M) / nN[:, None, None, None, None]
-    S = _skew(nu)
+    inv = 1.0 / np.sqrt(np.einsum("ij,ij->i", N, N))
+    nu = N * inv[:, None]
+    # [e_i]_×ᵀ (I − ννᵀ) [e_j]_× = (e_i·e_j) I − e_j e_iᵀ − (ν × e_i)(ν × e_j)ᵀ, each factor
+    # scaled by |N|^(-1/2): three broadcast products instead of a 5-index einsum
+    r = np.sqrt(inv)[:, None, None]
+    Es = E * r
+    Ws = np.cross(nu[:, None, :], E) * r
+    H = np.matmul(Es, Es.transpose(0, 2, 1))[:, :, None, :, None] * _EYE5
+    H -= Es.transpose(0, 2, 1)[:, None, :, :, None] * Es[:, :, None, None, :]
+    H -= Ws[:, :, :, None, None] * Ws[:, None, None, :, :]
+    S = _skew3(nu)
     for i, j in ((0, 1), (1, 2), (2, 0)):
         H[:, i, :, j, :] -= S
         H[:, j, :, i, :] += S
-    return 0.5 * H.reshape(-1, 9, 9)
+    H *= 0.5
+    return H.reshape(-1, 9, 9)
 
 
 def _flap_selectors():
@@ -136,24 +148,33 @@ def _flap_selectors():
 _FLAP = _flap_selectors()
 
 
-def _cross_cols(a, B):
-    """``a × B[:, :, p]`` for every column ``p``: ``a (i,3)``, ``B (i,3,12)`` → ``(i,3,12)``."""
-    return np.cross(a[:, :, None], B, axisa=1, axisb=1, axisc=1)
+#: Constant second derivatives of ``n1``, ``n2`` (rows 0–5, contracted with the
+#: coefficient vectors of :func:`dihedral_angle_hessians`) and ``−DeᵀDe`` (row 6), ``(7,144)``.
+_FLAP_CONST = np.concatenate([_FLAP[5].reshape(3, 144), _FLAP[6].reshape(3, 144),
+                              -(_FLAP[4].T @ _FLAP[4]).reshape(1, 144)])
+_DE_T = np.ascontiguousarray(_FLAP[4].T)
 
 
 def dihedral_angle_hessians(V, flaps, *, return_gradients: bool = False):
     """Hessians of the signed dihedral angles w.r.t. the four flap vertices.
 
-    ``θ = atan2(y, x)`` with ``x = n1·n2``, ``y = (n1 × n2)·e / |e|``, ``n1 = e × (v2 − v0)``,
-    ``n2 = (v0 − v1) × (v3 − v1)``, ``e = v1 − v0`` (the convention of
+    ``θ = atan2(y, x)`` with ``x = n1·n2``, ``y = w/|e|``, ``w = (n1 × n2)·e``,
+    ``n1 = e × (v2 − v0)``, ``n2 = (v0 − v1) × (v3 − v1)``, ``e = v1 − v0`` (the convention of
     :func:`~shellspline.descriptors.dihedral_angles`). ``n1``, ``n2`` are bilinear in the
-    positions, so their first derivatives are linear and their second derivatives constant;
-    ``x``, ``y`` and ``θ`` follow by the product and chain rules::
+    positions, so their first derivatives ``Dn`` are linear (``(3,12)`` per flap, one
+    ``[·]_×`` block per vertex) and their second derivatives constant (``T1``, ``T2``); ``x``,
+    ``w``, ``y`` and ``θ`` follow by the product and chain rules::
 
-        ∇²θ = θ_x ∇²x + θ_y ∇²y + θ_xx ∇x∇xᵀ + θ_yy ∇y∇yᵀ + θ_xy (∇x∇yᵀ + ∇y∇xᵀ),
-        θ_x = −y/r², θ_y = x/r², θ_xx = −θ_yy = 2xy/r⁴, θ_xy = (y² − x²)/r⁴, r² = x² + y².
+        ∇²x = Dn1ᵀDn2 + Dn2ᵀDn1 + n2·T1 + n1·T2
+        ∇²w = Dn1ᵀG + GᵀDn1 + DzᵀDe + DeᵀDz + (n2×e)·T1 + (e×n1)·T2,  G = −[e]_× Dn2
+        ∇²θ = θ_x ∇²x + θ_y ∇²y + θ_xx (∇x∇xᵀ − ∇y∇yᵀ) + θ_xy (∇x∇yᵀ + ∇y∇xᵀ),
+        θ_x = −y/r², θ_y = x/r², θ_xx = 2xy/r⁴, θ_xy = (y² − x²)/r⁴, r² = x² + y².
 
-    The atan2 form is smooth through flat flaps (θ = 0).
+    Evaluated as ``X + Xᵀ + C``: ``X = L Rᵀ`` one batched ``(12,9)(9,12)`` product
+    (``Dn1ᵀ (θ_x Dn2 + θ_y G/|e|) + (θ_y Dz/|e|)ᵀ De`` and three rank-one terms) and ``C`` one
+    ``(i,7)(7,144)`` product with the constant second derivatives: a few passes over the
+    ``(i,12,12)`` output instead of one per term (5x faster than term by term). The atan2
+    form is smooth through flat flaps (θ = 0).
 
     Parameters
     ----------
@@ -168,53 +189,52 @@ def dihedral_angle_hessians(V, flaps, *, return_gradients: bool = False):
     H : (i,12,12) float64 array, coordinates ordered by flap vertex then ``x, y, z``.
     G : (i,12) float64 array, only if ``return_gradients``.
     """
-    P1, Q1, P2, Q2, De, T1, T2 = _FLAP
-    X = V[flaps].reshape(-1, 12)
-    a1, b1, a2, b2, e = X @ P1.T, X @ Q1.T, X @ P2.T, X @ Q2.T, X @ De.T
-    n1, n2 = np.cross(a1, b1), np.cross(a2, b2)
-    # first derivatives of the normals (i,3,12): dn = a × Qδ − b × Pδ
-    Dn1 = _cross_cols(a1, np.broadcast_to(Q1, (len(X), 3, 12))) - \
-        _cross_cols(b1, np.broadcast_to(P1, (len(X), 3, 12)))
-    Dn2 = _cross_cols(a2, np.broadcast_to(Q2, (len(X), 3, 12))) - \
-        _cross_cols(b2, np.broadcast_to(P2, (len(X), 3, 12)))
-    # x = n1·n2
+    De = _FLAP[4]
+    v0, v1, v2, v3 = (V[flaps[:, j]] for j in range(4))
+    e, b1 = v1 - v0, v2 - v0
+    a2, b2 = v0 - v1, v3 - v1
+    n1, n2 = np.cross(e, b1), np.cross(a2, b2)
+    i = len(flaps)
+    Dn1 = np.zeros((i, 3, 12))
+    Dn2 = np.zeros((i, 3, 12))
+    Dn1[:, :, 0:3], Dn1[:, :, 3:6], Dn1[:, :, 6:9] = _skew3(v2 - v1), -_skew3(b1), _skew3(e)
+    Dn2[:, :, 0:3], Dn2[:, :, 3:6], Dn2[:, :, 9:12] = -_skew3(b2), _skew3(v3 - v0), _skew3(a2)
     x = np.einsum("ia,ia->i", n1, n2)
     gx = np.einsum("iap,ia->ip", Dn1, n2) + np.einsum("iap,ia->ip", Dn2, n1)
-    Hx = np.matmul(Dn1.transpose(0, 2, 1), Dn2)
-    Hx = Hx + Hx.transpose(0, 2, 1) + (n2 @ T1.reshape(3, 144) + n1 @ T2.reshape(3, 144)
-                                        ).reshape(-1, 12, 12)
-    # w = (n1 × n2)·e
     z = np.cross(n1, n2)
     w = np.einsum("ia,ia->i", z, e)
-    Dz = -_cross_cols(n2, Dn1) + _cross_cols(n1, Dn2)
+    Dz = np.matmul(_skew3(n1), Dn2) - np.matmul(_skew3(n2), Dn1)
     gw = np.einsum("iap,ia->ip", Dz, e) + z @ De
-    G = -_cross_cols(e, Dn2)                     # G[:, b, q] = (Dn2_q × e)_b
-    M = np.matmul(Dn1.transpose(0, 2, 1), G)
-    M += np.matmul(Dz.transpose(0, 2, 1), De)
-    Hw = M + M.transpose(0, 2, 1) + (np.cross(n2, e) @ T1.reshape(3, 144)
-                                     + np.cross(e, n1) @ T2.reshape(3, 144)).reshape(-1, 12, 12)
-    # h = 1/|e|
-    ee = np.einsum("ia,ia->i", e, e)
-    el = np.sqrt(ee)
-    h = 1.0 / el
+    h = 1.0 / np.sqrt(np.einsum("ia,ia->i", e, e))
     eDe = e @ De                                 # (i,12) = Deᵀ e
-    gh = -eDe / (el ** 3)[:, None]
-    Hh = -(De.T @ De)[None] / (el ** 3)[:, None, None] + \
-        3.0 * eDe[:, :, None] * eDe[:, None, :] / (el ** 5)[:, None, None]
-    # y = w h
     y = w * h
-    gy = h[:, None] * gw + w[:, None] * gh
-    gwgh = gw[:, :, None] * gh[:, None, :]
-    Hy = h[:, None, None] * Hw + gwgh + gwgh.transpose(0, 2, 1) + w[:, None, None] * Hh
-    # θ = atan2(y, x)
+    gy = h[:, None] * gw - (w * h ** 3)[:, None] * eDe
     r2 = x * x + y * y
     tx, ty = -y / r2, x / r2
     txx = 2.0 * x * y / r2 ** 2
     txy = (y * y - x * x) / r2 ** 2
-    gxgy = gx[:, :, None] * gy[:, None, :]
-    H = (tx[:, None, None] * Hx + ty[:, None, None] * Hy
-         + txx[:, None, None] * (gx[:, :, None] * gx[:, None, :] - gy[:, :, None] * gy[:, None, :])
-         + txy[:, None, None] * (gxgy + gxgy.transpose(0, 2, 1)))
+    tyh = ty * h
+    L = np.empty((i, 12, 9))
+    R = np.empty((i, 12, 9))
+    L[:, :, 0:3] = Dn1.transpose(0, 2, 1)
+    R[:, :, 0:3] = (tx[:, None, None] * Dn2
+                    - tyh[:, None, None] * np.matmul(_skew3(e), Dn2)).transpose(0, 2, 1)
+    L[:, :, 3:6] = (tyh[:, None, None] * Dz).transpose(0, 2, 1)
+    R[:, :, 3:6] = _DE_T
+    # θ_y (∇w∇hᵀ + ∇h∇wᵀ + w ∇²h) with ∇h = −Deᵀe/|e|³, ∇²h = −DeᵀDe/|e|³ + 3 ∇h∇hᵀ |e|
+    L[:, :, 6] = -(tyh * h * h)[:, None] * gw + (1.5 * ty * w * h ** 5)[:, None] * eDe
+    R[:, :, 6] = eDe
+    L[:, :, 7] = 0.5 * txx[:, None] * gx
+    R[:, :, 7] = gx
+    L[:, :, 8] = txy[:, None] * gx - 0.5 * txx[:, None] * gy
+    R[:, :, 8] = gy
+    X = np.matmul(L, R.transpose(0, 2, 1))
+    coef = np.concatenate([tx[:, None] * n2 + tyh[:, None] * np.cross(n2, e),
+                           tx[:, None] * n1 + tyh[:, None] * np.cross(e, n1),
+                           (ty * w * h ** 3)[:, None]], axis=1)
+    H = (coef @ _FLAP_CONST).reshape(i, 12, 12)
+    H += X
+    H += X.transpose(0, 2, 1)
     if return_gradients:
         return H, tx[:, None] * gx + ty[:, None] * gy
     return H
@@ -418,8 +438,35 @@ class DiscreteShells:
         self._iT = e + np.arange(i)
         self._iA0, self._iA1 = e + i + self._f0, e + i + self._f1
         self._d = e + i + m
+        self._lift_tables()
         self._cache: dict = {}
         self._retained: dict = {}
+
+    def _lift_tables(self):
+        """Index tables of the element-wise assembly of ``W,11`` / ``W,22``
+        (:meth:`_block_data`): flap-local columns (0..11) of an interior edge's length gradient
+        and of its two faces' area gradients, face-local columns (0..8) of a boundary edge's
+        length gradient in its face, and the pattern positions of the boundary edges' face
+        blocks."""
+        T = self.T
+        e, i, m = T.n_edges, T.n_interior, T.n_faces
+        xyz = np.arange(3)
+
+        def local_cols(stencil, verts):
+            # (k, s) stencil vertex ids, (k, c) vertex ids -> (k, 3c) local dof columns
+            slot = np.argmax(stencil[:, None, :] == verts[:, :, None], axis=2)
+            return (3 * slot[:, :, None] + xyz).reshape(len(verts), 3 * verts.shape[1])
+
+        fl, intr = T.flaps, T.interior
+        self._colL = local_cols(fl, T.E[intr])
+        self._colA0 = local_cols(fl, T.F[self._f0[intr]])
+        self._colA1 = local_cols(fl, T.F[self._f1[intr]])
+        self._bnd = np.flatnonzero(~self._has2)
+        fb = self._f0[self._bnd]
+        self._colLb = local_cols(T.F[fb], T.E[self._bnd])
+        self._posE = self._local_pos[:36 * e].reshape(e, 36)
+        self._posP = self._local_pos[36 * e:36 * e + 144 * i].reshape(i, 144)
+        self._posF = self._local_pos[36 * e + 144 * i:].reshape(m, 81)
 
     # -- descriptor-space terms ---------------------------------------------------------
     def _split(self, z):
@@ -527,7 +574,14 @@ class DiscreteShells:
             g = self._cache.get(key)
         if g is None:
             J, z = lta_jacobian(V, self.T, return_values=True)
-            g = {"J": J, "z": z, "V": V.copy()}
+            # per-element descriptor gradients = the Jacobian's data, row-blocked by element
+            # (lengths (e,6), angles (i,12), areas (m,9)); copied before any sparse
+            # operation could sort J's indices in place
+            e, i = self.T.n_edges, self.T.n_interior
+            gd = J.data.copy()
+            g = {"J": J, "z": z, "V": V.copy(),
+                 "grads": (gd[:6 * e].reshape(e, 6), gd[6 * e:6 * e + 12 * i].reshape(i, 12),
+                           gd[6 * e + 12 * i:].reshape(-1, 9))}
             if len(self._cache) >= self.cache_size:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = g
@@ -552,20 +606,89 @@ class DiscreteShells:
         """The (cached) geometry record of pose ``V (n,3)`` (see :meth:`retain`)."""
         return self._geometry(_checked_pose(V, self.n_vertices, "V"))
 
-    def _local_second(self, g, coef) -> np.ndarray:
-        """Pattern data of ``Σ_i coef_i ∇²z_i(V)`` (per-element closed forms)."""
+    def _block_data(self, g, zX, zY, block: str) -> np.ndarray:
+        """Pattern data of ``W,11`` (``g`` the undeformed shell's geometry) or ``W,22`` (``g``
+        the deformed one's), assembled element by element in one scatter.
+
+        ``Jᵀ Φ J + Σ_i (Φ_z)_i ∇²z_i``: the descriptor Hessian ``Φ`` of ``W,22`` is diagonal
+        (one ``φ g gᵀ`` per element); that of ``W,11`` couples an edge's length and angle with
+        its faces' areas, so each interior edge contributes ``Gᵀ Φ_e G`` on its flap (``G``
+        its four descriptor gradients lifted to the flap's 12 coordinates, ``Φ_e`` 4×4), a
+        boundary edge its 2×2 length–area block on its face. Same numbers as
+        ``Jᵀ (Φ J)`` through sparse products, without their structure-dependent scatter.
+        """
+        T = self.T
+        mu, lam, eta = self.mu, self.lam, self.eta
+        L, A, Lt, At, d, rho, li, di, dl = self._terms(zX, zY)
+        gL, gT, gA = g["grads"]
+        e, i, m = T.n_edges, T.n_interior, T.n_faces
+        c = self._grad_desc(zX, zY, 0 if block == "11" else 1)
         if "H" not in g:
-            T, V = self.T, g["V"]
-            H = [edge_length_hessians(V, T.E).reshape(T.n_edges, -1)]
-            if T.n_interior:
-                H.append(dihedral_angle_hessians(V, T.flaps).reshape(T.n_interior, -1))
-            H.append(face_area_hessians(V, T.F).reshape(T.n_faces, -1))
-            g["H"] = H
+            self._element_hessians(g)
+        HL, HT, HA = g["H"]
         sL, sT, sA = self._sl
-        coefs = [coef[sL]] + ([coef[sT]] if self.T.n_interior else []) + [coef[sA]]
-        parts = [(c[:, None] * H).ravel() for c, H in zip(coefs, g["H"])]
-        return np.bincount(self._local_pos, weights=np.concatenate(parts),
+        bE = c[sL][:, None] * HL
+        bP = c[sT][:, None] * HT if i else HT
+        bF = c[sA][:, None] * HA
+        if block == "22":
+            pE, pT, pA = 2 * mu * d / L ** 2, 2 * eta * li ** 2 / di, 2 * lam / A
+            bE += ((pE[:, None] * gL)[:, :, None] * gL[:, None, :]).reshape(e, 36)
+            if i:
+                bP += ((pT[:, None] * gT)[:, :, None] * gT[:, None, :]).reshape(i, 144)
+            bF += ((pA[:, None] * gA)[:, :, None] * gA[:, None, :]).reshape(m, 81)
+            return np.bincount(self._local_pos, minlength=self.pattern.nnz,
+                               weights=np.concatenate([bE.ravel(), bP.ravel(), bF.ravel()]))
+        # block "11"
+        intr = T.interior
+        vLL = 2 * mu * d * (Lt ** 2 / L ** 4 - 2 * rho * Lt / L ** 3)
+        vLL[intr] += 2 * eta * dl ** 2 / di
+        vLa = (2.0 / 3.0) * mu * rho * Lt / L ** 2
+        vLa[intr] += -2 * eta * li * dl ** 2 / (3 * di ** 2)
+        pA = 2 * lam * At ** 2 / A ** 3
+        bF += ((pA[:, None] * gA)[:, :, None] * gA[:, None, :]).reshape(m, 81)
+        parts_pos = [self._local_pos]
+        blocks = [bE.ravel(), bP.ravel(), bF.ravel()]
+        if i:
+            rows = np.arange(i)[:, None]
+            G = np.zeros((i, 4, 12))
+            G[rows, 0, self._colL] = gL[intr]
+            G[:, 1] = gT
+            G[rows, 2, self._colA0] = gA[self._f0[intr]]
+            G[rows, 3, self._colA1] = gA[self._f1[intr]]
+            Phi = np.empty((i, 4, 4))
+            vTa = -2 * eta * li ** 2 * dl / (3 * di ** 2)
+            vaa = 2 * eta * li ** 2 * dl ** 2 / (9 * di ** 3)
+            Phi[:, 0, 0] = vLL[intr]
+            Phi[:, 0, 1] = Phi[:, 1, 0] = 4 * eta * li * dl / di
+            Phi[:, 0, 2] = Phi[:, 2, 0] = Phi[:, 0, 3] = Phi[:, 3, 0] = vLa[intr]
+            Phi[:, 1, 1] = 2 * eta * li ** 2 / di
+            Phi[:, 1, 2] = Phi[:, 2, 1] = Phi[:, 1, 3] = Phi[:, 3, 1] = vTa
+            Phi[:, 2, 2] = Phi[:, 3, 3] = Phi[:, 2, 3] = Phi[:, 3, 2] = vaa
+            blocks.append(np.matmul(G.transpose(0, 2, 1), np.matmul(Phi, G)).ravel())
+            parts_pos.append(self._posP.ravel())
+        bnd = self._bnd
+        if len(bnd):
+            fb = self._f0[bnd]
+            Gb = np.zeros((len(bnd), 2, 9))
+            Gb[np.arange(len(bnd))[:, None], 0, self._colLb] = gL[bnd]
+            Gb[:, 1] = gA[fb]
+            Phib = np.empty((len(bnd), 2, 2))
+            Phib[:, 0, 0] = vLL[bnd]
+            Phib[:, 0, 1] = Phib[:, 1, 0] = vLa[bnd]
+            Phib[:, 1, 1] = 0.0
+            blocks.append(np.matmul(Gb.transpose(0, 2, 1), np.matmul(Phib, Gb)).ravel())
+            parts_pos.append(self._posF[fb].ravel())
+        return np.bincount(np.concatenate(parts_pos), weights=np.concatenate(blocks),
                            minlength=self.pattern.nnz)
+
+    def _element_hessians(self, g) -> None:
+        """Per-element descriptor Hessians of the pose of ``g`` (cached in ``g["H"]``):
+        lengths ``(e,36)``, angles ``(i,144)``, areas ``(m,81)``."""
+        T, V = self.T, g["V"]
+        g["H"] = (edge_length_hessians(V, T.E).reshape(T.n_edges, -1),
+                  dihedral_angle_hessians(V, T.flaps).reshape(T.n_interior, -1)
+                  if T.n_interior else np.zeros((0, 144)),
+                  face_area_hessians(V, T.F).reshape(T.n_faces, -1))
 
     def _prep(self, V, Vt):
         V = _checked_pose(V, self.n_vertices, "V")
@@ -604,12 +727,10 @@ class DiscreteShells:
             return self.pattern.data_of(self.hessian(V, Vt, "12").T)
         gX, gY = self._geometries(V, Vt)
         zX, zY = gX["z"], gY["z"]
-        Phi = self._hess_desc(zX, zY, block).tocsr()
         if block == "12":
+            Phi = self._hess_desc(zX, zY, block).tocsr()
             return self.pattern.data_of(gX["J"].T @ (Phi @ gY["J"]))
-        g = gX if block == "11" else gY
-        data = self.pattern.data_of(g["J"].T @ (Phi @ g["J"]))
-        return data + self._local_second(g, self._grad_desc(zX, zY, 0 if block == "11" else 1))
+        return self._block_data(gX if block == "11" else gY, zX, zY, block)
 
     def mixed_product(self, V, Vt, v, block: str = "12") -> np.ndarray:
         """Mixed Hessian times a vector without forming the matrix.
