@@ -308,6 +308,11 @@ class PathSolver:
             if gn <= gscale:
                 success, message = True, "converged"
                 break
+            if nit >= 2 and gn <= 1e3 * gscale and gn >= 0.5 * norms[-3]:
+                # two steps without progress near the tolerance: the gradient is at its
+                # round-off floor (Armijo accepts steps below the energy's last digit)
+                success, message = True, "converged (gradient at round-off level)"
+                break
             if nit == max_iter:
                 break
             modes = self._modes(X)

@@ -187,3 +187,70 @@ def test_folded_hexagon_large_eta_converges_and_leaves_the_isometries():
     strain = max(np.abs(edge_lengths(V, T) / L0 - 1).max() for V in res.V)
     assert strain > 0.1  # leaves the isometric deformations of the flat hexagon
     assert np.allclose(res.V[h["frames"]], Vkey)
+
+
+def test_exact_hessian_products_match_finite_differences_far_from_the_solution(tiny):
+    """``exact_matvec`` (third derivatives by forward differences of the Lagrangian gradient)
+    equals central differences of the adjoint gradient of F^K, also at a point far from the
+    minimiser (the blend, large eta) where the Gauss-Newton model is off."""
+    Vkey, T = tiny
+    prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.5), [0, 3, 6], 6, midpoint_tol=1e-13)
+    S = _blend(Vkey, np.array([0, 3, 6]), 6, False)
+    S[1:3] += 0.02 * np.random.default_rng(7).standard_normal(S[1:3].shape)
+    prob.evaluate(S, keep=True)
+    model = GaussNewtonModel(prob)
+    x = prob.x_of(S)
+    Q = prob.rigid_bases(S)
+    rng = np.random.default_rng(5)
+    errs, gn_errs = [], []
+    for _ in range(2):
+        v = rng.standard_normal((len(prob.free_nodes), 3 * 42))
+        for i, q in enumerate(Q):
+            v[i] -= q @ (q.T @ v[i])
+        v = v.ravel()
+        h = 1e-5
+        gp = prob.x_of(prob.evaluate(prob.nodes_of(x + h * v, S))[1])
+        gm = prob.x_of(prob.evaluate(prob.nodes_of(x - h * v, S))[1])
+        fd = (gp - gm) / (2 * h)
+        errs.append(np.linalg.norm(model.exact_matvec(v) - fd) / np.linalg.norm(fd))
+        gn_errs.append(np.linalg.norm(model.matvec(v) - fd) / np.linalg.norm(fd))
+    assert max(errs) < 1e-4, errs
+    assert min(gn_errs) > 100 * max(errs), gn_errs  # the case does exercise the third derivatives
+
+
+def test_trust_region_and_line_search_reach_the_same_minimiser(tiny):
+    Vkey, T = tiny
+    kw = dict(eta=0.1, gtol=1e-7)
+    tr = nonlinear_spline(Vkey, [0, 3, 6], 6, T, **kw)
+    ls = nonlinear_spline(Vkey, [0, 3, 6], 6, T, globalization="line-search", **kw)
+    lin = nonlinear_spline(Vkey, [0, 3, 6], 6, T, retract=False, **kw)
+    assert tr.success and ls.success and lin.success
+    assert np.all(np.diff(tr.energies) <= 1e-12 * tr.energies[0])  # monotone
+    scale = np.abs(Vkey).max()
+    for other in (ls, lin):
+        assert abs(tr.energy - other.energy) <= 1e-8 * tr.energy
+        assert np.abs(tr.V - other.V).max() <= 1e-4 * scale
+    with pytest.raises(ValueError, match="globalization"):
+        nonlinear_spline(Vkey, [0, 3, 6], 6, T, globalization="dogleg")
+    with pytest.raises(ValueError, match="retract"):
+        nonlinear_spline(Vkey, [0, 3, 6], 6, energy=EuclideanEnergy(42), retract=True)
+
+
+def test_retraction_is_first_order_and_keeps_pins(tiny):
+    """R(s, εd) = s + εd + O(ε²) (a valid curve for the trust-region test), R(s, 0) = s, and
+    pinned vertices stay where they are."""
+    from shellspline.nonlinear_spline import _Retraction
+
+    Vkey, T = tiny
+    pinned = np.array([0, 1, 2])
+    prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.1), [0, 3, 6], 6, pinned=pinned)
+    S = _blend(Vkey, np.array([0, 3, 6]), 6, False)
+    R = _Retraction(prob, S)
+    D = np.zeros_like(S)
+    D[prob.free_nodes] = np.random.default_rng(2).standard_normal(D[prob.free_nodes].shape)
+    D[:, pinned] = 0.0
+    assert np.abs(R(S, 0 * D) - S).max() < 1e-10
+    errs = [np.abs(R(S, e * D) - (S + e * D)).max() for e in (1e-2, 5e-3)]
+    assert errs[1] < 0.3 * errs[0]  # quadratic: halving ε quarters the deviation
+    assert errs[0] < 1e-2 * 1e-2 * 100  # and small against the step itself
+    assert np.array_equal(R(S, 1e-2 * D)[:, pinned], S[:, pinned])
