@@ -612,13 +612,16 @@ class GaussNewtonModel:
 
         ``∇²L_t`` (the Lagrangian of term ``t`` with its adjoint state ``p_t`` frozen) is
         applied by a forward difference of the Lagrangian gradient along ``Z_t x`` (its value
-        at the model point is computed once per model); its constraint part
-        ``(W,22[s_a, m] + W,11[m, s_b]) p_t`` by central differences of the midpoint gradient
-        along ``p_t``. Only gradients and mixed products (descriptor Jacobians, no element
-        Hessians, no factorization) at perturbed shells; the third derivatives that
-        :meth:`matvec` drops are included. Relative accuracy ~1e-6.
+        at the model point is computed once per model), with one step ``ε`` for all terms so
+        that every perturbed shell ``s_k + ε x_k`` is shared by its three terms (its
+        Jacobian computed once); the constraint part ``(W,22[s_a, m] + W,11[m, s_b]) p_t`` by
+        a forward difference of the midpoint gradient along ``p_t``. Only gradients and
+        mixed products (descriptor Jacobians, no element Hessians, no factorization) at
+        perturbed shells: two new Jacobians per term and one per free shell. The third
+        derivatives that :meth:`matvec` drops are included. Relative accuracy ~1e-6.
         """
         prob = self.prob
+        W = prob.energy
         S = self.S
         V = self._full(x)
         out = np.zeros_like(V)
@@ -626,44 +629,47 @@ class GaussNewtonModel:
         if self._base is None:
             self._base = [self._lagrangian_gradient(t, S[a], S[k], S[b], self.ctx[t]["m"])
                           for t, (a, k, b) in enumerate(prob.terms)]
-        for t, (a, k, b) in enumerate(prob.terms):
-            ctx = self.ctx[t]
-            m = ctx["m"]
-            dm = self._dm(t, V)
-            dm = np.zeros(3 * n) if dm is None else dm
-            w = [V[a].reshape(n, 3), V[k].reshape(n, 3), V[b].reshape(n, 3),
-                 dm.reshape(n, 3)]
-            wmax = max(float(np.abs(v).max()) for v in w)
-            if wmax == 0.0:
-                continue
-            eps = self.h / wmax
-            y = (S[a], S[k], S[b], m)
-            sa, sk, sb, mm = (y[i] + eps * w[i] for i in range(4))
-            plus = self._lagrangian_gradient(t, sa, sk, sb, mm)
-            ua, uk, ub, um = ((u - v) / eps for u, v in zip(plus, self._base[t]))
-            q = prob.solver.solve_factored(ctx, um[None], refine=0)[0]
-            if self.idx[k] >= 0:
-                out[k] += uk
-            if self.idx[a] >= 0:
-                out[a] += ua - self.ops[t][3].dot12(q)
-            if self.idx[b] >= 0:
-                out[b] += ub - self.ops[t][4].dot21(q)
+        DM = [self._dm(t, V) for t in range(len(prob.terms))]
+        wmax = max([float(np.abs(V).max())] + [float(np.abs(d).max()) for d in DM
+                                                if d is not None])
+        if wmax == 0.0:
+            return out[prob.free_nodes][:, prob.free_dofs].ravel()
+        eps = self.h / wmax
+        Sp = S + eps * V.reshape(S.shape)
+        held = W.hold([Sp[k] for k in prob.free_nodes])
+        try:
+            for t, (a, k, b) in enumerate(prob.terms):
+                ctx = self.ctx[t]
+                m = ctx["m"]
+                mm = m if DM[t] is None else m + eps * DM[t].reshape(n, 3)
+                plus = self._lagrangian_gradient(t, Sp[a], Sp[k], Sp[b], mm)
+                ua, uk, ub, um = ((u - v) / eps for u, v in zip(plus, self._base[t]))
+                q = prob.solver.solve_factored(ctx, um[None], refine=0)[0]
+                if self.idx[k] >= 0:
+                    out[k] += uk
+                if self.idx[a] >= 0:
+                    out[a] += ua - self.ops[t][3].dot12(q)
+                if self.idx[b] >= 0:
+                    out[b] += ub - self.ops[t][4].dot21(q)
+        finally:
+            W.release(held)
         out *= prob.scale4
         return out[prob.free_nodes][:, prob.free_dofs].ravel()
 
     def _lagrangian_gradient(self, t, sa, sk, sb, mm):
         """Gradient of term ``t``'s Lagrangian ``W[s_k, m] + p_tᵀ ∇_m(W[s_a, m] + W[m, s_b])``
         (``p_t`` frozen) w.r.t. ``(s_a, s_k, s_b, m)``; the constraint's ``m`` derivative by
-        central differences along ``p_t``."""
+        a forward difference along ``p_t`` (its O(δ) error cancels in the forward difference
+        of :meth:`exact_matvec`, which uses the same ``δ``)."""
         W = self.prob.energy
         p = self.ctx[t]["p"].reshape(self.prob.n, 3)
         dlt = self.h / max(float(np.abs(p).max()), 1e-300)
         ga = W.mixed_product(sa, mm, p, "12")
         gk = W.gradient(sk, mm, 0)
         gb = W.mixed_product(mm, sb, p, "21")
+        c0 = W.gradient(sa, mm, 1) + W.gradient(mm, sb, 0)
         cp = W.gradient(sa, mm + dlt * p, 1) + W.gradient(mm + dlt * p, sb, 0)
-        cm = W.gradient(sa, mm - dlt * p, 1) + W.gradient(mm - dlt * p, sb, 0)
-        gm = W.gradient(sk, mm, 1) + (cp - cm) / (2 * dlt)
+        gm = W.gradient(sk, mm, 1) + (cp - c0) / dlt
         return ga, gk, gb, gm
 
     def _full(self, x):

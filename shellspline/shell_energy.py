@@ -602,6 +602,25 @@ class DiscreteShells:
             kept[g["V"].tobytes()] = g
         self._retained = kept
 
+    def hold(self, poses) -> list:
+        """Add these poses' geometries to the retained ones (kept regardless of
+        :attr:`cache_size`) and return their keys for :meth:`release`: a solver that evaluates
+        many terms at a few shared poses (e.g. the perturbed shells of a Hessian product)
+        computes each pose's Jacobian once."""
+        keys = []
+        for V in poses:
+            g = self.geometry_of(V)
+            key = g["V"].tobytes()
+            if key not in self._retained:
+                self._retained[key] = g
+                keys.append(key)
+        return keys
+
+    def release(self, keys) -> None:
+        """Drop geometries added by :meth:`hold`."""
+        for key in keys:
+            self._retained.pop(key, None)
+
     def geometry_of(self, V) -> dict:
         """The (cached) geometry record of pose ``V (n,3)`` (see :meth:`retain`)."""
         return self._geometry(_checked_pose(V, self.n_vertices, "V"))
@@ -851,6 +870,13 @@ class EuclideanEnergy:
 
     def retain(self, poses, geometries=()) -> None:
         """No cache to keep (interface of :meth:`DiscreteShells.retain`)."""
+
+    def hold(self, poses) -> list:
+        """No cache (interface of :meth:`DiscreteShells.hold`)."""
+        return []
+
+    def release(self, keys) -> None:
+        """No cache (interface of :meth:`DiscreteShells.release`)."""
 
     def scale(self, V) -> float:
         V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
