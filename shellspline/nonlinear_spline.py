@@ -380,6 +380,15 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         to a gradient reduction of 1e-6 where L-BFGS needs hundreds.
     cg_tol, cg_max_iter : float, int
         Relative residual and iteration limit of the inner CG of ``"gauss-newton"``.
+        Default ``cg_tol``: 0.5 with the trust region (an upper bound: the forcing term is
+        ``min(cg_tol, √(‖∇F‖/‖∇F₀‖))``, tighter as the gradient drops), 0.1 with the line
+        search.
+    globalization : {"trust-region", "line-search"}
+        ``"gauss-newton"`` optimiser: Steihaug–Toint trust region (default) or Armijo
+        backtracking along the CG step (see Notes).
+    retract : bool, optional
+        Trust region: take trial steps along the LΘA retraction (:class:`_Retraction`)
+        instead of straight lines in vertex space. Default: on for mesh energies.
     memory : int
         L-BFGS memory.
     max_time_s : float, optional
@@ -413,11 +422,20 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
 
     Notes
     -----
-    ``"gauss-newton"``: every outer iteration solves ``H d = −∇F`` approximately (relative
-    residual ``cg_tol``) by CG on the Gauss–Newton model of :class:`GaussNewtonModel`
-    (products reuse the midpoint factorizations of the evaluation, no new factorization), then
-    backtracks from the full step (Armijo, so the energy is non-increasing); the midpoints of
-    the trial point start from their first-order prediction. CG is preconditioned by the
+    ``"gauss-newton"``: every outer iteration solves ``H d = −∇F`` approximately by CG on
+    the Gauss–Newton model of :class:`GaussNewtonModel` (products reuse the midpoint
+    factorizations of the evaluation, no new factorization) or on the exact reduced Hessian.
+    With ``globalization="trust-region"`` CG is Steihaug–Toint's (stops at the trust-region
+    boundary, also along negative curvature) and the trial point lies on the LΘA retraction:
+    each shell's descriptor change ``J d`` is applied in LΘA space and the shell
+    reconstructed, which bends thin parts without the second-order stretch of a straight
+    step; a trial is accepted when the energy drops, the radius follows the ratio of actual to
+    predicted decrease. Measured on the coarse cactus (1000 vertices, ``K = 20``, ``η = 1e-3``):
+    the line search needed steps of 1/8–1/200 of the Newton step and had not reduced the
+    gradient in 11 iterations (600 s); the trust region reduces it by 1e-3 in about 250 s.
+    With ``"line-search"`` it backtracks from the full step (Armijo). Either way the energy is
+    non-increasing and the midpoints of a trial point start from their first-order
+    prediction. CG is preconditioned by the
     quadratic model of ``F^K`` near a path of similar shells,
     ``P = 4K³ Σ_t g_t g_tᵀ ⊗ W,22[s_k, s_k]`` (``g_t`` the midpoint-residual stencil
     ``−½, 1, −½`` of term ``t``), a block-banded sparse matrix over all free frames factored
