@@ -301,6 +301,22 @@ def _parallel_decode(P, Vc, frames, K, bc, workers):
         _WORKER.pop("prolong", None)
 
 
+class _SplineRows:
+    """Rows of ``Z = S @ Zkey`` computed on demand (``S (K+1, J)`` the spline's linear map of
+    the keyframe values, ``Zkey (J, d)``): ``Z[k]`` for an int, an index array or a slice,
+    so the (K+1, d) array need not exist while the reconstruction runs."""
+
+    def __init__(self, S, Zkey):
+        self.S, self.Zkey = np.asarray(S, dtype=np.float64), np.asarray(Zkey, dtype=np.float64)
+        self.shape = (self.S.shape[0], self.Zkey.shape[1])
+
+    def __len__(self):
+        return self.shape[0]
+
+    def __getitem__(self, k):
+        return self.S[k] @ self.Zkey
+
+
 def _chunks(idx, n_chunks):
     n_chunks = max(1, min(n_chunks, len(idx)))
     return [c for c in np.array_split(np.asarray(idx), n_chunks) if len(c)]
@@ -339,6 +355,7 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
         # ~3 GB across the parent and two workers)
         gn = GaussNewton(T, pinned=pinned, **gn_options)
         gn._assembler()
+        gn._dof_order(Vinit[ks[0]])  # fill-reducing order (large meshes), also inherited
         _WORKER["gn"] = gn
         _WORKER["frame_data"] = (Z, W_of, Vinit, warm)
     done = 0
@@ -577,8 +594,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             report["multires"]["coarse_frames"] = coarse_records
             Z, W_report = None, None
             if fine:
+                del blend  # (K+1, n, 3), recomputed below: not held while the workers run
                 V, Z, W_report, frame_records = _lta_sequence(Vkey, T, pinned, Vinit=V,
                                                               stage_prefix="fine ", **lta_args)
+                blend = linear_blend(Vkey, frames, K, bc)
             else:
                 frame_records = coarse_records
                 # energies where the spline was solved (full-resolution descriptors of every
@@ -671,7 +690,6 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
     """
     J = Vkey.shape[0]
     periodic = bc == "periodic"
-    blend = linear_blend(Vkey, frames, K, bc)
     with prog.stage(stage_prefix + "describe"):
         Zkey = lta_descriptors(Vkey, T)
         sT = T.descriptor_slices()[1]
@@ -705,7 +723,13 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
             def W_of(k):
                 return Wkey[nearest[k]]
     with prog.stage(stage_prefix + "solve"):
-        Z = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
+        if W_spline is None:
+            # constant weights: the spline is one linear map of the keyframes, Z = S Zkey;
+            # the reconstruction takes its rows on demand and the (K+1, d) array is formed
+            # afterwards (0.5 GB at 150k vertices, K = 50, not held while the workers run)
+            Z = _SplineRows(lta_spline(np.eye(J), frames, K, bc=bc), Zkey)
+        else:
+            Z = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
     is_key = np.zeros(K + 1, dtype=bool)
     is_key[frames] = True
     is_key[K] |= periodic
@@ -714,12 +738,15 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
     # start moves frame k-1's solution by the change of that sequence: it cancels most of
     # the prolongation's misfit and keeps the cached preconditioner good from frame to frame
     warm = warm_start
-    Vinit = _safe_init(blend, Vkey, frames, K, bc, T) if Vinit is None else \
-        np.asarray(Vinit, dtype=np.float64)
+    Vinit = _safe_init(linear_blend(Vkey, frames, K, bc), Vkey, frames, K, bc, T) \
+        if Vinit is None else np.asarray(Vinit, dtype=np.float64)
     with prog.stage(stage_prefix + "reconstruct", total=len(ks)):
         results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
                                       warm, stage=stage_prefix + "reconstruct")
+    if isinstance(Z, _SplineRows):
+        Z = Z[:]
     with prog.stage(stage_prefix + "place"):
+        blend = linear_blend(Vkey, frames, K, bc)  # (K+1, n, 3): not held during reconstruction
         V = blend.copy()
         for k in ks:
             V[k] = results[k][0]
