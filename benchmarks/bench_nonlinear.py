@@ -147,13 +147,17 @@ def run_cactus(time_limit):
            "total_s": wall, **{k: nl[k] for k in (
                "vertices", "success", "message", "nit", "nfev", "seconds", "energy_initial",
                "energy_final", "grad_norm_initial", "grad_norm_final", "cg_iterations",
-               "midpoint_newton_iterations")}}
+               "midpoint_newton_iterations", "energy_history", "grad_norm_history",
+               "step_lengths", "hessian")}}
     rec["grad_reduction"] = rec["grad_norm_final"] / rec["grad_norm_initial"]
     print(f"\ncactus ({rec['n_vertices']} vertices, nonlinear at {rec['vertices']} coarse, K=20, "
           f"η=1e-3): total {wall:.0f} s, optimiser {rec['seconds']:.0f} s, {rec['nit']} outer "
           f"iterations ({rec['seconds'] / max(rec['nit'], 1):.1f} s each), F "
           f"{rec['energy_initial']:.4g} -> {rec['energy_final']:.4g}, |g|/|g0| = "
           f"{rec['grad_reduction']:.1e}; {rec['message']}")
+    print("  per outer iteration: F " + " ".join(f"{e:.5g}" for e in rec["energy_history"])
+          + "\n  |g|/|g0| " + " ".join(f"{g / rec['grad_norm_initial']:.1e}"
+                                       for g in rec["grad_norm_history"]))
     return rec
 
 
