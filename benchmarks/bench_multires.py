@@ -50,7 +50,7 @@ Pipeline (``../shared/data/cactus``: keyframes cactus0/5/13.ply, pinned
 ``synth-150k-K50-fine`` the same with ``fine=True``: LΘA spline and Gauss–Newton on all
                       154k vertices, started from the prolongation (the paper calls this
                       impossible for its 166k armadillo; issue target ≤ 10 min, ≤ 8 GB);
-                      about 10 minutes, run with the largest ``--workers`` count only
+                      about 7 minutes, run with the largest ``--workers`` count only
 
 each with 1 and 2 workers (``--workers``).
 

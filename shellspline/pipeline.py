@@ -556,7 +556,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         if (n_coarse is None or fine) and n > FULL_RESOLUTION_WARN:
             prog.message(f"Gauss–Newton at full resolution on {n} vertices takes minutes and "
                          "gigabytes (measured: 154k vertices, K = 50, --fine from 1000 coarse "
-                         "vertices, 2 workers: 10.0–10.7 min, 8.1 GiB)" +
+                         "vertices, 2 workers: 7.1 min, 6.8 GiB)" +
                          ("" if fine else "; here frames start from the keyframe blend, "
                           "not from a prolonged coarse result; the multiresolution path "
                           "(--coarse, default above 20 000 vertices) takes seconds"))
