@@ -98,11 +98,39 @@ def test_hermite_uses_the_velocity_poses(ellipsoids):
         ss.interpolate((V, d["F"]), frames=[0, 6, 12], bc="hermite")
 
 
-def test_workers_give_the_same_sequence(ellipsoids):
+def test_workers_give_the_same_sequence(ellipsoids, monkeypatch):
+    import shellspline.pipeline as pl
+
+    monkeypatch.setattr(pl, "SERIAL_RECONSTRUCT_WORK", 0)  # this small case: use the pool
     d = ellipsoids
     a = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=1)
     b = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=2)
     assert np.abs(a.V - b.V).max() < 1e-5 * np.abs(a.V).max()
+
+
+def test_small_work_starts_no_process_pool(ellipsoids, monkeypatch):
+    """Below SERIAL_RECONSTRUCT_WORK / SERIAL_DECODE_WORK vertex-frames ``workers=2`` runs in
+    process (a pool costs more than the work); above, the pool is used."""
+    import shellspline.pipeline as pl
+
+    started = []
+
+    class Pool:
+        def __init__(self, *a, **k):
+            started.append(k.get("max_workers"))
+            raise RuntimeError("pool started")
+
+    monkeypatch.setattr(pl, "ProcessPoolExecutor", Pool)
+    d = ellipsoids
+    assert d["V"].shape[1] * 12 < pl.SERIAL_RECONSTRUCT_WORK
+    r = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=2)
+    assert started == [] and r.report["quality"]["keyframes_exact"]
+    c = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=2, coarse=100)
+    assert started == [] and c.report["quality"]["flipped_faces"] == 0
+    monkeypatch.setattr(pl, "SERIAL_RECONSTRUCT_WORK", 0)
+    with pytest.raises(RuntimeError, match="pool started"):
+        ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=2)
+    assert started == [2]
 
 
 def test_pinned_vertices_stay_put():
@@ -268,7 +296,10 @@ def test_keyframe_reference_changes_the_weights(ellipsoids):
     assert np.abs(a.V - b.V).max() > 1e-4 and np.abs(a.V - c.V).max() > 1e-4
 
 
-def test_paths_tuple_half_turn_and_strict_json(ellipsoids, tmp_path):
+def test_paths_tuple_half_turn_and_strict_json(ellipsoids, tmp_path, monkeypatch):
+    import shellspline.pipeline as pl
+
+    monkeypatch.setattr(pl, "SERIAL_RECONSTRUCT_WORK", 0)  # the half-turn through the pool
     import json
 
     d = ellipsoids

@@ -258,3 +258,26 @@ def test_reused_rotated_preconditioner_finds_the_direct_minimiser():
         assert abs(a.energy[-1] - b.energy[-1]) <= 1e-6 * b.energy[0]
         v = a.V
     assert facts < iters  # the cached factor was reused
+
+
+@pytest.mark.parametrize("pins,r", [([], 6), ([4], 3), ([4, 9], 1), ([4, 9, 17], 0)])
+def test_rigid_modes_left_free_by_pins(pins, r):
+    """One pin leaves the three rotations about it, two the rotation about their line, three
+    non-collinear none; every mode is an infinitesimal rigid motion (zero edge-length change)
+    that keeps the pins fixed."""
+    from shellspline.reconstruct import _rigid_modes
+
+    V = np.random.default_rng(1).standard_normal((30, 3))
+    pins = np.asarray(pins, dtype=np.int64)
+    pd = (3 * pins[:, None] + np.arange(3)).ravel() if len(pins) else np.zeros(0, np.int64)
+    free = np.setdiff1d(np.arange(90), pd)
+    Q = _rigid_modes(V, free, pd)
+    assert Q.shape == (len(free), r)
+    assert np.allclose(Q.T @ Q, np.eye(r))
+    i, j = np.triu_indices(30, 1)
+    for q in Q.T:
+        u = np.zeros(90)
+        u[free] = q
+        u = u.reshape(30, 3)
+        # rigid: d/dt |x_i - x_j|^2 = 2 (x_i - x_j)·(u_i - u_j) = 0 for all pairs
+        assert np.abs(np.einsum("kd,kd->k", V[i] - V[j], u[i] - u[j])).max() < 1e-10
