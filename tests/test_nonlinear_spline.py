@@ -254,3 +254,39 @@ def test_retraction_is_first_order_and_keeps_pins(tiny):
     assert errs[1] < 0.3 * errs[0]  # quadratic: halving ε quarters the deviation
     assert errs[0] < 1e-2 * 1e-2 * 100  # and small against the step itself
     assert np.array_equal(R(S, 1e-2 * D)[:, pinned], S[:, pinned])
+
+
+def test_steihaug_solves_stops_on_the_boundary_and_truncates():
+    """Steihaug-Toint CG against dense linear algebra: interior solution = H^-1 b, the
+    boundary step has P-norm = radius (norm tracked by recurrences, checked with P itself),
+    negative curvature goes to the boundary, and the Nash-Sofer truncation stops earlier
+    with most of the model decrease."""
+    from shellspline.nonlinear_spline import _steihaug
+
+    rng = np.random.default_rng(0)
+    n = 60
+    A = rng.standard_normal((n, n))
+    H = A @ A.T / n + np.diag(np.logspace(-3, 1, n))
+    Pd = np.diag(H) * rng.uniform(0.5, 2.0, n)  # a diagonal preconditioner, not exact
+    b = rng.standard_normal(n)
+
+    def run(radius, truncate=0.0, Hm=H, rtol=1e-10):
+        return _steihaug(lambda v: Hm @ v, lambda v: v / Pd, b, None, 1, rtol, 500, radius,
+                         truncate=truncate)
+
+    d, it, status, dec, dn = run(np.inf)
+    x = np.linalg.solve(H, b)
+    assert status == "converged" and np.abs(d - x).max() < 1e-8 * np.abs(x).max()
+    assert np.isclose(dec, 0.5 * b @ x, rtol=1e-10)
+    assert np.isclose(dn, np.sqrt(x @ (Pd * x)), rtol=1e-8)
+    r = 0.3 * dn
+    d, it, status, dec, dn = run(r)
+    assert status == "boundary" and np.isclose(np.sqrt(d @ (Pd * d)), r, rtol=1e-10)
+    assert np.isclose(dec, b @ d - 0.5 * d @ H @ d, rtol=1e-10) and dec > 0
+    Hneg = H - 0.5 * np.eye(n)  # indefinite
+    d, it, status, dec, dn = run(1e6, Hm=Hneg)
+    assert status == "negative curvature" and np.isclose(np.sqrt(d @ (Pd * d)), 1e6)
+    assert np.isclose(dec, b @ d - 0.5 * d @ Hneg @ d, rtol=1e-8) and dec > 0
+    full = run(np.inf)
+    cut = run(np.inf, truncate=0.25)
+    assert cut[1] < full[1] and cut[3] > 0.9 * full[3]
