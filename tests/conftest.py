@@ -26,6 +26,24 @@ def icosphere(subdivisions: int = 1):
     return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
 
 
+def cactus_sequence_problem(n_vertices: int = 700, K: int = 8):
+    """Synthetic cactus keyframes (base pinned) at frames 0, K/2, K and their LΘA spline
+    targets: ``(Vs, T, pinned, Z (K+1, d), weights, frames)``."""
+    import data_synth
+    from shellspline.descriptors import lta_descriptors, lta_weights, unwrap_angles
+    from shellspline.lta_spline import lta_spline
+    from shellspline.topology import topology
+
+    d = data_synth.generate("cactus", n_vertices=n_vertices)
+    Vs, F, pinned = d["V"], d["F"], d["pinned"]
+    T = topology(F, Vs.shape[1])
+    Z = lta_descriptors(Vs, T)
+    sT = T.descriptor_slices()[1]
+    Z[:, sT] = unwrap_angles(Z[:, sT])
+    frames = [0, K // 2, K]
+    return Vs, T, pinned, lta_spline(Z, frames, K), lta_weights(Vs[0], T), frames
+
+
 def grid_sheet(nx: int = 5, ny: int = 4):
     """A flat rectangular sheet with boundary, triangulated regularly."""
     x, y = np.meshgrid(np.linspace(0, 1, nx), np.linspace(0, 0.8, ny), indexing="ij")

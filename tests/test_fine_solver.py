@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from shellspline import GaussNewton, topology
 from shellspline._linalg import SparseCholesky, available_backends, nested_dissection
-from conftest import grid_sheet, icosphere
+from conftest import cactus_sequence_problem, grid_sheet, icosphere
 
 needs_cholmod = pytest.mark.skipif("cholmod" not in available_backends(),
                                    reason="cvxopt (CHOLMOD) not installed")
@@ -104,26 +104,11 @@ def test_cholesky_with_a_given_order_solves():
                                           perm=np.zeros(n, dtype=int))
 
 
-def _sequence_problem(n_vertices=900, K=8):
-    import data_synth
-    from shellspline.descriptors import lta_descriptors, lta_weights, unwrap_angles
-    from shellspline.lta_spline import lta_spline
-
-    d = data_synth.generate("cactus", n_vertices=n_vertices)
-    Vs, F, pinned = d["V"], d["F"], d["pinned"]
-    T = topology(F, Vs.shape[1])
-    Z = lta_descriptors(Vs, T)
-    sT = T.descriptor_slices()[1]
-    Z[:, sT] = unwrap_angles(Z[:, sT])
-    frames = [0, K // 2, K]
-    return Vs, T, pinned, lta_spline(Z, frames, K), lta_weights(Vs[0], T), frames
-
-
 @needs_cholmod
 def test_nested_dissection_solver_finds_the_amd_minimiser():
     # the large-mesh configuration (nd ordering, rotated factor reused over a run of frames)
     # against the small-mesh one (AMD, fresh factor at every step, no rotation)
-    Vs, T, pinned, Z, w, frames = _sequence_problem()
+    Vs, T, pinned, Z, w, frames = cactus_sequence_problem(900)
     opts = dict(gtol=1e-9, ftol=1e-13)
     nd = GaussNewton(T, pinned=pinned, ordering="nd", rotate_preconditioner=True,
                      amortize_refresh=True, **opts)

@@ -4,7 +4,7 @@ import pytest
 from shellspline import GaussNewton, reconstruct, rigid_placement, topology
 from shellspline._linalg import SparseCholesky, available_backends
 from shellspline.descriptors import face_areas, lta_descriptors, lta_weights
-from conftest import grid_sheet, icosphere
+from conftest import cactus_sequence_problem, grid_sheet, icosphere
 
 
 def _rotation(seed):
@@ -149,22 +149,6 @@ def test_partial_pins_leave_no_free_spin():
 
 
 # -- preconditioner reuse: rotated factorizations, lean assembly ------------------------------
-def _sequence_problem(n_vertices=700, K=8):
-    """Synthetic cactus keyframes (base pinned) and their LΘA spline targets."""
-    import data_synth
-    from shellspline.descriptors import unwrap_angles
-    from shellspline.lta_spline import lta_spline
-
-    d = data_synth.generate("cactus", n_vertices=n_vertices)
-    Vs, F, pinned = d["V"], d["F"], d["pinned"]
-    T = topology(F, Vs.shape[1])
-    Z = lta_descriptors(Vs, T)
-    sT = T.descriptor_slices()[1]
-    Z[:, sT] = unwrap_angles(Z[:, sT])
-    frames = [0, K // 2, K]
-    return Vs, T, pinned, lta_spline(Z, frames, K), lta_weights(Vs[0], T), frames
-
-
 def test_vertex_rotations_recover_a_rigid_rotation():
     from shellspline.reconstruct import _vertex_rotations
 
@@ -241,7 +225,7 @@ def test_lower_assembler_matches_sparse_product(chunk, monkeypatch):
 def test_reused_rotated_preconditioner_finds_the_direct_minimiser():
     # a run of frames with one solver (warm starts, cached rotated factor, few refreshes)
     # against exact Gauss–Newton steps (a fresh factorization at every iterate, no rotation)
-    Vs, T, pinned, Z, w, frames = _sequence_problem()
+    Vs, T, pinned, Z, w, frames = cactus_sequence_problem(700)
     opts = dict(gtol=1e-9, ftol=1e-13)
     reuse = GaussNewton(T, pinned=pinned, rotate_preconditioner=True, **opts)
     direct = GaussNewton(T, pinned=pinned, refresh_cg=0, rotate_preconditioner=False, **opts)
