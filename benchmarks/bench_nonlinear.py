@@ -45,7 +45,7 @@ import shellspline as ss  # noqa: E402
 from shellspline import metrics  # noqa: E402
 from shellspline.descriptors import edge_lengths  # noqa: E402
 from shellspline.geodesic import geodesic_interpolation  # noqa: E402
-from shellspline.nonlinear_spline import nonlinear_spline  # noqa: E402
+from shellspline.nonlinear_spline import FTOL_WINDOW, nonlinear_spline  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data" / "unit_sphere"
 
@@ -148,8 +148,17 @@ def run_cactus(time_limit):
                "vertices", "success", "message", "nit", "nfev", "seconds", "energy_initial",
                "energy_final", "grad_norm_initial", "grad_norm_final", "cg_iterations",
                "midpoint_newton_iterations", "energy_history", "grad_norm_history",
-               "step_lengths", "hessian")}}
+               "time_history", "step_lengths", "hessian")}}
     rec["grad_reduction"] = rec["grad_norm_final"] / rec["grad_norm_initial"]
+    # when `ftol` (energy fell by <= ftol·F over FTOL_WINDOW iterations) would have stopped
+    E, tt = np.asarray(rec["energy_history"]), rec["time_history"]
+    rec["ftol_stop"] = {}
+    for ftol in (1e-5, 1e-6, 1e-7):
+        hit = [i for i in range(FTOL_WINDOW, len(E)) if E[i - FTOL_WINDOW] - E[i] <= ftol * E[i]]
+        rec["ftol_stop"][f"{ftol:g}"] = None if not hit else {
+            "iteration": hit[0], "seconds": tt[hit[0]], "energy": float(E[hit[0]]),
+            "energy_rel_to_final": float((E[hit[0]] - E[-1]) / E[-1]),
+            "grad_reduction": rec["grad_norm_history"][hit[0]] / rec["grad_norm_initial"]}
     print(f"\ncactus ({rec['n_vertices']} vertices, nonlinear at {rec['vertices']} coarse, K=20, "
           f"η=1e-3): total {wall:.0f} s, optimiser {rec['seconds']:.0f} s, {rec['nit']} outer "
           f"iterations ({rec['seconds'] / max(rec['nit'], 1):.1f} s each), F "
@@ -157,7 +166,13 @@ def run_cactus(time_limit):
           f"{rec['grad_reduction']:.1e}; {rec['message']}")
     print("  per outer iteration: F " + " ".join(f"{e:.5g}" for e in rec["energy_history"])
           + "\n  |g|/|g0| " + " ".join(f"{g / rec['grad_norm_initial']:.1e}"
-                                       for g in rec["grad_norm_history"]))
+                                       for g in rec["grad_norm_history"])
+          + "\n  seconds " + " ".join(f"{t:.0f}" for t in rec["time_history"]))
+    for key, hit in rec["ftol_stop"].items():
+        print(f"  ftol={key}: " + ("not reached" if hit is None else
+              f"stops at iteration {hit['iteration']} ({hit['seconds']:.0f} s), F "
+              f"{hit['energy']:.7g} ({hit['energy_rel_to_final']:.1e} above the last), "
+              f"|g|/|g0| {hit['grad_reduction']:.1e}"))
     return rec
 
 

@@ -84,6 +84,10 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--max-time", type=float, default=None,
                    help="time limit in seconds of the nonlinear spline optimisation "
                         "(default 600; the result so far is written, marked unconverged)")
+    q.add_argument("--ftol", type=float, default=None,
+                   help="nonlinear: also stop when the energy fell by at most FTOL (relative) "
+                        "over the last 3 iterations, e.g. 1e-6 (default: off, stop on the "
+                        "gradient only)")
     q.add_argument("--eta", type=float, default=1e-3, help="bending weight η = thickness² "
                                                            "(default 1e-3)")
     q.add_argument("--mu", type=float, default=1.0, help="edge-length weight (default 1)")
@@ -171,8 +175,14 @@ def _interpolate(args) -> int:
     solver_options = {}
     if args.max_time is not None and args.method != "nonlinear":
         raise ValueError("--max-time applies to --method nonlinear only")
+    if args.ftol is not None and args.method != "nonlinear":
+        raise ValueError("--ftol applies to --method nonlinear only")
+    if args.ftol is not None and not 0 <= args.ftol < 1:
+        raise ValueError(f"--ftol must be in [0, 1), got {args.ftol}")
     if args.method == "nonlinear":
         solver_options["max_time_s"] = 600.0 if args.max_time is None else args.max_time
+        if args.ftol is not None:
+            solver_options["ftol"] = args.ftol
     if not args.quiet:
         print(f"shellspline {ss.__version__}: {len(args.keyframes)} keyframes, "
               f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)

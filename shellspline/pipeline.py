@@ -805,6 +805,7 @@ def _nonlinear_stage(Vkey, T, pinned, Vinit, frames, K, bc, mu, lam, eta, solver
            "vertices": int(Vkey.shape[1]),
            "energy_history": [float(e) for e in nl.energies],
            "grad_norm_history": [float(g) for g in nl.grad_norms],
+           "time_history": [float(t) for t in nl.times],
            "step_lengths": [float(a) for a in nl.step_lengths],
            "hessian": [str(h) for h in nl.hessian]}
     if not nl.success:

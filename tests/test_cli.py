@@ -135,3 +135,18 @@ def test_overwrite_never_deletes_the_pinned_or_frames_file(ell_dir, tmp_path, ca
     rc = main(["interpolate", *_poses(ell_dir), "-o", str(out), "-q", "--overwrite",
                "--pinned", str(out / "pinned.txt")])
     assert rc == 2 and (out / "pinned.txt").exists()
+
+
+def test_nonlinear_ftol_from_the_command_line(ell_dir, tmp_path, capsys):
+    out = tmp_path / "nl"
+    rc = main(["interpolate", *_poses(ell_dir), "--K", "4", "--eta", "0.1", "--method",
+               "nonlinear", "--ftol", "1e-4", "-o", str(out), "-q"])
+    assert rc == 0
+    nl = json.loads((out / "report.json").read_text())["nonlinear"]
+    E = nl["energy_history"]
+    assert nl["success"] and "ftol" in nl["message"], nl["message"]
+    assert len(E) > 3 and E[-4] - E[-1] <= 1e-4 * E[-1]
+    for extra in (["--ftol", "1e-4"], ["--ftol", "-1", "--method", "nonlinear"]):
+        rc = main(["interpolate", *_poses(ell_dir), "-o", str(tmp_path / "o"), "-q", *extra])
+        err = capsys.readouterr().err
+        assert rc == 2 and "--ftol" in err and len(err.strip().splitlines()) == 1

@@ -290,3 +290,25 @@ def test_steihaug_solves_stops_on_the_boundary_and_truncates():
     full = run(np.inf)
     cut = run(np.inf, truncate=0.25)
     assert cut[1] < full[1] and cut[3] > 0.9 * full[3]
+
+
+def test_ftol_stops_at_the_first_stalled_window(tiny):
+    from shellspline.nonlinear_spline import FTOL_WINDOW
+
+    Vkey, T = tiny
+    kw = dict(eta=0.1, gtol=1e-12, max_iter=200)
+    full = nonlinear_spline(Vkey, [0, 2, 4], 4, T, **kw)
+    E = np.asarray(full.energies)
+    # relative decrease over each window of FTOL_WINDOW iterations along the full run
+    drops = (E[:-FTOL_WINDOW] - E[FTOL_WINDOW:]) / np.abs(E[FTOL_WINDOW:])
+    ftol = 1e-9
+    first = int(np.argmax(drops <= ftol)) + FTOL_WINDOW  # iteration where the window stalls
+    assert drops.min() <= ftol < drops[0]
+    res = nonlinear_spline(Vkey, [0, 2, 4], 4, T, ftol=ftol, **kw)
+    assert res.success and "ftol" in res.message, res.message
+    # deterministic: the same iterates as the full run, stopped at the first stalled window
+    assert res.nit == first < full.nit
+    assert np.allclose(res.energies, E[:first + 1], rtol=0, atol=0)
+    assert res.grad_norms[-1] > 1e-12 * res.grad_norms[0]  # stopped by ftol, not gtol
+    with pytest.raises(ValueError, match="`ftol`"):
+        nonlinear_spline(Vkey, [0, 2, 4], 4, T, ftol=-1e-3)
