@@ -58,6 +58,26 @@ _GN_MISMATCH = 0.3
 _NASH_SOFER = 0.25
 #: Outer iterations over which ``ftol`` measures the relative energy decrease.
 FTOL_WINDOW = 3
+#: Iterative-refinement steps of the midpoint solves inside :meth:`GaussNewtonModel.
+#: accurate_matvec`. The midpoint Hessians are factored with a relative shift of 1e-10
+#: (:mod:`shellspline.geodesic`); without refinement the products are wrong in the soft
+#: directions that a late Newton step consists of. Measured on the 1000-vertex cactus at
+#: ``‖∇F‖ = 6e-6 ‖∇F₀‖``: along a converged Newton step the predicted energy decrease was
+#: 0.64 of the actual and the gradient change off by 67 % (linear in the step: a Hessian
+#: error); with 1 refinement step 0.96, with 3 0.99 (the remaining gradient mismatch then
+#: quadratic in the step, i.e. third order). :meth:`~GaussNewtonModel.matvec` and
+#: :meth:`~GaussNewtonModel.exact_matvec` (the first phase) keep the unrefined solves: far
+#: from the minimiser the stiffer soft modes act as damping, and with refined ones the
+#: cactus run took boundary steps with ρ ≈ 0.6–0.8 and was slower (‖∇F‖ 45 instead of 0.7–2.7 at
+#: 260 s).
+_MODEL_REFINE = 2
+#: The trust region's final Newton phase starts once exact products are in use and
+#: ``‖∇F‖ <= _FINAL_PHASE ‖∇F₀‖`` (mesh energies): :class:`_SpaceTimePreconditioner`,
+#: :meth:`GaussNewtonModel.accurate_matvec`, untruncated CG with forcing at most
+#: ``_FINAL_CG_TOL``. Earlier, far from the minimiser, the same choice took smaller steps than
+#: the first phase (1000-vertex cactus: ``‖∇F‖`` 9e-3 of its start in 300 s against 2e-4).
+_FINAL_PHASE = 2e-2
+_FINAL_CG_TOL = 0.05
 
 
 @dataclass
@@ -99,6 +119,8 @@ class NonlinearSplineResult:
         Newton iterations of all midpoint solves.
     hessian : list of str
         Hessian products used per outer iteration (``"gauss-newton"`` or ``"exact"``).
+    final_phase_iteration : int or None
+        Outer iteration at which the trust region's final Newton phase began (None: never).
     """
 
     V: np.ndarray
@@ -118,6 +140,7 @@ class NonlinearSplineResult:
     step_lengths: list = field(default_factory=list)
     midpoint_newton_iterations: int = 0
     hessian: list = field(default_factory=list)
+    final_phase_iteration: int | None = None
 
 
 class NonlinearSplineProblem:
@@ -355,7 +378,7 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
                      backend: str = "auto", precondition: bool = True,
                      max_time_s: float | None = None, hessian: str = "auto",
                      globalization: str = "trust-region", retract: bool | None = None,
-                     callback=None) -> NonlinearSplineResult:
+                     final_phase: bool = True, callback=None) -> NonlinearSplineResult:
     """Nonlinear time-discrete spline through keyframe shells (paper eqs. 7, 8, 17).
 
     Parameters
@@ -406,6 +429,11 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     retract : bool, optional
         Trust region: take trial steps along the LΘA retraction (:class:`_Retraction`)
         instead of straight lines in vertex space. Default: on for mesh energies.
+    final_phase : bool
+        Trust region on a mesh energy with exact products: once ``‖∇F‖`` is below
+        ``2e-2 ‖∇F₀‖``, continue with the space–time LΘA preconditioner and exact products
+        that are accurate in soft directions, CG solved to its forcing term (
+        :data:`_FINAL_PHASE`). ``False``: the first phase's choices to the end.
     memory : int
         L-BFGS memory.
     max_time_s : float, optional
@@ -581,7 +609,8 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
                 retract = hasattr(prob.energy, "T")
             x, message = _trust_region(prob, fun, x0, F0, g0, S0, cb, max_iter, cg_tol,
                                        cg_max_iter, stats, hessian=hessian,
-                                       retraction=_Retraction(prob, S0) if retract else None)
+                                       retraction=_Retraction(prob, S0) if retract else None,
+                                       final_phase=bool(final_phase))
         elif optimizer == "gauss-newton":
             x, message = _gauss_newton(prob, fun, x0, F0, g0, S0, cb, max_iter,
                                        _step_cap(prob, S0, 2.0), cg_tol, cg_max_iter, stats,
@@ -609,6 +638,7 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     res.cg_iterations = stats["cg_iterations"]
     res.step_lengths = stats["step_lengths"]
     res.hessian = stats["hessian"]
+    res.final_phase_iteration = stats.get("final_phase")
     res.midpoint_newton_iterations = prob.midpoint_iterations
     return res
 
@@ -650,6 +680,7 @@ class GaussNewtonModel:
                              W.hessian(S[k], m, "22"), W.mixed_operator(S[k], m),
                              W.mixed_operator(S[a], m), W.mixed_operator(m, S[b])))
         self._base = None  # Lagrangian gradients at the model point (exact_matvec)
+        self._cbase = None  # constraint products at the model point (accurate_matvec)
         #: finite-difference step (coordinates) of :meth:`exact_matvec`
         self.h = 1e-6 * (_step_cap(prob, S, 1.0) if np.isfinite(_step_cap(prob, S, 1.0))
                          else 1.0)
@@ -669,15 +700,12 @@ class GaussNewtonModel:
         (test: far from the solution).
 
         In soft directions the nested difference (along ``p_t`` inside, along ``x`` outside)
-        loses that accuracy to round-off: at a late iterate of the 1000-vertex cactus, for
-        two vectors preconditioned by an LΘA space–time Hessian, ``xᵀHy`` and ``yᵀHx``
-        differed by 2.5×, and a 10× smaller ``h`` changed ``Hx`` by 350× its norm.
-        Differencing analytic products instead (``W,12 p``, ``W,21 p`` and
-        ``(W,22[s_a,m] + W,11[m,s_b]) p`` at the perturbed point, one difference level) agreed
-        to 1e-4 and moved by 3e-7 under the same change of ``h``, but its two Hessian
-        assemblies per term cost 3.5× (0.7 s a product) and the 300 s cactus run went slower
-        (gradient 186 vs 10 at 190 s): CG there is limited by conditioning (preconditioned
-        spectrum 0.017–41 with :class:`_Preconditioner`), not by this noise.
+        loses that accuracy to round-off, and the unrefined midpoint solves stiffen them: at a
+        late iterate of the 1000-vertex cactus, for two vectors preconditioned by
+        :class:`_SpaceTimePreconditioner`, ``xᵀHy`` and ``yᵀHx`` differed by 2.5×, and a 10×
+        smaller ``h`` changed ``Hx`` by 350× its norm. :meth:`accurate_matvec` fixes both at
+        about twice the cost; far from the minimiser this cheaper, stiffer product makes the
+        faster progress (see :data:`_MODEL_REFINE`), so the trust region's first phase uses it.
         """
         prob = self.prob
         W = prob.energy
@@ -731,6 +759,69 @@ class GaussNewtonModel:
         gm = W.gradient(sk, mm, 1) + (cp - c0) / dlt
         return ga, gk, gb, gm
 
+    def accurate_matvec(self, x) -> np.ndarray:
+        """Exact reduced Hessian of ``F^K`` times ``x``, accurate in soft directions too.
+
+        The Hessian of ``f_t = c W[s_k, m_t]`` is applied analytically (the blocks of
+        :meth:`matvec`); only the adjoint-weighted third derivatives of the midpoint
+        constraint ``p_tᵀ ∇_m(W[s_a, m] + W[m, s_b])`` are differenced, once, along
+        ``(x_a, Z_t x, x_b)``: the analytic products ``W,12[s_a,m] p``, ``W,21[m,s_b] p`` and
+        ``(W,22[s_a,m] + W,11[m,s_b]) p``
+        (:meth:`~shellspline.shell_energy.DiscreteShells.hessian_product`) at the perturbed
+        point minus their values at the model point (computed once per model). One
+        difference level instead of :meth:`exact_matvec`'s two: ``xᵀHy`` and ``yᵀHx`` agree
+        to 1e-4 in the soft directions where the nested difference is off by 2.5×, at about
+        2× its cost (element Hessians of each perturbed midpoint). Used by the final Newton
+        phase of the trust region (:data:`_FINAL_PHASE`).
+        """
+        prob = self.prob
+        W = prob.energy
+        S, n = self.S, prob.n
+        V = self._full(x)
+        out = np.zeros_like(V)
+        if self._cbase is None:
+            self._cbase = [None] * len(prob.terms)
+        for t, (a, k, b) in enumerate(prob.terms):
+            H11, H22, Mk, Ma, Mb = self.ops[t]
+            ctx = self.ctx[t]
+            m, p = ctx["m"], ctx["p"]
+            dm = self._dm(t, V, refine=_MODEL_REFINE)
+            dmv = np.zeros(3 * n) if dm is None else dm
+            r = H22 @ dmv
+            if self.idx[k] >= 0:
+                out[k] += H11 @ V[k] + Mk.dot12(dmv)
+                r = r + Mk.dot21(V[k])
+            wmax = max(float(np.abs(V[a]).max()), float(np.abs(V[b]).max()),
+                       float(np.abs(dmv).max()))
+            if wmax > 0.0:
+                eps = self.h / wmax
+                if self._cbase[t] is None:
+                    self._cbase[t] = self._constraint_products(S[a], m, S[b], p)
+                plus = self._constraint_products(S[a] + eps * V[a].reshape(n, 3),
+                                                 m + eps * dmv.reshape(n, 3),
+                                                 S[b] + eps * V[b].reshape(n, 3), p)
+                ca, cm, cb = ((u - v) / eps for u, v in zip(plus, self._cbase[t]))
+                if self.idx[a] >= 0:
+                    out[a] += ca
+                if self.idx[b] >= 0:
+                    out[b] += cb
+                r = r + cm
+            q = prob.solver.solve_factored(ctx, r[None], refine=_MODEL_REFINE)[0]
+            if self.idx[a] >= 0:
+                out[a] -= Ma.dot12(q)
+            if self.idx[b] >= 0:
+                out[b] -= Mb.dot21(q)
+        out *= prob.scale4
+        return out[prob.free_nodes][:, prob.free_dofs].ravel()
+
+    def _constraint_products(self, sa, m, sb, p):
+        """Gradient of ``p ᵀ ∇_m(W[s_a, m] + W[m, s_b])`` (``p`` frozen) w.r.t.
+        ``(s_a, m, s_b)``, all analytic."""
+        W = self.prob.energy
+        return (W.mixed_product(sa, m, p, "12"),
+                W.hessian_product(sa, m, p, ("22",)) + W.hessian_product(m, sb, p, ("11",)),
+                W.mixed_product(m, sb, p, "21"))
+
     def _full(self, x):
         prob = self.prob
         V = np.zeros((prob.n_nodes, 3 * prob.n))
@@ -739,7 +830,7 @@ class GaussNewtonModel:
         V[prob.free_nodes] = sub
         return V
 
-    def _dm(self, t, V):
+    def _dm(self, t, V, refine=0):
         a, _, b = self.prob.terms[t]
         rhs = 0.0
         if self.idx[a] >= 0:
@@ -748,7 +839,7 @@ class GaussNewtonModel:
             rhs = rhs + self.ops[t][4].dot12(V[b])
         if np.isscalar(rhs):
             return None
-        return -self.prob.solver.solve_factored(self.ctx[t], rhs[None], refine=0)[0]
+        return -self.prob.solver.solve_factored(self.ctx[t], rhs[None], refine=refine)[0]
 
     def midpoint_change(self, x) -> np.ndarray:
         """First-order change ``(T,n,3)`` of the midpoints along the step ``x``."""
@@ -839,6 +930,64 @@ class _Preconditioner:
         ``S`` (or the bases ``Q`` of :meth:`NonlinearSplineProblem.rigid_bases`) removed."""
         Y = self.U.T @ np.asarray(v, dtype=np.float64).reshape(self.f, self.nf)
         X = self.U @ np.stack([c.solve(y) for c, y in zip(self.factors, Y)])
+        if Q is None and S is not None:
+            Q = self.prob.rigid_bases(S)
+        return _project(X, Q).ravel()
+
+
+class _SpaceTimePreconditioner:
+    """The LΘA Gauss–Newton Hessian of the spline energy in space and time, factored whole.
+
+    ``P = 4K³ Σ_t D_tᵀ Φ_t D_t`` with ``D_t = −½ J_a, J_k, −½ J_b`` (the descriptor
+    Jacobians of the term's three shells at their current poses, restricted to the free
+    nodes and DOFs) and ``Φ_t = 2 diag(w(s_k))`` the LΘA weights (paper eq. 10) at its
+    centre shell: the Hessian of ``Σ_t ‖z(s_k) − ½(z(s_a) + z(s_b))‖²_w``, which
+    approximates ``F^K`` to second order. Unlike :class:`_Preconditioner` (one elastic
+    Hessian per term applied to all three of its shells) each shell's increment is measured
+    in its own descriptors, so motions that rotate parts of the shells from frame to frame
+    are priced right. One sparse Cholesky factorization of a matrix of
+    ``(free frames × free DOFs)²`` (50k unknowns, 8.4M nonzeros, ~4 s on the 1000-vertex
+    cactus; a solve ~0.08 s). Measured there at ``‖∇F‖ = 2e-2 ‖∇F₀‖``: preconditioned
+    spectrum of the exact Hessian 1e-3–3.4 against 0.017–41 with :class:`_Preconditioner`,
+    CG residual 0.02 after 60 iterations against 0.4. Relative shift ``1e-8`` for the rigid
+    motions of unpinned shells (projected out by :meth:`apply`).
+    """
+
+    def __init__(self, prob: NonlinearSplineProblem, S, shift: float = 1e-8):
+        import scipy.sparse as sp
+
+        from ._linalg import SparseCholesky
+        from .descriptors import lta_jacobian, lta_weights
+
+        W = prob.energy
+        fd, f = prob.free_dofs, len(prob.free_nodes)
+        nf = len(fd)
+        idx = np.full(prob.n_nodes, -1, dtype=np.int64)
+        idx[prob.free_nodes] = np.arange(f)
+        J = {k: lta_jacobian(S[k], W.T).tocsc()[:, fd].tocsr() for k in prob.free_nodes}
+        rows = []
+        for a, k, b in prob.terms:
+            if idx[a] < 0 and idx[k] < 0 and idx[b] < 0:
+                continue
+            w = lta_weights(S[k], W.T, mu=max(W.mu, 1e-12), lam=max(W.lam, 1e-12),
+                            eta=max(W.eta, 1e-12))
+            sw = sp.diags(np.sqrt(2.0 * prob.scale4 * w))
+            row = [None] * f
+            for node, c in ((a, -0.5), (k, 1.0), (b, -0.5)):
+                if idx[node] >= 0:
+                    blk = c * (sw @ J[node])
+                    row[idx[node]] = blk if row[idx[node]] is None else row[idx[node]] + blk
+            rows.append([r if r is not None else sp.csr_matrix((len(w), nf)) for r in row])
+        D = sp.bmat(rows, format="csr")
+        H = (D.T @ D).tocsc()
+        H = H + shift * float(np.abs(H.diagonal()).max()) * sp.identity(H.shape[0],
+                                                                         format="csc")
+        self.chol = SparseCholesky(H)
+        self.prob, self.f = prob, f
+
+    def apply(self, v, S=None, Q=None) -> np.ndarray:
+        """``P⁻¹ v`` (``v`` flat over free nodes × free DOFs), rigid motions removed."""
+        X = self.chol.solve(np.asarray(v, dtype=np.float64)).reshape(self.f, -1)
         if Q is None and S is not None:
             Q = self.prob.rigid_bases(S)
         return _project(X, Q).ravel()
@@ -1033,7 +1182,7 @@ class _Retraction:
 
 
 def _trust_region(prob, fun, x, F, g, S0, cb, max_iter, cg_tol, cg_max_iter, stats,
-                  hessian="auto", retraction=None):
+                  hessian="auto", retraction=None, final_phase=True):
     """Trust-region Newton–CG on ``F^K`` (Steihaug–Toint CG in the norm of
     :class:`_Preconditioner`), trial points along :class:`_Retraction` when given.
 
@@ -1042,33 +1191,49 @@ def _trust_region(prob, fun, x, F, g, S0, cb, max_iter, cg_tol, cg_max_iter, sta
     decrease is below a quarter of the model's (or a midpoint solve fails) and doubles when
     a boundary step earns more than three quarters. A rejected trial writes the other set of
     kept factorizations, so the model survives it. Returns ``(x, message)``."""
-    P = _Preconditioner(prob, prob.nodes_of(x, S0))
     f = len(prob.free_nodes)
     zero = np.zeros_like(S0)
-    # first radius: the preconditioned gradient step scaled to two mean edge lengths
-    Q = prob.rigid_bases(prob.nodes_of(x, S0))
-    z0 = P.apply(-g, Q=Q)
     cap = _step_cap(prob, S0, 2.0)
-    scale = cap / max(float(np.abs(z0).max()), 1e-300) if np.isfinite(cap) else 1.0
-    radius = scale * float(np.sqrt(max(float(-g @ z0), 0.0)))
+
+    def first_radius(P, Q):
+        # the preconditioned gradient step scaled to two mean edge lengths, in P's norm
+        z0 = P.apply(-g, Q=Q)
+        scale = cap / max(float(np.abs(z0).max()), 1e-300) if np.isfinite(cap) else 1.0
+        return scale * float(np.sqrt(max(float(-g @ z0), 0.0)))
+
+    P = _Preconditioner(prob, prob.nodes_of(x, S0))
+    radius = first_radius(P, prob.rigid_bases(prob.nodes_of(x, S0)))
     g0n = float(np.linalg.norm(g))
     current = 0
+    final = False
     for _ in range(int(max_iter)):
         S = prob.nodes_of(x, S0)
         Q = prob.rigid_bases(S)
         model = GaussNewtonModel(prob)
         exact = hessian == "exact" or stats["exact"]
+        if final_phase and exact and not final and hasattr(prob.energy, "T") and \
+                float(np.linalg.norm(g)) <= _FINAL_PHASE * g0n:
+            # the final Newton phase: space–time preconditioner, accurate products, CG
+            # run to its forcing term (no truncation)
+            final = True
+            stats["final_phase"] = len(stats["cg_iterations"])
+            P = _SpaceTimePreconditioner(prob, S)
+            radius = first_radius(P, Q)
         ncg_total = 0
         accepted = False
         # inexact Newton (Eisenstat–Walker forcing): loose far away, tighter as ‖g‖ drops
-        rtol = min(cg_tol, max(np.sqrt(float(np.linalg.norm(g)) / g0n), 1e-3))
+        rtol = min(cg_tol if not final else min(cg_tol, _FINAL_CG_TOL),
+                   max(np.sqrt(float(np.linalg.norm(g)) / g0n), 1e-3))
         for _trial in range(30):
-            matvec = model.exact_matvec if exact else model.matvec
-            # truncate only the expensive exact-product solves (on the ellipsoids, which stay
-            # with Gauss–Newton products, truncation cost 35 % more time: 10.5 -> 14.3 s)
+            matvec = model.accurate_matvec if final else \
+                model.exact_matvec if exact else model.matvec
+            # truncate only the expensive exact-product solves of the first phase (on the
+            # ellipsoids, which stay with Gauss–Newton products, truncation cost 35 % more
+            # time: 10.5 -> 14.3 s)
             d, ncg, status, dec, dnorm = _steihaug(matvec, lambda v: P.apply(v, Q=Q), -g, Q, f,
                                                    rtol, cg_max_iter, radius,
-                                                   truncate=_NASH_SOFER if exact else 0.0)
+                                                   truncate=_NASH_SOFER if exact and not final
+                                                   else 0.0)
             ncg_total += ncg
             if not exact and hessian == "auto" and ncg and float(d @ d) > 0:
                 cg_, ce = float(d @ model.matvec(d)), float(d @ model.exact_matvec(d))

