@@ -210,6 +210,24 @@ def lta_jacobian(V, T: Topology, *, return_values: bool = False):
     """
     V = np.asarray(V, dtype=np.float64)
     P = _pattern(T)
+    gL, gT, gA, (L, y, x, nn) = _element_gradients(V, T)
+    data = np.concatenate([gL.ravel(), gT.ravel(), gA.ravel()])
+    J = sp.csr_matrix((data, P.indices, P.indptr), shape=P.shape)
+    if return_values:
+        return J, np.concatenate([L, np.arctan2(y, x), 0.5 * nn])
+    return J
+
+
+def _element_gradients(V, T: Topology):
+    """Per-element descriptor gradients of pose ``V``: lengths ``(e,6)``, angles ``(i,12)``,
+    areas ``(m,9)`` (the data of :func:`lta_jacobian`), and ``(L, y, x, |n|)`` (lengths, the
+    angle's ``atan2`` arguments, twice the face areas).
+
+    Only analytic operations (no conjugation, no ``abs``): for complex positions
+    ``V + i h v`` the imaginary parts divided by ``h`` are the element Hessians times ``v``
+    to round-off (complex-step differentiation), which
+    :meth:`shellspline.shell_energy.DiscreteShells.hessian_product` uses.
+    """
     # lengths
     d = V[T.E[:, 1]] - V[T.E[:, 0]]
     L = np.sqrt(np.einsum("ij,ij->i", d, d))
@@ -227,7 +245,6 @@ def lta_jacobian(V, T: Topology, *, return_values: bool = False):
     gT = np.concatenate([(1 - t1) * q1 + (1 - t2) * q2, t1 * q1 + t2 * q2, -q1, -q2], axis=1)
     y = np.einsum("ij,ij->i", _cross(n1, n2), e) / el
     x = np.einsum("ij,ij->i", n1, n2)
-    Th = np.arctan2(y, x)
     # areas
     F = T.F
     w0, w1, w2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
@@ -236,11 +253,7 @@ def lta_jacobian(V, T: Topology, *, return_values: bool = False):
     nu = N / nn[:, None]
     gA = 0.5 * np.concatenate([_cross(nu, w2 - w1), _cross(nu, w0 - w2), _cross(nu, w1 - w0)],
                               axis=1)
-    data = np.concatenate([gL.ravel(), gT.ravel(), gA.ravel()])
-    J = sp.csr_matrix((data, P.indices, P.indptr), shape=P.shape)
-    if return_values:
-        return J, np.concatenate([L, Th, 0.5 * nn])
-    return J
+    return gL, gT, gA, (L, y, x, nn)
 
 
 def lta_weights(V_ref, T: Topology, *, mu: float = 1.0, lam: float = 1.0, eta: float = 1e-3):

@@ -781,36 +781,43 @@ class GaussNewtonModel:
         out = np.zeros_like(V)
         if self._cbase is None:
             self._cbase = [None] * len(prob.terms)
-        for t, (a, k, b) in enumerate(prob.terms):
-            H11, H22, Mk, Ma, Mb = self.ops[t]
-            ctx = self.ctx[t]
-            m, p = ctx["m"], ctx["p"]
-            dm = self._dm(t, V, refine=_MODEL_REFINE)
-            dmv = np.zeros(3 * n) if dm is None else dm
-            r = H22 @ dmv
-            if self.idx[k] >= 0:
-                out[k] += H11 @ V[k] + Mk.dot12(dmv)
-                r = r + Mk.dot21(V[k])
-            wmax = max(float(np.abs(V[a]).max()), float(np.abs(V[b]).max()),
-                       float(np.abs(dmv).max()))
-            if wmax > 0.0:
-                eps = self.h / wmax
-                if self._cbase[t] is None:
-                    self._cbase[t] = self._constraint_products(S[a], m, S[b], p)
-                plus = self._constraint_products(S[a] + eps * V[a].reshape(n, 3),
-                                                 m + eps * dmv.reshape(n, 3),
-                                                 S[b] + eps * V[b].reshape(n, 3), p)
-                ca, cm, cb = ((u - v) / eps for u, v in zip(plus, self._cbase[t]))
+        DM = [self._dm(t, V, refine=_MODEL_REFINE) for t in range(len(prob.terms))]
+        wmax = max([float(np.abs(V).max())] + [float(np.abs(d).max()) for d in DM
+                                                if d is not None])
+        if wmax == 0.0:
+            return out[prob.free_nodes][:, prob.free_dofs].ravel()
+        # one step for all terms: each perturbed free shell's geometry is computed once
+        eps = self.h / wmax
+        Sp = S + eps * V.reshape(S.shape)
+        held = W.hold([Sp[k] for k in prob.free_nodes])
+        try:
+            for t, (a, k, b) in enumerate(prob.terms):
+                H11, H22, Mk, Ma, Mb = self.ops[t]
+                ctx = self.ctx[t]
+                m, p = ctx["m"], ctx["p"]
+                dmv = np.zeros(3 * n) if DM[t] is None else DM[t]
+                r = H22 @ dmv
+                if self.idx[k] >= 0:
+                    out[k] += H11 @ V[k] + Mk.dot12(dmv)
+                    r = r + Mk.dot21(V[k])
+                if self.idx[a] >= 0 or self.idx[b] >= 0:
+                    if self._cbase[t] is None:
+                        self._cbase[t] = self._constraint_products(S[a], m, S[b], p)
+                    plus = self._constraint_products(Sp[a], m + eps * dmv.reshape(n, 3),
+                                                     Sp[b], p)
+                    ca, cm, cb = ((u - v) / eps for u, v in zip(plus, self._cbase[t]))
+                    if self.idx[a] >= 0:
+                        out[a] += ca
+                    if self.idx[b] >= 0:
+                        out[b] += cb
+                    r = r + cm
+                q = prob.solver.solve_factored(ctx, r[None], refine=_MODEL_REFINE)[0]
                 if self.idx[a] >= 0:
-                    out[a] += ca
+                    out[a] -= Ma.dot12(q)
                 if self.idx[b] >= 0:
-                    out[b] += cb
-                r = r + cm
-            q = prob.solver.solve_factored(ctx, r[None], refine=_MODEL_REFINE)[0]
-            if self.idx[a] >= 0:
-                out[a] -= Ma.dot12(q)
-            if self.idx[b] >= 0:
-                out[b] -= Mb.dot21(q)
+                    out[b] -= Mb.dot21(q)
+        finally:
+            W.release(held)
         out *= prob.scale4
         return out[prob.free_nodes][:, prob.free_dofs].ravel()
 

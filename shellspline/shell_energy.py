@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._errors import ShellsplineError
-from .descriptors import lta_descriptors, lta_jacobian, wrap_angle
+from .descriptors import _element_gradients, lta_descriptors, lta_jacobian, wrap_angle
 from .topology import Topology
 
 __all__ = ["DiscreteShells", "EuclideanEnergy", "MixedOperator", "shell_energy",
@@ -426,6 +426,7 @@ class DiscreteShells:
         dofE = (3 * T.E[:, :, None] + xyz).reshape(e, 6)
         dofF = (3 * T.F[:, :, None] + xyz).reshape(m, 9)
         dofP = (3 * T.flaps[:, :, None] + xyz).reshape(i, 12)
+        self._dofs = (dofE, dofP, dofF)
         rows, cols = zip(*[_block_stencil_coo(d) for d in (dofE, dofP, dofF)])
         rows, cols = np.concatenate(rows), np.concatenate(cols)
         self.pattern = HessianPattern(rows, cols, 3 * n)
@@ -783,9 +784,10 @@ class DiscreteShells:
         ``W,bb = Jᵀ Φ_b J + Σ_i (c_b)_i ∇²z_i`` (``J``, ``∇²z_i`` of the shell that block
         ``b`` differentiates, ``Φ_b`` the descriptor Hessian, ``c_b`` the descriptor gradient):
         three sparse mat-vecs and one batched product of the element Hessians with the
-        element-local entries of ``v``, which the blocks share (one scatter). No pattern
-        assembly: on the 1000-vertex cactus about 3× faster than :meth:`hessian` followed by
-        a mat-vec, for a pose whose element Hessians are not cached yet.
+        element-local entries of ``v``: the complex-step derivative of the element gradients
+        along ``v`` (:func:`~shellspline.descriptors._element_gradients` at ``V + i h v``),
+        exact to round-off without forming element Hessians, shared by the blocks of one
+        shell. No pattern assembly.
 
         Parameters
         ----------
@@ -820,21 +822,22 @@ class DiscreteShells:
                 cX += w * c
             else:
                 cY += w * c
+        # Σ_i c_i ∇²z_i v: complex-step derivative of the element gradients along v (exact to
+        # round-off, no element Hessians: ~4x cheaper than forming the dihedral ones)
         sL, sT, sA = self._sl
-        xyz = np.arange(3)
+        vmax = float(np.abs(v).max())
+        if vmax == 0.0:
+            return out
+        h = 1e-20
         for g, c in ((gX, cX), (gY, cY)):
             if c is None:
                 continue
-            if "H" not in g:
-                self._element_hessians(g)
-            for H, verts, cc in zip(g["H"], (T.E, T.flaps, T.F), (c[sL], c[sT], c[sA])):
-                if not len(verts):
+            grads = _element_gradients(g["V"] + (1j * h / vmax) * v.reshape(-1, 3), T)[:3]
+            for G, dof, cc in zip(grads, self._dofs, (c[sL], c[sT], c[sA])):
+                if not len(dof):
                     continue
-                k = 3 * verts.shape[1]
-                dof = (3 * verts[:, :, None] + xyz).reshape(len(verts), k)
-                Hv = np.einsum("eij,ej->ei", H.reshape(-1, k, k), v[dof])
-                out += np.bincount(dof.ravel(), weights=(cc[:, None] * Hv).ravel(),
-                                   minlength=len(out))
+                out += np.bincount(dof.ravel(), minlength=len(out),
+                                   weights=(cc[:, None] * G.imag).ravel() * (vmax / h))
         return out
 
     def mixed_operator(self, V, Vt) -> "MixedOperator":
