@@ -76,6 +76,9 @@ _MODEL_REFINE = 2
 #: :meth:`GaussNewtonModel.accurate_matvec`, untruncated CG with forcing at most
 #: ``_FINAL_CG_TOL``. Earlier, far from the minimiser, the same choice took smaller steps than
 #: the first phase (1000-vertex cactus: ``‖∇F‖`` 9e-3 of its start in 300 s against 2e-4).
+#: A switch at 0.1 reached 2.2e-6 at 240 s (2e-2: 1.7e-6 at 295 s) but then had trials
+#: rejected down to a 1e-11 step, twice; restarted from that iterate the same phase went on
+#: normally (5.9e-3 → 5e-5 of its own start in 150 s). Not understood yet: kept at 2e-2.
 _FINAL_PHASE = 2e-2
 _FINAL_CG_TOL = 0.05
 
