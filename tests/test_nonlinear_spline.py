@@ -18,6 +18,22 @@ def _kink(V, f):
     return np.linalg.norm(V[f + 1] - 2 * V[f] + V[f - 1]) / np.linalg.norm(V[f + 1] - V[f - 1])
 
 
+def _off_rigid(prob, S, rng):
+    """A random direction off each free shell's rigid motions (F is invariant along them)."""
+    v = rng.standard_normal((len(prob.free_nodes), len(prob.free_dofs)))
+    for i, q in enumerate(prob.rigid_bases(S)):
+        v[i] -= q @ (q.T @ v[i])
+    return v.ravel()
+
+
+def _fd_hessian_product(prob, S, v, h=1e-5):
+    """Central difference of the adjoint gradient of F^K along v (midpoints re-solved)."""
+    x = prob.x_of(S)
+    gp = prob.x_of(prob.evaluate(prob.nodes_of(x + h * v, S))[1])
+    gm = prob.x_of(prob.evaluate(prob.nodes_of(x - h * v, S))[1])
+    return (gp - gm) / (2 * h)
+
+
 @pytest.fixture(scope="module")
 def tiny():
     V, F = icosphere(1)
@@ -129,16 +145,8 @@ def test_gauss_newton_model_matches_finite_differences_near_the_solution(tiny):
     prob.evaluate(S, keep=True)
     model = GaussNewtonModel(prob)
     rng = np.random.default_rng(4)
-    x = prob.x_of(S)
-    Q = prob.rigid_bases(S)
-    v = rng.standard_normal((len(prob.free_nodes), 3 * 42))
-    for i, q in enumerate(Q):  # a direction off the rigid motions (F is invariant along them)
-        v[i] -= q @ (q.T @ v[i])
-    v = v.ravel()
-    h = 1e-5
-    gp = prob.x_of(prob.evaluate(prob.nodes_of(x + h * v, S))[1])
-    gm = prob.x_of(prob.evaluate(prob.nodes_of(x - h * v, S))[1])
-    fd = (gp - gm) / (2 * h)
+    v = _off_rigid(prob, S, rng)
+    fd = _fd_hessian_product(prob, S, v)
     Hv = model.matvec(v)
     assert np.linalg.norm(Hv - fd) <= 0.1 * np.linalg.norm(fd)
     assert v @ Hv > 0
@@ -199,19 +207,11 @@ def test_exact_hessian_products_match_finite_differences_far_from_the_solution(t
     S[1:3] += 0.02 * np.random.default_rng(7).standard_normal(S[1:3].shape)
     prob.evaluate(S, keep=True)
     model = GaussNewtonModel(prob)
-    x = prob.x_of(S)
-    Q = prob.rigid_bases(S)
     rng = np.random.default_rng(5)
     errs, acc_errs, gn_errs = [], [], []
     for _ in range(2):
-        v = rng.standard_normal((len(prob.free_nodes), 3 * 42))
-        for i, q in enumerate(Q):
-            v[i] -= q @ (q.T @ v[i])
-        v = v.ravel()
-        h = 1e-5
-        gp = prob.x_of(prob.evaluate(prob.nodes_of(x + h * v, S))[1])
-        gm = prob.x_of(prob.evaluate(prob.nodes_of(x - h * v, S))[1])
-        fd = (gp - gm) / (2 * h)
+        v = _off_rigid(prob, S, rng)
+        fd = _fd_hessian_product(prob, S, v)
         errs.append(np.linalg.norm(model.exact_matvec(v) - fd) / np.linalg.norm(fd))
         acc_errs.append(np.linalg.norm(model.accurate_matvec(v) - fd) / np.linalg.norm(fd))
         gn_errs.append(np.linalg.norm(model.matvec(v) - fd) / np.linalg.norm(fd))
