@@ -374,3 +374,35 @@ def test_space_time_preconditioner_inverts_the_lta_spline_hessian(tiny):
             h = 1e-4 / np.abs(u).max()
             quad = (E(x0 + h * u) - 2 * E(x0) + E(x0 - h * u)) / h ** 2
             assert abs(quad - u @ v) <= 1e-4 * abs(u @ v), (bc, quad, u @ v)
+
+
+def test_cg_is_not_solved_beyond_what_meets_gtol(tiny, monkeypatch):
+    """The forcing term is floored at ``_GTOL_MARGIN · gtol · ‖∇F₀‖ / ‖∇F‖``: the last Newton
+    system is solved only as far as the next gradient must drop, which saves CG iterations and
+    still meets ``gtol``."""
+    import importlib
+
+    nls = importlib.import_module("shellspline.nonlinear_spline")
+    Vkey, T = tiny
+    steihaug = nls._steihaug
+    runs, margin0 = {}, nls._GTOL_MARGIN
+    for margin in (margin0, 0.0):
+        calls = []
+
+        def recording(matvec, precond, b, Q, f, rtol, *args, **kw):
+            calls.append((rtol, float(np.linalg.norm(b))))
+            return steihaug(matvec, precond, b, Q, f, rtol, *args, **kw)
+
+        monkeypatch.setattr(nls, "_GTOL_MARGIN", margin)
+        monkeypatch.setattr(nls, "_steihaug", recording)
+        gtol = 1e-6
+        res = nonlinear_spline(Vkey, [0, 2, 4], 4, T, eta=0.1, gtol=gtol)
+        assert res.success and res.grad_norms[-1] <= gtol * res.grad_norms[0]
+        g0 = res.grad_norms[0]
+        floors = [min(margin * gtol * g0 / bn, 0.5) for _, bn in calls]
+        assert all(rtol >= fl * (1 - 1e-12) for (rtol, _), fl in zip(calls, floors))
+        runs[margin] = (res, calls, floors)
+    res, calls, floors = runs[margin0]
+    # the floor decided the last solve: looser than the Eisenstat–Walker forcing there
+    assert calls[-1][0] == floors[-1] > runs[0.0][1][-1][0]
+    assert sum(res.cg_iterations) < sum(runs[0.0][0].cg_iterations)
