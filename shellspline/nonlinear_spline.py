@@ -839,10 +839,7 @@ class GaussNewtonModel:
     def _constraint_products(self, sa, m, sb, p):
         """Gradient of ``p ᵀ ∇_m(W[s_a, m] + W[m, s_b])`` (``p`` frozen) w.r.t.
         ``(s_a, m, s_b)``, all analytic."""
-        W = self.prob.energy
-        return (W.mixed_product(sa, m, p, "12"),
-                W.hessian_product(sa, m, p, ("22",)) + W.hessian_product(m, sb, p, ("11",)),
-                W.mixed_product(m, sb, p, "21"))
+        return self.prob.energy.constraint_products(sa, m, sb, p)
 
     def _full(self, x):
         prob = self.prob

@@ -822,23 +822,59 @@ class DiscreteShells:
                 cX += w * c
             else:
                 cY += w * c
-        # Σ_i c_i ∇²z_i v: complex-step derivative of the element gradients along v (exact to
-        # round-off, no element Hessians: ~4x cheaper than forming the dihedral ones)
-        sL, sT, sA = self._sl
+        for g, c in ((gX, cX), (gY, cY)):
+            if c is not None:
+                out += self._element_term(g["V"], c, v)
+        return out
+
+    def _element_term(self, V, c, v) -> np.ndarray:
+        """``Σ_i c_i ∇²z_i(V) v`` for descriptor weights ``c (d,)``: the complex-step
+        derivative of the element gradients along ``v`` (exact to round-off, no element
+        Hessians: ~4x cheaper than forming the dihedral ones)."""
+        out = np.zeros(3 * self.n_vertices)
         vmax = float(np.abs(v).max())
         if vmax == 0.0:
             return out
         h = 1e-20
-        for g, c in ((gX, cX), (gY, cY)):
-            if c is None:
-                continue
-            grads = _element_gradients(g["V"] + (1j * h / vmax) * v.reshape(-1, 3), T)[:3]
-            for G, dof, cc in zip(grads, self._dofs, (c[sL], c[sT], c[sA])):
-                if not len(dof):
-                    continue
+        sL, sT, sA = self._sl
+        grads = _element_gradients(V + (1j * h / vmax) * v.reshape(-1, 3), self.T)[:3]
+        for G, dof, cc in zip(grads, self._dofs, (c[sL], c[sT], c[sA])):
+            if len(dof):
                 out += np.bincount(dof.ravel(), minlength=len(out),
                                    weights=(cc[:, None] * G.imag).ravel() * (vmax / h))
         return out
+
+    def constraint_products(self, Va, M, Vb, p) -> tuple:
+        """The second derivatives of ``pᵀ ∇_m (W[s_a, m] + W[m, s_b])`` (a geodesic midpoint
+        ``m`` between ``s_a`` and ``s_b``, ``p`` frozen) applied to ``p``: the triple
+        ``(W,12[s_a, m] p, (W,22[s_a, m] + W,11[m, s_b]) p, W,21[m, s_b] p)``, i.e. its
+        gradient w.r.t. ``(s_a, m, s_b)``.
+
+        The same numbers as two :meth:`mixed_product` and two :meth:`hessian_product` calls,
+        with the work they share done once: ``J[m] p``, one complex-step element term for the
+        summed descriptor gradients at ``m``, descriptor Hessians applied without CSR
+        conversion.
+
+        Parameters
+        ----------
+        Va, M, Vb : (n,3) float arrays
+        p : (3n,) float array
+
+        Returns
+        -------
+        tuple of three (3n,) float64 arrays
+        """
+        ga, gm = self._geometries(Va, M)
+        gb = self._geometry(_checked_pose(Vb, self.n_vertices, "Vb"))
+        za, zm, zb = ga["z"], gm["z"], gb["z"]
+        p = np.asarray(p, dtype=np.float64).ravel()
+        u = gm["J"] @ p
+        ca = ga["J"].T @ (self._hess_desc(za, zm, "12") @ u)
+        cb = gb["J"].T @ (self._hess_desc(zm, zb, "12").T @ u)
+        cm = gm["J"].T @ (self._hess_desc(za, zm, "22") @ u + self._hess_desc(zm, zb, "11") @ u)
+        cm += self._element_term(gm["V"], self._grad_desc(za, zm, 1) +
+                                 self._grad_desc(zm, zb, 0), p)
+        return ca, cm, cb
 
     def mixed_operator(self, V, Vt) -> "MixedOperator":
         """``W,12[s, s̃]`` and ``W,21[s, s̃]`` as a reusable matrix-free operator (the
@@ -933,6 +969,10 @@ class EuclideanEnergy:
         """``Σ_b w_b W,bb v`` (``W,11 = W,22 = 2 I``)."""
         weights = [1.0] * len(blocks) if weights is None else weights
         return 2.0 * float(sum(weights)) * np.asarray(v, dtype=np.float64).ravel()
+
+    def constraint_products(self, Va, M, Vb, p) -> tuple:
+        p = np.asarray(p, dtype=np.float64).ravel()
+        return -2.0 * p, 4.0 * p, -2.0 * p
 
     def mixed_operator(self, V, Vt) -> MixedOperator:
         return MixedOperator(None, None, None, scale=-2.0)
