@@ -774,13 +774,13 @@ class GaussNewtonModel:
         constraint ``p_tᵀ ∇_m(W[s_a, m] + W[m, s_b])`` are differenced, once, along
         ``(x_a, Z_t x, x_b)``: the analytic products ``W,12[s_a,m] p``, ``W,21[m,s_b] p`` and
         ``(W,22[s_a,m] + W,11[m,s_b]) p``
-        (:meth:`~shellspline.shell_energy.DiscreteShells.hessian_product`) at the perturbed
-        point minus their values at the model point (computed once per model). One
+        (:meth:`~shellspline.shell_energy.DiscreteShells.constraint_products`) at the
+        perturbed point minus their values at the model point (computed once per model). One
         difference level instead of :meth:`exact_matvec`'s two: ``xᵀHy`` and ``yᵀHx`` agree
         to 1e-4 in the soft directions where the nested difference is off by 2.5×. Cost on the
-        1000-vertex cactus: 0.27 s against 0.20 s (complex-step element terms of
-        :meth:`~shellspline.shell_energy.DiscreteShells.hessian_product`). Used by the final
-        Newton phase of the trust region (:data:`_FINAL_PHASE`).
+        1000-vertex cactus: 0.22 s against 0.20 s (complex-step element terms, the work of
+        the four constraint products shared). Used by the final Newton phase of the trust
+        region (:data:`_FINAL_PHASE`).
         """
         prob = self.prob
         W = prob.energy
@@ -805,8 +805,8 @@ class GaussNewtonModel:
                     r = r + Mk.dot21(V[k])
                 if self.idx[a] >= 0 or self.idx[b] >= 0:
                     if self._cbase[t] is None:
-                        self._cbase[t] = self._constraint_products(S[a], m, S[b], p)
-                    plus = self._constraint_products(Sp[a], m + eps * dmv.reshape(n, 3),
+                        self._cbase[t] = W.constraint_products(S[a], m, S[b], p)
+                    plus = W.constraint_products(Sp[a], m + eps * dmv.reshape(n, 3),
                                                      Sp[b], p)
                     ca, cm, cb = ((u - v) / eps for u, v in zip(plus, self._cbase[t]))
                     if self.idx[a] >= 0:
@@ -835,11 +835,6 @@ class GaussNewtonModel:
             return DM, None, None
         eps = self.h / wmax
         return DM, eps, self.S + eps * V.reshape(self.S.shape)
-
-    def _constraint_products(self, sa, m, sb, p):
-        """Gradient of ``p ᵀ ∇_m(W[s_a, m] + W[m, s_b])`` (``p`` frozen) w.r.t.
-        ``(s_a, m, s_b)``, all analytic."""
-        return self.prob.energy.constraint_products(sa, m, sb, p)
 
     def _full(self, x):
         prob = self.prob
