@@ -516,6 +516,24 @@ class DiscreteShells:
 
     def _hess_desc(self, zX, zY, block: str):
         """Descriptor-space second derivatives as a sparse ``(d,d)`` matrix."""
+        r, c, v = self._hess_desc_entries(zX, zY, block)
+        if block == "22":
+            return sp.diags(v)
+        return sp.coo_matrix((v, (r, c)), shape=(self._d, self._d))
+
+    def _hess_desc_dot(self, zX, zY, block: str, u, transpose: bool = False) -> np.ndarray:
+        """``Φ_block u`` (or ``Φ_blockᵀ u``) from the entries of :meth:`_hess_desc` by one
+        scatter, without a sparse matrix (for products used once)."""
+        r, c, v = self._hess_desc_entries(zX, zY, block)
+        if block == "22":
+            return v * u
+        if transpose:
+            r, c = c, r
+        return np.bincount(r, weights=v * u[c], minlength=self._d)
+
+    def _hess_desc_entries(self, zX, zY, block: str):
+        """``(rows, cols, values)`` of the descriptor Hessian ``block`` (duplicates summed;
+        ``"22"``: the diagonal, ``rows = cols = None``)."""
         mu, lam, eta, T = self.mu, self.lam, self.eta, self.T
         L, A, Lt, At, d, rho, li, di, dl = self._terms(zX, zY)
         iL, iT, A0, A1, has2 = self._iL, self._iT, self._iA0, self._iA1, self._has2
@@ -525,7 +543,7 @@ class DiscreteShells:
         A0i, A1i = A0[intr], A1[intr]
         if block == "22":
             diag = np.concatenate([2 * mu * d / L ** 2, 2 * eta * li ** 2 / di, 2 * lam / A])
-            return sp.diags(diag)
+            return None, None, diag
         if block == "11":
             r, c, v = [], [], []
 
@@ -552,8 +570,7 @@ class DiscreteShells:
             add(A0i, A1i, vaa)
             add(e + i + np.arange(len(A)), e + i + np.arange(len(A)), 2 * lam * At ** 2 / A ** 3,
                 False)
-            return sp.coo_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
-                                 shape=(self._d, self._d))
+            return np.concatenate(r), np.concatenate(c), np.concatenate(v)
         # block "12": rows descriptors of s, columns descriptors of s̃
         iA = e + i + np.arange(len(A))
         r = [iL, A0, A1[has2], iA, iT, iLi, A0i, A1i]
@@ -562,8 +579,7 @@ class DiscreteShells:
         vTa = 2 * eta * li ** 2 * dl / (3 * di ** 2)
         v = [2 * mu * d * (1 - 2 * Lt / L) / L ** 2, vLa, vLa[has2], -2 * lam * At / A ** 2,
              -2 * eta * li ** 2 / di, -4 * eta * li * dl / di, vTa, vTa]
-        return sp.coo_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
-                             shape=(self._d, self._d))
+        return np.concatenate(r), np.concatenate(c), np.concatenate(v)
 
     # -- vertex-space helpers ------------------------------------------------------------
     def _geometry(self, V) -> dict:
@@ -771,11 +787,11 @@ class DiscreteShells:
         if block not in ("12", "21"):
             raise ShellsplineError(f"`block` must be '12' or '21', got {block!r}")
         gX, gY = self._geometries(V, Vt)
-        Phi = self._hess_desc(gX["z"], gY["z"], "12").tocsr()
+        zX, zY = gX["z"], gY["z"]
         v = np.asarray(v, dtype=np.float64).ravel()
         if block == "12":
-            return gX["J"].T @ (Phi @ (gY["J"] @ v))
-        return gY["J"].T @ (Phi.T @ (gX["J"] @ v))
+            return gX["J"].T @ self._hess_desc_dot(zX, zY, "12", gY["J"] @ v)
+        return gY["J"].T @ self._hess_desc_dot(zX, zY, "12", gX["J"] @ v, transpose=True)
 
     def hessian_product(self, V, Vt, v, blocks=("22",), weights=None) -> np.ndarray:
         """``Σ_b w_b W,bb v`` for diagonal blocks ``b`` in ``{"11", "22"}`` without forming
@@ -816,7 +832,7 @@ class DiscreteShells:
         for b, w in zip(blocks, weights):
             g = gX if b == "11" else gY
             J = g["J"]
-            out += w * (J.T @ (self._hess_desc(zX, zY, b).tocsr() @ (J @ v)))
+            out += w * (J.T @ self._hess_desc_dot(zX, zY, b, J @ v))
             c = self._grad_desc(zX, zY, 0 if b == "11" else 1)
             if b == "11":
                 cX += w * c
@@ -852,8 +868,7 @@ class DiscreteShells:
 
         The same numbers as two :meth:`mixed_product` and two :meth:`hessian_product` calls,
         with the work they share done once: ``J[m] p``, one complex-step element term for the
-        summed descriptor gradients at ``m``, descriptor Hessians applied without CSR
-        conversion.
+        summed descriptor gradients at ``m``; descriptor Hessians applied by one scatter each.
 
         Parameters
         ----------
@@ -869,9 +884,10 @@ class DiscreteShells:
         za, zm, zb = ga["z"], gm["z"], gb["z"]
         p = np.asarray(p, dtype=np.float64).ravel()
         u = gm["J"] @ p
-        ca = ga["J"].T @ (self._hess_desc(za, zm, "12") @ u)
-        cb = gb["J"].T @ (self._hess_desc(zm, zb, "12").T @ u)
-        cm = gm["J"].T @ (self._hess_desc(za, zm, "22") @ u + self._hess_desc(zm, zb, "11") @ u)
+        ca = ga["J"].T @ self._hess_desc_dot(za, zm, "12", u)
+        cb = gb["J"].T @ self._hess_desc_dot(zm, zb, "12", u, transpose=True)
+        cm = gm["J"].T @ (self._hess_desc_dot(za, zm, "22", u) +
+                          self._hess_desc_dot(zm, zb, "11", u))
         cm += self._element_term(gm["V"], self._grad_desc(za, zm, 1) +
                                  self._grad_desc(zm, zb, 0), p)
         return ca, cm, cb
