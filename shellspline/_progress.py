@@ -51,8 +51,11 @@ class Progress:
             self.timings[name] = self.timings.get(name, 0.0) + dt
             self._emit(kind="stage_end", stage=name, seconds=dt, total=total)
 
-    def advance(self, stage: str, done: int, total: int) -> None:
-        self._emit(kind="advance", stage=stage, done=done, total=total)
+    def advance(self, stage: str, done: int, total: int, text: str | None = None) -> None:
+        """``done`` of ``total``; ``text`` (optional) describes the state, e.g. an
+        optimiser's iteration, energy and gradient (the CLI prints it as a log line when
+        stderr is not a terminal)."""
+        self._emit(kind="advance", stage=stage, done=done, total=total, text=text)
 
     def message(self, text: str) -> None:
         self._emit(kind="message", text=text)

@@ -36,9 +36,14 @@ class _Bar:
                 self._draw(ev["stage"], 0, ev["total"])
         elif kind == "advance":
             now = time.perf_counter()
-            if self.tty and (now - self._last > 0.1 or ev["done"] == ev["total"]):
-                self._draw(ev["stage"], ev["done"], ev["total"])
+            text = ev.get("text")
+            if self.tty and (now - self._last > 0.1 or ev["done"] == ev["total"] or text):
+                self._draw(ev["stage"], ev["done"], ev["total"], text)
                 self._last = now
+            elif text and not self.tty:  # logs and pipes: one line per described step
+                el = now - (self._t0 or now)
+                self.stream.write(f"  {ev['stage']:<12s} {text}  {el:6.1f} s\n")
+                self.stream.flush()
         elif kind == "stage_end":
             if self.tty and ev.get("total"):
                 self.stream.write("\r\033[K")
@@ -47,15 +52,18 @@ class _Bar:
         elif kind == "message":
             self.stream.write(f"  note: {ev['text']}\n")
 
-    def _draw(self, stage, done, total):
+    def _draw(self, stage, done, total, text=None):
         if not self.tty:
             return
         width = 30
-        fill = int(width * done / max(total, 1))
+        fill = int(width * min(done, total) / max(total, 1))
         el = time.perf_counter() - (self._t0 or time.perf_counter())
-        eta = el / done * (total - done) if done else float("nan")
-        self.stream.write(f"\r  {stage:<12s} [{'#' * fill}{'.' * (width - fill)}] {done}/{total}"
-                          f"  {el:5.1f}s  eta {eta:5.1f}s")
+        if text:  # the state says more than an ETA (e.g. an optimiser's gradient norm)
+            tail = f"  {text}  {el:5.1f}s"
+        else:
+            eta = el / done * (total - done) if done else float("nan")
+            tail = f" {done}/{total}  {el:5.1f}s  eta {eta:5.1f}s"
+        self.stream.write(f"\r\033[K  {stage:<12s} [{'#' * fill}{'.' * (width - fill)}]{tail}")
         self.stream.flush()
 
 
@@ -247,8 +255,13 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
     for name in ("geodesic", "nonlinear"):
         if name in rep:
             r = rep[name]
-            lines.append(f"{name}: {'converged' if r['success'] else 'NOT converged'} after "
-                         f"{r['nit']} iterations ({r['message']})")
+            line = (f"{name}: {'converged' if r['success'] else 'NOT converged'} after "
+                    f"{r['nit']} iterations ({r['message']})")
+            if name == "nonlinear" and r.get("grad_norm_initial"):
+                line += (f"; F {r['energy_initial']:.6g} -> {r['energy_final']:.6g}, |g|/|g0| "
+                         f"{r['grad_norm_final'] / r['grad_norm_initial']:.1e} in "
+                         f"{r['seconds']:.1f} s")
+            lines.append(line)
     ok = q["keyframes_exact"] and q["flipped_faces"] == 0 and q["degenerate_faces"] == 0 and \
         (not gn or gn["converged"] == gn["frames"]) and \
         all(rep[name]["success"] for name in ("geodesic", "nonlinear") if name in rep)

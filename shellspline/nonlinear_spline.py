@@ -74,7 +74,7 @@ _MODEL_REFINE = 2
 #: The trust region's final Newton phase starts once exact products are in use and
 #: ``‖∇F‖ <= _FINAL_PHASE ‖∇F₀‖`` (mesh energies): :class:`_SpaceTimePreconditioner`,
 #: :meth:`GaussNewtonModel.accurate_matvec`, untruncated CG with forcing at most
-#: ``_FINAL_CG_TOL``. Earlier, far from the minimiser, the same choice took smaller steps than
+#: ``_FINAL_CG_TOL`` (unless :data:`_GTOL_MARGIN` allows a looser one). Earlier, far from the minimiser, the same choice took smaller steps than
 #: the first phase (1000-vertex cactus: ``‖∇F‖`` 9e-3 of its start in 300 s against 2e-4).
 #: Switching at 0.1 instead of 2e-2: converged (4.2e-8) at 317 s instead of 3e-7 at 360 s;
 #: it needs :data:`_FINAL_MIDPOINT_TOL` (without it the 0.1 run stalled at 2.2e-6).
@@ -431,9 +431,10 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         to a gradient reduction of 1e-6 where L-BFGS needs hundreds.
     cg_tol, cg_max_iter : float, int
         Relative residual and iteration limit of the inner CG of ``"gauss-newton"``.
-        Default ``cg_tol``: 0.5 with the trust region (an upper bound: the forcing term is
-        ``min(cg_tol, √(‖∇F‖/‖∇F₀‖))``, tighter as the gradient drops), 0.1 with the line
-        search.
+        Default ``cg_tol``: 0.5 with the trust region, where the forcing term is
+        ``min(cg_tol, √(‖∇F‖/‖∇F₀‖))`` (tighter as the gradient drops) but never below
+        ``0.5 gtol ‖∇F₀‖/‖∇F‖`` (:data:`_GTOL_MARGIN`: no solve beyond what meets ``gtol``,
+        so near the end it may exceed ``cg_tol``); 0.1 (fixed) with the line search.
     globalization : {"trust-region", "line-search"}
         ``"gauss-newton"`` optimiser: Steihaug–Toint trust region (default) or Armijo
         backtracking along the CG step (see Notes).
@@ -1204,7 +1205,8 @@ def _trust_region(prob, fun, x, F, g, S0, cb, max_iter, cg_tol, cg_max_iter, sta
     line-search variant); the radius shrinks to a quarter of the step when the actual
     decrease is below a quarter of the model's (or a midpoint solve fails) and doubles when
     a boundary step earns more than three quarters. A rejected trial writes the other set of
-    kept factorizations, so the model survives it. Returns ``(x, message)``."""
+    kept factorizations, so the model survives it. ``gtol`` (relative to the first gradient)
+    floors the CG forcing term (:data:`_GTOL_MARGIN`). Returns ``(x, message)``."""
     f = len(prob.free_nodes)
     zero = np.zeros_like(S0)
     cap = _step_cap(prob, S0, 2.0)

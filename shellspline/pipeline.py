@@ -790,10 +790,20 @@ def _nonlinear_stage(Vkey, T, pinned, Vinit, frames, K, bc, mu, lam, eta, solver
     opts = dict(solver_options or {})
     max_iter = int(opts.pop("max_iter", 500))
     stage = stage_prefix + "nonlinear"
-    with prog.stage(stage, total=max_iter):
+    gtol = float(opts.get("gtol", 1e-6))
+    first = {}
+
+    def report(it, e, g):
+        # the bar fills with the gradient reduction on a log scale, 1000 = gtol reached
+        g0 = first.setdefault("g", g)
+        red = g / g0 if g0 > 0 else 0.0
+        frac = np.log(1.0 / max(red, 1e-300)) / np.log(1.0 / gtol) if 0 < gtol < 1 else 0.0
+        prog.advance(stage, int(1000 * min(max(frac, 0.0), 1.0)), 1000,
+                     text=f"it {it:3d}  F {e:.7g}  |g|/|g0| {red:.1e}")
+
+    with prog.stage(stage, total=1000):
         nl = nonlinear_spline(Vkey, frames, K, T, bc=bc, mu=mu, lam=lam, eta=eta,
-                              pinned=pinned, init=Vinit, max_iter=max_iter,
-                              callback=lambda it, e, g: prog.advance(stage, it, max_iter),
+                              pinned=pinned, init=Vinit, max_iter=max_iter, callback=report,
                               **opts)
     rec = {"success": bool(nl.success), "nit": int(nl.nit), "nfev": int(nl.nfev),
            "message": nl.message, "optimizer": nl.optimizer,

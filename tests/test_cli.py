@@ -150,3 +150,45 @@ def test_nonlinear_ftol_from_the_command_line(ell_dir, tmp_path, capsys):
         rc = main(["interpolate", *_poses(ell_dir), "-o", str(tmp_path / "o"), "-q", *extra])
         err = capsys.readouterr().err
         assert rc == 2 and "--ftol" in err and len(err.strip().splitlines()) == 1
+
+
+def test_nonlinear_progress_lines_and_summary(ell_dir, tmp_path, capsys):
+    """Off a terminal the nonlinear stage logs one line per outer iteration (the numbers of
+    report.json's histories) and the summary states the energy and gradient reduction."""
+    out = tmp_path / "nl"
+    rc = main(["interpolate", *_poses(ell_dir), "--K", "4", "--eta", "0.1", "--method",
+               "nonlinear", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 0
+    nl = json.loads((out / "report.json").read_text())["nonlinear"]
+    lines = [ln.split() for ln in err.splitlines() if ln.split()[:2] == ["nonlinear", "it"]]
+    assert len(lines) == nl["nit"] + 1 == len(nl["energy_history"])
+    g0 = nl["grad_norm_history"][0]
+    for k, ln in enumerate(lines):
+        assert int(ln[2]) == k
+        assert float(ln[4]) == pytest.approx(nl["energy_history"][k], rel=1e-6)
+        assert float(ln[6]) == pytest.approx(nl["grad_norm_history"][k] / g0, rel=0.06)
+    summary = [ln for ln in err.splitlines() if ln.startswith("nonlinear: converged")]
+    red = nl["grad_norm_final"] / nl["grad_norm_initial"]
+    assert len(summary) == 1 and f"|g|/|g0| {red:.1e}" in summary[0] and red <= 1e-6
+
+
+def test_progress_bar_on_a_terminal_draws_the_described_state():
+    import io
+
+    from shellspline.cli import _Bar
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    s = Tty()
+    bar = _Bar(stream=s)
+    bar({"kind": "stage_start", "stage": "nonlinear", "total": 1000, "done": 0})
+    bar({"kind": "advance", "stage": "nonlinear", "done": 500, "total": 1000,
+         "text": "it   3  F 1.5  |g|/|g0| 1.0e-03"})
+    drawn = s.getvalue().split("\r\033[K")[-1]
+    assert "[" + "#" * 15 + "." * 15 + "]" in drawn and "|g|/|g0| 1.0e-03" in drawn
+    assert "eta" not in drawn and "\n" not in drawn  # redrawn in place, no log line
+    bar({"kind": "stage_end", "stage": "nonlinear", "seconds": 2.0, "total": 1000})
+    assert s.getvalue().endswith("nonlinear       2.000 s\n")

@@ -376,10 +376,12 @@ def test_space_time_preconditioner_inverts_the_lta_spline_hessian(tiny):
             assert abs(quad - u @ v) <= 1e-4 * abs(u @ v), (bc, quad, u @ v)
 
 
-def test_cg_is_not_solved_beyond_what_meets_gtol(tiny, monkeypatch):
+@pytest.mark.parametrize("hessian,gtol", [("auto", 1e-6), ("exact", 1e-4)])
+def test_cg_is_not_solved_beyond_what_meets_gtol(tiny, monkeypatch, hessian, gtol):
     """The forcing term is floored at ``_GTOL_MARGIN · gtol · ‖∇F₀‖ / ‖∇F‖``: the last Newton
     system is solved only as far as the next gradient must drop, which saves CG iterations and
-    still meets ``gtol``."""
+    still meets ``gtol`` (with Gauss–Newton products, and in the final Newton phase with
+    accurate exact ones)."""
     import importlib
 
     nls = importlib.import_module("shellspline.nonlinear_spline")
@@ -395,14 +397,17 @@ def test_cg_is_not_solved_beyond_what_meets_gtol(tiny, monkeypatch):
 
         monkeypatch.setattr(nls, "_GTOL_MARGIN", margin)
         monkeypatch.setattr(nls, "_steihaug", recording)
-        gtol = 1e-6
-        res = nonlinear_spline(Vkey, [0, 2, 4], 4, T, eta=0.1, gtol=gtol)
+        res = nonlinear_spline(Vkey, [0, 2, 4], 4, T, eta=0.1, gtol=gtol, hessian=hessian)
         assert res.success and res.grad_norms[-1] <= gtol * res.grad_norms[0]
         g0 = res.grad_norms[0]
         floors = [min(margin * gtol * g0 / bn, 0.5) for _, bn in calls]
         assert all(rtol >= fl * (1 - 1e-12) for (rtol, _), fl in zip(calls, floors))
         runs[margin] = (res, calls, floors)
     res, calls, floors = runs[margin0]
+    if hessian == "exact":  # the floored solve is one of the final phase's
+        assert res.final_phase_iteration is not None and \
+            res.final_phase_iteration < len(res.cg_iterations)
     # the floor decided the last solve: looser than the Eisenstat–Walker forcing there
-    assert calls[-1][0] == floors[-1] > runs[0.0][1][-1][0]
+    assert calls[-1][0] == pytest.approx(floors[-1], rel=1e-12)
+    assert calls[-1][0] > 2 * runs[0.0][1][-1][0]
     assert sum(res.cg_iterations) < sum(runs[0.0][0].cg_iterations)
