@@ -435,8 +435,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Multiresolution (paper §8): decimate all keyframes simultaneously to this many
         vertices (int) or this fraction of them (float in (0,1)), run the LΘA spline and the
         reconstruction on the coarse meshes and prolong the result by detail transfer.
-        ``"auto"`` (default) decimates to 1000 vertices above 20 000 vertices; ``"none"`` runs
-        at full resolution. Applies to ``method="lta"``.
+        ``"auto"`` (default) decimates to 1000 vertices above 20 000 vertices (above 2000 with
+        ``method="nonlinear"``, :data:`AUTO_NONLINEAR_ABOVE`); ``"none"`` runs at full
+        resolution. Applies to ``method="lta"`` and ``"nonlinear"`` (the nonlinear spline then
+        runs on the coarse meshes, started from their LΘA spline, and is prolonged).
     fine : bool
         After the coarse run, run the LΘA spline and Gauss–Newton at full resolution,
         initialised from the prolonged sequence (paper Table 2, last column).
@@ -557,7 +559,15 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                         workers=workers, gn_options=dict(gn_options or {}),
                         warm_start=warm_start, prog=prog, fixpoint=fixpoint,
                         fixpoint_log=fixpoint_log)
-        n_coarse = _coarse_target(coarse, n)
+        n_coarse = _coarse_target(coarse, n, method)
+        if method == "nonlinear" and not fine:
+            if n_coarse is not None and _coarse_target(coarse, n) is None:
+                prog.message(f"nonlinear: solving on {n_coarse} coarse vertices and prolonging "
+                             f"to {n} (--coarse none: all {n}, far slower)")
+            elif n_coarse is None and n > AUTO_NONLINEAR_ABOVE:
+                prog.message(f"nonlinear spline on all {n} vertices: expect far more than the "
+                             f"~4 min it takes at {AUTO_COARSE_VERTICES} (--coarse "
+                             f"{AUTO_COARSE_VERTICES} solves there and prolongs)")
         if fine and n_coarse is None:
             raise ValueError("`fine=True` refines a multiresolution run: it needs `coarse` "
                              f"(a vertex count or fraction below the {n} vertices), got "
@@ -661,12 +671,17 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
 
 AUTO_COARSE_ABOVE = 20_000
 AUTO_COARSE_VERTICES = 1000
+#: ``coarse="auto"`` with ``method="nonlinear"`` decimates above this many vertices (to
+#: :data:`AUTO_COARSE_VERTICES`): the nonlinear spline takes ~4 min at 1000 vertices (cactus,
+#: K = 20) and its cost grows faster than the vertex count.
+AUTO_NONLINEAR_ABOVE = 2000
 
 
-def _coarse_target(coarse, n):
+def _coarse_target(coarse, n, method: str = "lta"):
     """Canonical coarse vertex count, or None for a single-resolution run."""
     if coarse is None or (isinstance(coarse, str) and coarse.strip().lower() == "auto"):
-        return AUTO_COARSE_VERTICES if n > AUTO_COARSE_ABOVE else None
+        above = AUTO_NONLINEAR_ABOVE if method == "nonlinear" else AUTO_COARSE_ABOVE
+        return AUTO_COARSE_VERTICES if n > above else None
     if isinstance(coarse, str):
         c = coarse.strip().lower()
         if c in ("none", "off", "no"):

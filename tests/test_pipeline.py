@@ -239,6 +239,30 @@ def test_nonlinear_method_starts_from_lta_and_decreases_the_energy():
         assert np.array_equal(res.V[f], d["V"][j])
 
 
+def test_nonlinear_auto_coarse_solves_on_the_coarse_mesh(monkeypatch):
+    """``coarse="auto"`` with the nonlinear model decimates above AUTO_NONLINEAR_ABOVE (here
+    lowered to fit a test mesh), says so, and prolongs with keyframes exact."""
+    from shellspline import pipeline
+
+    monkeypatch.setattr(pipeline, "AUTO_NONLINEAR_ABOVE", 80)
+    monkeypatch.setattr(pipeline, "AUTO_COARSE_VERTICES", 60)
+    d = data_synth.generate("ellipsoids", n_vertices=100)
+    n = d["V"].shape[1]
+    events = []
+    res = ss.interpolate((d["V"], d["F"]), frames=[0, 2, 4], K=4, eta=0.1, method="nonlinear",
+                         solver_options={"max_iter": 3}, progress=events.append)
+    assert 55 <= res.report["multires"]["coarse_vertices"] <= 60 < n
+    assert res.report["nonlinear"]["resolution"] == "coarse"
+    assert res.report["nonlinear"]["vertices"] == res.report["multires"]["coarse_vertices"]
+    msgs = [e["text"] for e in events if e["kind"] == "message"]
+    assert any("coarse vertices" in m and "--coarse none" in m for m in msgs), msgs
+    for j, f in enumerate([0, 2, 4]):
+        assert np.array_equal(res.V[f], d["V"][j])
+    # the LΘA default is unchanged at this size
+    lta = ss.interpolate((d["V"], d["F"]), frames=[0, 2, 4], K=4, eta=0.1)
+    assert "multires" not in lta.report
+
+
 def test_multiresolution_path_keeps_keyframes_and_detail():
     d = data_synth.generate("bumpy", n_vertices=2500)
     res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.01, coarse=400)
@@ -269,6 +293,10 @@ def test_coarse_option_canonicalisation(monkeypatch):
     assert pipeline._coarse_target(6000, 5000) is None  # no coarsening above the mesh size
     assert pipeline._coarse_target("auto", 5000) is None
     assert pipeline._coarse_target("auto", 50_000) == pipeline.AUTO_COARSE_VERTICES
+    # the nonlinear model decimates by default far earlier (its cost grows faster than n)
+    assert pipeline._coarse_target("auto", 5000, "nonlinear") == pipeline.AUTO_COARSE_VERTICES
+    assert pipeline._coarse_target("auto", pipeline.AUTO_NONLINEAR_ABOVE, "nonlinear") is None
+    assert pipeline._coarse_target("none", 5000, "nonlinear") is None
     for bad in ("many", 0, 1.5, True, -3):
         with pytest.raises(ValueError, match="coarse"):
             pipeline._coarse_target(bad, 5000)
