@@ -115,7 +115,8 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--coarse", default="auto",
                    help="multiresolution: decimate all keyframes to N vertices (or a fraction "
                         "0<γ<1), solve there and prolong by detail transfer; 'none' = full "
-                        "resolution; 'auto' (default) = 1000 vertices for meshes above 20k")
+                        "resolution; 'auto' (default) = 1000 vertices for meshes above 20k "
+                        "(above 2000 with --method nonlinear)")
     q.add_argument("--fine", action="store_true",
                    help="after --coarse, run the spline and Gauss–Newton at full resolution "
                         "initialised from the prolonged result")
