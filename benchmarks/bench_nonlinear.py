@@ -23,8 +23,13 @@ spline vs LΘA.
   minutes, not run by default.
 
 Usage: ``python benchmarks/bench_nonlinear.py [--vertices 500] [--time-limit 120] [--lbfgs]
-[--cactus]``.
-Prints tables and writes ``benchmarks/results/bench_nonlinear.json``.
+[--cactus] [--plots DIR | --no-plots]``.
+Prints tables and writes ``benchmarks/results/bench_nonlinear.json``; with the viz extra also
+the reproduction figures (PNG, default in ``benchmarks/results``): ``fig3_ellipsoids.png``
+(half-axes per frame of the three methods, and the nonlinear−LΘA against nonlinear−geodesic
+half-axis differences), ``unit_sphere.png`` (the same), ``fig10_hexagon_strain.png`` (max edge
+strain per frame, both η) and ``fig10_hexagon_strip.png`` (filmstrips of the two nonlinear
+splines, off-screen rendering).
 """
 from __future__ import annotations
 
@@ -176,6 +181,112 @@ def run_cactus(time_limit):
     return rec
 
 
+METHODS = (("geodesic", "piecewise geodesic"), ("nonlinear", "nonlinear spline"),
+           ("lta", "LΘA spline"))
+COLORS = {"geodesic": "#59a14f", "nonlinear": "#f28e2b", "lta": "#4e79a7"}
+
+
+def half_axes_figure(r):
+    """Paper Fig. 3 for one case record of :func:`run_case`: half-axes (x solid, y dashed)
+    per frame of the three methods (left); |nonlinear − LΘA| and |nonlinear − geodesic|,
+    the larger of the x and y half-axis differences, per frame (right)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10.0, 3.8), layout="constrained")
+    left, right = fig.subplots(1, 2, width_ratios=(3, 2))
+    k = np.arange(r["K"] + 1)
+    for tag, label in METHODS:
+        for axis, ls in (("x", "-"), ("y", "--")):
+            left.plot(k, r[tag][f"half_axes_{axis}"], color=COLORS[tag], ls=ls, lw=1.8,
+                      label=f"{label} {axis}")
+    for f in r["frames"]:
+        left.axvline(f, color="#a6a6a6", lw=1.0, ls=":", zorder=0)
+    left.set_xlabel("frame k")
+    left.set_ylabel("half-axis")
+    left.set_title(f"{r['name']}: half-axes along the curve (N={r['n_vertices']}, "
+                   f"K={r['K']}, η={r['eta']:g})", fontsize=10)
+    left.legend(fontsize=7, ncol=3)
+    left.grid(alpha=0.3)
+    for other, label in (("lta", "nonlinear − LΘA"), ("geodesic", "nonlinear − geodesic")):
+        d = half_axis_difference(r, other)
+        right.plot(k, d, color=COLORS[other], lw=1.8, marker="o", ms=3,
+                   label=f"|{label}| (max {d.max():.2e})")
+    right.set_xlabel("frame k")
+    right.set_ylabel("half-axis difference")
+    right.set_title("difference to the nonlinear spline", fontsize=10)
+    right.legend(fontsize=7)
+    right.grid(alpha=0.3)
+    return fig
+
+
+def half_axis_difference(r, other):
+    """Per frame, max over x and y of |half-axis(nonlinear) − half-axis(other)|."""
+    nl, ot = r["nonlinear"], r[other]
+    return np.maximum(np.abs(np.subtract(nl["half_axes_x"], ot["half_axes_x"])),
+                      np.abs(np.subtract(nl["half_axes_y"], ot["half_axes_y"])))
+
+
+def strain_figure(hexagon):
+    """Paper Fig. 10: max edge strain against the flat hexagon per frame, one panel per
+    (R, η) case, the three methods in each."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.0 * len(hexagon), 3.6), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(hexagon)))
+    for ax, r in zip(axes, hexagon):
+        k = np.arange(r["K"] + 1)
+        for tag, label in METHODS:
+            ax.plot(k, r[tag]["edge_strain_per_frame"], color=COLORS[tag], lw=1.8,
+                    label=f"{label} (max {r[tag]['max_edge_strain']:.1e})")
+        for f in r["frames"]:
+            ax.axvline(f, color="#a6a6a6", lw=1.0, ls=":", zorder=0)
+        ax.set_xlabel("frame k")
+        ax.set_ylabel("max edge strain")
+        ax.set_title(f"hexagon fold, R = {r['radius']:g}, η = {r['eta']:g} "
+                     f"(η/R² = {r['eta_unit']:.1e})", fontsize=10)
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    return fig
+
+
+def write_plots(results, hexagon, hex_F, outdir):
+    """Save the reproduction figures (atomically) and return their paths; ``[]`` with a note
+    when the viz extra is missing."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        print('no plots: they need the viz extra (pip install "shellspline[viz]")')
+        return []
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+
+    def save(fig, name):
+        path = outdir / name
+        tmp = path.with_name(path.stem + ".tmp.png")
+        fig.savefig(tmp, dpi=120)
+        tmp.replace(path)
+        return path
+
+    written = []
+    for r in results:
+        if r["name"] in ("ellipsoids", "unit_sphere"):
+            name = "fig3_ellipsoids.png" if r["name"] == "ellipsoids" else "unit_sphere.png"
+            written.append(save(half_axes_figure(r), name))
+    if hexagon:
+        written.append(save(strain_figure(hexagon), "fig10_hexagon_strain.png"))
+        try:
+            from shellspline import viz
+
+            for r in hexagon:
+                tag = f"R{r['radius']:g}_eta{r['eta']:g}"
+                written.append(viz.render_strip((r["_V"]["nonlinear"], hex_F, r["frames"]),
+                                                outdir / f"fig10_hexagon_strip_{tag}.png",
+                                                frames=range(0, r["K"] + 1, 2), view="iso"))
+        except Exception as exc:  # no off-screen OpenGL here: the strain plot stands alone
+            print(f"no hexagon filmstrips: {exc}")
+    return written
+
+
 def summarise_profile(text, n=25):
     lines = [ln for ln in text.splitlines() if ln.strip()]
     return "\n".join(lines[:n])
@@ -194,7 +305,11 @@ def main(argv=None):
                     help="also run η=10 on the unit hexagon (degenerate: does not converge)")
     ap.add_argument("--cactus", action="store_true",
                     help="nonlinear spline on the shared cactus at 1000 coarse vertices, K=20")
+    ap.add_argument("--plots", default=str(REPO / "benchmarks" / "results"),
+                    help="folder of the reproduction figures (PNG; needs the viz extra)")
+    ap.add_argument("--no-plots", action="store_true", help="write no figures")
     args = ap.parse_args(argv)
+    hex_F = None
     results = []
     d = data_synth.generate("ellipsoids", n_vertices=args.vertices)
     results.append(run_case("ellipsoids", d["V"], d["F"], d["frames"], 12, 0.1, args.time_limit,
@@ -212,6 +327,7 @@ def main(argv=None):
     if args.hexagon_vertices:
         h = data_synth.generate("hexagon", n_vertices=args.hexagon_vertices)
         T = ss.topology(h["F"])
+        hex_F = h["F"]
         bc = "periodic" if h.get("periodic") else "natural"
         cases = [(1.0, 1e-4), (30.0, 10.0)] + ([(1.0, 10.0)] if args.hexagon_unit_eta10 else [])
         for R, eta in cases:
@@ -276,6 +392,9 @@ def main(argv=None):
     if "profile_text" in r0:
         print("\nprofile (pyinstrument, ellipsoids nonlinear spline):")
         print(summarise_profile(r0["profile_text"]))
+    if not args.no_plots:
+        for path in write_plots(results, hexagon, hex_F, args.plots):
+            print(f"wrote {path}")
     if args.cactus:
         results.append(run_cactus(args.time_limit))
     outdir = REPO / "benchmarks" / "results"
