@@ -199,24 +199,26 @@ def half_axes_figure(r):
         for axis, ls in (("x", "-"), ("y", "--")):
             left.plot(k, r[tag][f"half_axes_{axis}"], color=COLORS[tag], ls=ls, lw=1.8,
                       label=f"{label} {axis}")
-    for f in r["frames"]:
-        left.axvline(f, color="#a6a6a6", lw=1.0, ls=":", zorder=0)
-    left.set_xlabel("frame k")
-    left.set_ylabel("half-axis")
-    left.set_title(f"{r['name']}: half-axes along the curve (N={r['n_vertices']}, "
-                   f"K={r['K']}, η={r['eta']:g})", fontsize=10)
-    left.legend(fontsize=7, ncol=3)
-    left.grid(alpha=0.3)
+    _frame_axes(left, r["frames"], "half-axis",
+                f"{r['name']}: half-axes along the curve (N={r['n_vertices']}, K={r['K']}, "
+                f"η={r['eta']:g})", ncol=3)
     for other, label in (("lta", "nonlinear − LΘA"), ("geodesic", "nonlinear − geodesic")):
         d = half_axis_difference(r, other)
         right.plot(k, d, color=COLORS[other], lw=1.8, marker="o", ms=3,
                    label=f"|{label}| (max {d.max():.2e})")
-    right.set_xlabel("frame k")
-    right.set_ylabel("half-axis difference")
-    right.set_title("difference to the nonlinear spline", fontsize=10)
-    right.legend(fontsize=7)
-    right.grid(alpha=0.3)
+    _frame_axes(right, (), "half-axis difference", "difference to the nonlinear spline")
     return fig
+
+
+def _frame_axes(ax, frames, ylabel, title, ncol=1):
+    """Keyframes as dotted gray lines, labels, title, legend and grid of a per-frame plot."""
+    for f in frames:
+        ax.axvline(f, color="#a6a6a6", lw=1.0, ls=":", zorder=0)
+    ax.set_xlabel("frame k")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7, ncol=ncol)
+    ax.grid(alpha=0.3)
 
 
 def half_axis_difference(r, other):
@@ -238,14 +240,9 @@ def strain_figure(hexagon):
         for tag, label in METHODS:
             ax.plot(k, r[tag]["edge_strain_per_frame"], color=COLORS[tag], lw=1.8,
                     label=f"{label} (max {r[tag]['max_edge_strain']:.1e})")
-        for f in r["frames"]:
-            ax.axvline(f, color="#a6a6a6", lw=1.0, ls=":", zorder=0)
-        ax.set_xlabel("frame k")
-        ax.set_ylabel("max edge strain")
-        ax.set_title(f"hexagon fold, R = {r['radius']:g}, η = {r['eta']:g} "
-                     f"(η/R² = {r['eta_unit']:.1e})", fontsize=10)
-        ax.legend(fontsize=7)
-        ax.grid(alpha=0.3)
+        _frame_axes(ax, r["frames"], "max edge strain",
+                    f"hexagon fold, R = {r['radius']:g}, η = {r['eta']:g} "
+                    f"(η/R² = {r['eta_unit']:.1e})")
     return fig
 
 
