@@ -276,7 +276,9 @@ def write_plots(results, hexagon, hex_F, outdir):
 
             for r in hexagon:
                 tag = f"R{r['radius']:g}_eta{r['eta']:g}"
-                written.append(viz.render_strip((r["_V"]["nonlinear"], hex_F, r["frames"]),
+                # periodic: frame K is frame 0 again, so drawn as a keyframe too
+                key = list(r["frames"]) + ([r["K"]] if r.get("bc") == "periodic" else [])
+                written.append(viz.render_strip((r["_V"]["nonlinear"], hex_F, key),
                                                 outdir / f"fig10_hexagon_strip_{tag}.png",
                                                 frames=range(0, r["K"] + 1, 2), view="iso"))
         except Exception as exc:  # no off-screen OpenGL here: the strain plot stands alone
