@@ -163,8 +163,7 @@ class PathSolver:
         W, keep = self.energy, self._keep
         vals = []
         for k in range(self.n_inner):
-            vals.append((W.hessian_data(S[k], S[k + 1], "22")
-                         + W.hessian_data(S[k + 1], S[k + 2], "11"))[keep])
+            vals.append(W.midpoint_hessian_data(S[k], S[k + 1], S[k + 2])[keep])
         for k in range(self.n_inner - 1):
             d12 = W.hessian_data(S[k + 1], S[k + 2], "12")
             vals.append(d12[keep])

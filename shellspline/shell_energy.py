@@ -653,27 +653,58 @@ class DiscreteShells:
         boundary edge its 2×2 length–area block on its face. Same numbers as
         ``Jᵀ (Φ J)`` through sparse products, without their structure-dependent scatter.
         """
+        c = self._grad_desc(zX, zY, 0 if block == "11" else 1)
+        parts = self._element_parts(g, c)
+        extra = self._add_gauss_newton(g, zX, zY, block, parts)
+        return self._scatter(parts, extra)
+
+    def midpoint_hessian_data(self, Va, M, Vb) -> np.ndarray:
+        """Pattern data of ``W,22[s_a, m] + W,11[m, s_b]``, the Hessian in ``m`` of
+        ``W[s_a, m] + W[m, s_b]`` (a geodesic's inner shell between its neighbours), in one
+        scatter: the element-Hessian terms of both blocks share ``m``'s element Hessians, so
+        their descriptor weights are summed first. The same numbers as two
+        :meth:`hessian_data` calls."""
+        ga, gm = self._geometries(Va, M)
+        gb = self._geometry(_checked_pose(Vb, self.n_vertices, "Vb"))
+        za, zm, zb = ga["z"], gm["z"], gb["z"]
+        parts = self._element_parts(gm, self._grad_desc(za, zm, 1) + self._grad_desc(zm, zb, 0))
+        extra = self._add_gauss_newton(gm, za, zm, "22", parts)
+        extra += self._add_gauss_newton(gm, zm, zb, "11", parts)
+        return self._scatter(parts, extra)
+
+    def _element_parts(self, g, c):
+        """``[(e,36), (i,144), (m,81)]`` element blocks ``c_i ∇²z_i`` of the pose of ``g``
+        for descriptor weights ``c``, element Hessians cached in ``g``."""
+        if "H" not in g:
+            self._element_hessians(g)
+        HL, HT, HA = g["H"]
+        sL, sT, sA = self._sl
+        return [c[sL][:, None] * HL, c[sT][:, None] * HT if self.T.n_interior else HT.copy(),
+                c[sA][:, None] * HA]
+
+    def _scatter(self, parts, extra) -> np.ndarray:
+        pos = [self._local_pos] + [p for p, _ in extra]
+        vals = [b.ravel() for b in parts] + [v for _, v in extra]
+        return np.bincount(np.concatenate(pos), weights=np.concatenate(vals),
+                           minlength=self.pattern.nnz)
+
+    def _add_gauss_newton(self, g, zX, zY, block: str, parts) -> list:
+        """Add the ``Jᵀ Φ J`` part of ``block`` (``g`` the differentiated shell's geometry):
+        element-diagonal pieces into ``parts`` in place; returns the other pieces as
+        ``[(pattern positions, values)]`` (``W,11``'s flap and boundary blocks)."""
         T = self.T
         mu, lam, eta = self.mu, self.lam, self.eta
         L, A, Lt, At, d, rho, li, di, dl = self._terms(zX, zY)
         gL, gT, gA = g["grads"]
         e, i, m = T.n_edges, T.n_interior, T.n_faces
-        c = self._grad_desc(zX, zY, 0 if block == "11" else 1)
-        if "H" not in g:
-            self._element_hessians(g)
-        HL, HT, HA = g["H"]
-        sL, sT, sA = self._sl
-        bE = c[sL][:, None] * HL
-        bP = c[sT][:, None] * HT if i else HT
-        bF = c[sA][:, None] * HA
+        bE, bP, bF = parts
         if block == "22":
             pE, pT, pA = 2 * mu * d / L ** 2, 2 * eta * li ** 2 / di, 2 * lam / A
             bE += ((pE[:, None] * gL)[:, :, None] * gL[:, None, :]).reshape(e, 36)
             if i:
                 bP += ((pT[:, None] * gT)[:, :, None] * gT[:, None, :]).reshape(i, 144)
             bF += ((pA[:, None] * gA)[:, :, None] * gA[:, None, :]).reshape(m, 81)
-            return np.bincount(self._local_pos, minlength=self.pattern.nnz,
-                               weights=np.concatenate([bE.ravel(), bP.ravel(), bF.ravel()]))
+            return []
         # block "11"
         intr = T.interior
         vLL = 2 * mu * d * (Lt ** 2 / L ** 4 - 2 * rho * Lt / L ** 3)
@@ -682,8 +713,7 @@ class DiscreteShells:
         vLa[intr] += -2 * eta * li * dl ** 2 / (3 * di ** 2)
         pA = 2 * lam * At ** 2 / A ** 3
         bF += ((pA[:, None] * gA)[:, :, None] * gA[:, None, :]).reshape(m, 81)
-        parts_pos = [self._local_pos]
-        blocks = [bE.ravel(), bP.ravel(), bF.ravel()]
+        extra = []
         if i:
             rows = np.arange(i)[:, None]
             G = np.zeros((i, 4, 12))
@@ -700,8 +730,8 @@ class DiscreteShells:
             Phi[:, 1, 1] = 2 * eta * li ** 2 / di
             Phi[:, 1, 2] = Phi[:, 2, 1] = Phi[:, 1, 3] = Phi[:, 3, 1] = vTa
             Phi[:, 2, 2] = Phi[:, 3, 3] = Phi[:, 2, 3] = Phi[:, 3, 2] = vaa
-            blocks.append(np.matmul(G.transpose(0, 2, 1), np.matmul(Phi, G)).ravel())
-            parts_pos.append(self._posP.ravel())
+            extra.append((self._posP.ravel(),
+                          np.matmul(G.transpose(0, 2, 1), np.matmul(Phi, G)).ravel()))
         bnd = self._bnd
         if len(bnd):
             fb = self._f0[bnd]
@@ -712,10 +742,9 @@ class DiscreteShells:
             Phib[:, 0, 0] = vLL[bnd]
             Phib[:, 0, 1] = Phib[:, 1, 0] = vLa[bnd]
             Phib[:, 1, 1] = 0.0
-            blocks.append(np.matmul(Gb.transpose(0, 2, 1), np.matmul(Phib, Gb)).ravel())
-            parts_pos.append(self._posF[fb].ravel())
-        return np.bincount(np.concatenate(parts_pos), weights=np.concatenate(blocks),
-                           minlength=self.pattern.nnz)
+            extra.append((self._posF[fb].ravel(),
+                          np.matmul(Gb.transpose(0, 2, 1), np.matmul(Phib, Gb)).ravel()))
+        return extra
 
     def _element_hessians(self, g) -> None:
         """Per-element descriptor Hessians of the pose of ``g`` (cached in ``g["H"]``):
@@ -975,6 +1004,9 @@ class EuclideanEnergy:
 
     def hessian(self, V, Vt, block: str = "22") -> sp.csr_matrix:
         return self.pattern.matrix(self.hessian_data(V, Vt, block))
+
+    def midpoint_hessian_data(self, Va, M, Vb) -> np.ndarray:
+        return np.full(3 * self.n_vertices, 4.0)
 
     def mixed_product(self, V, Vt, v, block: str = "12") -> np.ndarray:
         if block not in ("12", "21"):
