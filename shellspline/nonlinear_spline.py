@@ -995,10 +995,17 @@ class _SpaceTimePreconditioner:
             rows.append([r if r is not None else sp.csr_matrix((len(w), nf)) for r in row])
         D = sp.bmat(rows, format="csr")
         H = (D.T @ D).tocsc()
-        H = H + shift * float(np.abs(H.diagonal()).max()) * sp.identity(H.shape[0],
-                                                                         format="csc")
+        self._sigma = shift * float(np.abs(H.diagonal()).max())
+        H = H + self._sigma * sp.identity(H.shape[0], format="csc")
         self.chol = SparseCholesky(H)
         self.prob, self.f = prob, f
+        self._D = D
+
+    def norm(self, v) -> float:
+        """``‖v‖_P = √(vᵀ P v)`` of the factored ``P`` (shift included; ``v`` as in
+        :meth:`apply`)."""
+        v = np.asarray(v, dtype=np.float64)
+        return float(np.sqrt(np.sum((self._D @ v) ** 2) + self._sigma * float(v @ v)))
 
     def apply(self, v, S=None, Q=None) -> np.ndarray:
         """``P⁻¹ v`` (``v`` flat over free nodes × free DOFs), rigid motions removed."""
@@ -1222,6 +1229,7 @@ def _trust_region(prob, fun, x, F, g, S0, cb, max_iter, cg_tol, cg_max_iter, sta
     g0n = float(np.linalg.norm(g))
     current = 0
     final = False
+    last = None  # (last accepted step, radius / its length in the current norm)
     for _ in range(int(max_iter)):
         S = prob.nodes_of(x, S0)
         Q = prob.rigid_bases(S)
@@ -1237,6 +1245,11 @@ def _trust_region(prob, fun, x, F, g, S0, cb, max_iter, cg_tol, cg_max_iter, sta
             F, g = fun(x, slot_set=current)
             P = _SpaceTimePreconditioner(prob, S)
             radius = first_radius(P, Q)
+            if last is not None:
+                # keep the trust the first phase had earned: its radius relative to its last
+                # step, measured in the new norm (the gradient-step guess alone can be far
+                # smaller and cost several boundary steps of radius doubling)
+                radius = max(radius, last[1] * P.norm(last[0]))
         model = GaussNewtonModel(prob)
         ncg_total = 0
         accepted = False
@@ -1265,6 +1278,7 @@ def _trust_region(prob, fun, x, F, g, S0, cb, max_iter, cg_tol, cg_max_iter, sta
             if not dec > 0:  # no model decrease (round-off): the gradient step
                 d = -P.apply(g, Q=Q)
                 dec = -float(g @ d)
+                dnorm = float(np.sqrt(max(dec, 0.0)))  # ‖P⁻¹g‖_P² = gᵀP⁻¹g
             D = prob.nodes_of(d, zero)
             Sn = retraction(S, D) if retraction is not None else S + D
             xn = prob.x_of(Sn)
@@ -1287,6 +1301,8 @@ def _trust_region(prob, fun, x, F, g, S0, cb, max_iter, cg_tol, cg_max_iter, sta
             return x, "not converged: trust region collapsed (no decrease of the energy)"
         stats["step_lengths"].append(float(np.abs(Sn - S).max()) / max(cap / 2, 1e-300)
                                      if np.isfinite(cap) else float(np.abs(d).max()))
+        if dnorm > 0:
+            last = (d, radius / dnorm)
         current = 1 - current
         x, F, g = xn, Fn, gn
         try:

@@ -182,3 +182,21 @@ def test_folded_hexagon_geodesic_converges_near_isometric():
     L0 = edge_lengths(h["rest"], T)
     strain = max(np.abs(edge_lengths(V, T) / L0 - 1).max() for V in res.V)
     assert strain < 0.05  # near-isometric (the blend compresses edges by 22 %)
+
+
+def test_soft_midpoint_converges_quadratically_below_the_energy_resolution():
+    """With small η the last Newton steps of a midpoint solve lower the energy by less than its
+    round-off, so an Armijo test on the energy alone rejects them; steps that lower the gradient
+    are taken there, and the solve converges quadratically to a 1e-13 tolerance (it stalled at
+    2e-10 before)."""
+    V, F = icosphere(2)
+    T = topology(F)
+    A, B = V * [1.4, 1, 1], V * [1, 1.4, 0.8]
+    W = DiscreteShells(T, eta=1e-3)
+    tol = 1e-13
+    r = PathSolver(W, 1).solve(A, B, (0.5 * (A + B))[None], tol=tol, max_iter=30)
+    gscale = tol * 0.5 * (W.scale(A) + W.scale(B))
+    assert r.success and r.message == "converged", r.message
+    assert r.grad_norms[-1] <= gscale and r.nit <= 6
+    g = r.grad_norms
+    assert g[-2] <= 1e-8 and g[-1] <= 1e-3 * g[-2]  # quadratic, not a round-off plateau

@@ -374,6 +374,8 @@ def test_space_time_preconditioner_inverts_the_lta_spline_hessian(tiny):
             h = 1e-4 / np.abs(u).max()
             quad = (E(x0 + h * u) - 2 * E(x0) + E(x0 - h * u)) / h ** 2
             assert abs(quad - u @ v) <= 1e-4 * abs(u @ v), (bc, quad, u @ v)
+            # the P-norm of the trust region's radius carry-over: ‖u‖_P² = uᵀPu = uᵀv
+            assert abs(P.norm(u) ** 2 - u @ v) <= 1e-9 * abs(u @ v)
 
 
 @pytest.mark.parametrize("hessian,gtol", [("auto", 1e-6), ("exact", 1e-4)])
