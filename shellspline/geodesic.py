@@ -305,8 +305,10 @@ class PathSolver:
         E = self.path_energy(A, X, B)
         norms, message, success = [], "maximum number of iterations reached", False
         nit = 0
+        g_next = None  # the gradient at X when a round-off-level step already computed it
         for nit in range(max_iter + 1):
-            g = self.gradient(A, X, B)[:, self.free]
+            g = self.gradient(A, X, B)[:, self.free] if g_next is None else g_next
+            g_next = None
             gn = float(np.abs(g).max())
             norms.append(gn)
             if gn <= gscale:
@@ -339,9 +341,11 @@ class PathSolver:
                 # gradient (soft midpoints stalled ~1e4 above a 1e-13 tolerance without this)
                 Xn = X.copy()
                 Xn.reshape(m, -1)[:, self.free] += d
-                if _valid(Xn) and float(np.abs(self.gradient(A, Xn, B)[:, self.free]).max()) < gn:
-                    X, E = Xn, self.path_energy(A, Xn, B)
-                    continue
+                if _valid(Xn):
+                    gx = self.gradient(A, Xn, B)[:, self.free]
+                    if float(np.abs(gx).max()) < gn:
+                        X, E, g_next = Xn, self.path_energy(A, Xn, B), gx
+                        continue
             alpha, accepted = 1.0, False
             for _ in range(40):
                 Xn = X.copy()

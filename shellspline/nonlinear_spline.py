@@ -74,8 +74,9 @@ _MODEL_REFINE = 2
 #: The trust region's final Newton phase starts once exact products are in use and
 #: ``‖∇F‖ <= _FINAL_PHASE ‖∇F₀‖`` (mesh energies): :class:`_SpaceTimePreconditioner`,
 #: :meth:`GaussNewtonModel.accurate_matvec`, untruncated CG with forcing at most
-#: ``_FINAL_CG_TOL`` (unless :data:`_GTOL_MARGIN` allows a looser one). Earlier, far from the minimiser, the same choice took smaller steps than
-#: the first phase (1000-vertex cactus: ``‖∇F‖`` 9e-3 of its start in 300 s against 2e-4).
+#: ``_FINAL_CG_TOL`` (unless :data:`_GTOL_MARGIN` allows a looser one). Earlier, far from
+#: the minimiser, the same choice took smaller steps than the first phase (1000-vertex
+#: cactus: ``‖∇F‖`` 9e-3 of its start in 300 s against 2e-4).
 #: Switching at 0.1 instead of 2e-2: converged (4.2e-8) at 317 s instead of 3e-7 at 360 s;
 #: it needs :data:`_FINAL_MIDPOINT_TOL` (without it the 0.1 run stalled at 2.2e-6).
 _FINAL_PHASE = 0.1
