@@ -387,7 +387,8 @@ def _sweeps(g, ckey, on_boundary, iu, iv, work, gstart, gmin, first_min, comp, b
         ci = cur[w]
         us, vs = iu[ci], iv[ci]
         good = _link_ok(g, ckey, us, vs, on_boundary[ci])
-        good[good] = face_ok(us[good], vs[good])
+        if good.any():        # a sweep whose winners all fail the link condition checks no face
+            good[good] = face_ok(us[good], vs[good])
         ok_w, bad_w = w[good], w[~good]
         if ok_w.size:
             accepted.append(ok_w)
@@ -491,16 +492,18 @@ def _face_checks(X, gid, vnormals, hs, us, vs, min_cos, min_quality):
     v = vs[owner]
     survives = (b >= 0) & (a != v) & (b != v)
     owner, a, b, v = owner[survives], a[survives], b[survives], v[survives]
-    k = owner.shape[0]
+    k, J = owner.shape[0], X.shape[1]
+    if k == 0:                 # no collapse has a surviving face (ears, or no collapse at all)
+        return np.ones(us.shape[0], dtype=bool)
     gv, ga, gb = gid[v], gid[a], gid[b]
-    P = X[np.concatenate([gid[us[owner]], gv, ga, gb])].reshape(4, k, -1, 3)   # u, v, a, b
+    P = X[np.concatenate([gid[us[owner]], gv, ga, gb])].reshape(4, k, J, 3)    # u, v, a, b
     # edge vectors a-u, b-u (old face), a-v, b-v (new face), b-a (shared), all poses at once
     D = P[[2, 3, 2, 3, 3]] - P[[0, 0, 1, 1, 2]]                                # (5,k,J,3)
     L = np.einsum("sxji,sxji->sxj", D, D)
     N = _cross(D[[0, 2]], D[[1, 3]])                   # old and new face normal
     nn = np.sqrt(np.einsum("sxji,sxji->sxj", N, N))
     ok = np.einsum("xji,xji->xj", N[0], N[1]) > min_cos * nn[0] * nn[1]
-    vn = vnormals[np.concatenate([gv, ga, gb])].reshape(3, k, -1, 3)
+    vn = vnormals[np.concatenate([gv, ga, gb])].reshape(3, k, J, 3)
     ok &= (np.einsum("sxji,xji->sxj", vn, N[1]) > min_cos * nn[1]).all(axis=0)
     c = 2.0 * math.sqrt(3.0)
     q0 = c * nn[0] / np.maximum(L[0] + L[1] + L[4], 1e-300)

@@ -212,3 +212,45 @@ def test_compacted_rounds_keep_unreferenced_vertices(bumpy):
     assert dec.collapse_map[n - 1] == dec.n_vertices - 1
     chi, _ = _euler(dec.F, dec.n_vertices - 1)
     assert chi == 2
+
+
+def _bipyramid(h=0.5):
+    """Triangular bipyramid: every equator edge fails the link condition (three common
+    neighbours), every pole collapse would turn a face against the fine vertex normals."""
+    a = np.array([0.0, 2.0, 4.0]) * np.pi / 3.0
+    V = np.r_[np.c_[np.cos(a), np.sin(a), np.zeros(3)], [[0, 0, h], [0, 0, -h]]]
+    F = np.array([[0, 1, 3], [1, 2, 3], [2, 0, 3], [1, 0, 4], [2, 1, 4], [0, 2, 4]])
+    return V, F
+
+
+def test_round_whose_winners_all_fail_the_link_condition_stops_cleanly():
+    """Regression (issue 13): a sweep whose tentative winners all failed the link condition
+    called the face checks on an empty batch, which crashed in numpy ("cannot reshape array
+    of size 0") instead of stopping with the unreachable-target warning."""
+    V, F = _bipyramid()
+    Vs = np.stack([V, V * [1.0, 1.0, 1.5]])
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        dec = decimate(Vs, F, 4)
+    assert not dec.stats["reached"] and dec.n_vertices == 5
+    assert any(issubclass(x.category, RuntimeWarning) for x in w)
+    assert np.array_equal(np.sort(dec.F, axis=None), np.sort(F, axis=None))
+
+
+def test_horse_keyframes_decimate_to_1000():
+    """The real horse (boundary, slivers, creases) at the issue's keyframes: no crash, the
+    target reached, a valid coarse manifold with the fine boundary's genus."""
+    from conftest import shared_data
+    from shellspline.io import read_mesh
+
+    root = shared_data("horse")
+    meshes = [read_mesh(root / f"{nm}.obj") for nm in ("horse-reference", "horse-03",
+                                                        "horse-07")]
+    Vs, F = np.stack([m[0] for m in meshes]), meshes[0][1]
+    dec = decimate(Vs, F, 1000)
+    assert dec.stats["reached"] and dec.n_vertices == 1000
+    chi_f, Tf = _euler(F, Vs.shape[1])
+    chi_c, Tc = _euler(dec.F, dec.n_vertices)
+    assert chi_c == chi_f
+    Nc = _normals(dec.V, dec.F)
+    assert (np.linalg.norm(Nc, axis=-1) > 0).all()
