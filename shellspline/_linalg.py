@@ -13,6 +13,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ._errors import ShellsplineError
+
 __all__ = ["SparseCholesky", "available_backends", "nested_dissection"]
 
 
@@ -53,7 +55,7 @@ class SparseCholesky:
         if backend == "auto":
             backend = available_backends()[0]
         if backend not in ("cholmod", "splu"):
-            raise ValueError(f"`backend` must be 'auto', 'cholmod' or 'splu', got {backend!r}")
+            raise ShellsplineError(f"`backend` must be 'auto', 'cholmod' or 'splu', got {backend!r}")
         if backend == "cholmod" and not _has_cholmod():
             raise ImportError("backend='cholmod' needs cvxopt: pip install 'shellspline[fast]'")
         self.backend = backend
@@ -134,7 +136,7 @@ class SparseCholesky:
             obj._I = cvxopt.matrix(indices.astype(np.int64))
             obj._J = cvxopt.matrix(cols)
         elif backend != "splu":
-            raise ValueError(f"`backend` must be 'auto', 'cholmod' or 'splu', got {backend!r}")
+            raise ShellsplineError(f"`backend` must be 'auto', 'cholmod' or 'splu', got {backend!r}")
         obj.refactor_lower(data)
         return obj
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from ._errors import ShellsplineError
 from .topology import Topology, topology
 
 __all__ = ["Decimation", "decimate", "decimate_replay", "hausdorff_fine_to_coarse",
@@ -93,7 +94,7 @@ class Decimation:
         """
         Vs = np.asarray(Vs, dtype=np.float64)
         if Vs.ndim < 2 or Vs.shape[-2:] != (self.n_fine, 3):
-            raise ValueError(f"`Vs` must have shape (..., {self.n_fine}, 3), got {Vs.shape}")
+            raise ShellsplineError(f"`Vs` must have shape (..., {self.n_fine}, 3), got {Vs.shape}")
         return Vs[..., self.kept, :]
 
 
@@ -121,17 +122,17 @@ def canonical_target(target, n: int) -> int:
         If ``target`` is a bool, not a number, a count below 4 or a fraction outside (0, 1].
     """
     if isinstance(target, (bool, np.bool_)):
-        raise ValueError(f"`target` must be a vertex count (int) or a fraction (float), got "
+        raise ShellsplineError(f"`target` must be a vertex count (int) or a fraction (float), got "
                          f"{target!r}")
     if isinstance(target, (int, np.integer)):
         if target < 4:
-            raise ValueError(f"`target` as a vertex count must be >= 4, got {target}")
+            raise ShellsplineError(f"`target` as a vertex count must be >= 4, got {target}")
         return int(min(int(target), n))
     if isinstance(target, (float, np.floating)):
         if not (0.0 < float(target) <= 1.0) or not math.isfinite(float(target)):
-            raise ValueError(f"`target` as a fraction must lie in (0, 1], got {target}")
+            raise ShellsplineError(f"`target` as a fraction must lie in (0, 1], got {target}")
         return int(min(n, max(4, math.ceil(float(target) * n))))
-    raise ValueError(f"`target` must be a vertex count (int) or a fraction (float), got "
+    raise ShellsplineError(f"`target` must be a vertex count (int) or a fraction (float), got "
                      f"{type(target).__name__} {target!r}")
 
 
@@ -140,13 +141,13 @@ def _canonical_poses(Vs, F, name_V="Vs", name_F="F"):
     if Vs.ndim == 2:
         Vs = Vs[None]
     if Vs.ndim != 3 or Vs.shape[2] != 3 or Vs.shape[0] < 1:
-        raise ValueError(f"`{name_V}` must be a (J,n,3) (or (n,3)) array of poses, got shape "
+        raise ShellsplineError(f"`{name_V}` must be a (J,n,3) (or (n,3)) array of poses, got shape "
                          f"{np.shape(Vs)}")
     if not np.isfinite(Vs).all():
-        raise ValueError(f"`{name_V}` contains non-finite coordinates")
+        raise ShellsplineError(f"`{name_V}` contains non-finite coordinates")
     if isinstance(F, Topology):
         if F.n_vertices != Vs.shape[1]:
-            raise ValueError(f"`{name_F}` is a Topology of {F.n_vertices} vertices, `{name_V}` "
+            raise ShellsplineError(f"`{name_F}` is a Topology of {F.n_vertices} vertices, `{name_V}` "
                              f"has {Vs.shape[1]}")
         return Vs, F
     T = topology(F, Vs.shape[1], name=f"`{name_F}`")
@@ -159,13 +160,13 @@ def _canonical_pinned(pinned, n):
     p = np.asarray(pinned)
     if p.dtype == bool:
         if p.shape != (n,):
-            raise ValueError(f"`pinned` as a mask must have shape ({n},), got {p.shape}")
+            raise ShellsplineError(f"`pinned` as a mask must have shape ({n},), got {p.shape}")
         return p.copy()
     if p.size and not np.issubdtype(p.dtype, np.integer):
-        raise ValueError(f"`pinned` must hold vertex indices (integers), got dtype {p.dtype}")
+        raise ShellsplineError(f"`pinned` must hold vertex indices (integers), got dtype {p.dtype}")
     p = p.astype(np.int64).ravel()
     if p.size and (p.min() < 0 or p.max() >= n):
-        raise ValueError(f"`pinned` indices must lie in [0, {n}), got range [{p.min()}, "
+        raise ShellsplineError(f"`pinned` indices must lie in [0, {n}), got range [{p.min()}, "
                          f"{p.max()}]")
     mask = np.zeros(n, dtype=bool)
     mask[p] = True
@@ -647,11 +648,11 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
                           ("length_weight", length_weight, 0.0),
                           ("min_quality", min_quality, 0.0)):
         if not (math.isfinite(float(val)) and float(val) >= lo):
-            raise ValueError(f"`{name}` must be a finite number >= {lo}, got {val!r}")
+            raise ShellsplineError(f"`{name}` must be a finite number >= {lo}, got {val!r}")
     if not -1.0 <= float(min_normal_cos) < 1.0:
-        raise ValueError(f"`min_normal_cos` must lie in [-1, 1), got {min_normal_cos!r}")
+        raise ShellsplineError(f"`min_normal_cos` must lie in [-1, 1), got {min_normal_cos!r}")
     if not 0.0 < float(round_fraction) <= 1.0:
-        raise ValueError(f"`round_fraction` must lie in (0, 1], got {round_fraction!r}")
+        raise ShellsplineError(f"`round_fraction` must lie in (0, 1], got {round_fraction!r}")
 
     X = Vs - Vs.mean(axis=1, keepdims=True)          # centred: better conditioned quadrics
     Xn = np.ascontiguousarray(X.transpose(1, 0, 2))   # (n,J,3): one row per vertex
@@ -867,7 +868,7 @@ def hausdorff_fine_to_coarse(Vs, Vc, Fc, *, k: int = 16, chunk: int = 20_000) ->
     if Vs.ndim == 2:
         Vs, Vc = Vs[None], Vc[None]
     if Vs.shape[0] != Vc.shape[0]:
-        raise ValueError(f"`Vs` and `Vc` must hold the same number of poses, got "
+        raise ShellsplineError(f"`Vs` and `Vc` must hold the same number of poses, got "
                          f"{Vs.shape[0]} and {Vc.shape[0]}")
     kk = int(min(k, Fc.shape[0]))
     out = np.zeros(Vs.shape[0])

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import __version__
+from ._errors import ShellsplineError
 from ._progress import Progress
 from .descriptors import lta_descriptors, lta_weights, unwrap_angles
 from .io import Keyframes, keyframes_from_arrays, read_keyframes
@@ -73,7 +74,7 @@ class InterpolationResult:
 def _canonical_choice(value, name, choices):
     v = str(value).strip().lower()
     if v not in choices:
-        raise ValueError(f"`{name}` must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        raise ShellsplineError(f"`{name}` must be one of {', '.join(map(repr, choices))}, got {value!r}")
     return v
 
 
@@ -106,7 +107,7 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
     periodic = bc == "periodic"
     if frames is None:
         if bc == "hermite":
-            raise ValueError("bc='hermite' needs explicit `frames`: the poses at frames 1 and "
+            raise ShellsplineError("bc='hermite' needs explicit `frames`: the poses at frames 1 and "
                              "K-1 fix the end velocities")
         if K is None:
             frames = DEFAULT_STEP * np.arange(J)
@@ -114,33 +115,33 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
         else:
             K = int(K)
             if K < 1 or K > MAX_FRAMES:
-                raise ValueError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
+                raise ShellsplineError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
             if periodic:
                 frames = np.round(np.arange(J) * K / J).astype(np.int64)
             else:
                 frames = np.round(np.linspace(0, K, J)).astype(np.int64)
             if len(np.unique(frames)) != J:
-                raise ValueError(f"`K`={K} is too small for {J} keyframes")
+                raise ShellsplineError(f"`K`={K} is too small for {J} keyframes")
     frames = np.asarray(frames)
     if frames.ndim != 1 or len(frames) != J:
-        raise ValueError(f"`frames` must have one entry per keyframe ({J}), got {frames.tolist()}")
+        raise ShellsplineError(f"`frames` must have one entry per keyframe ({J}), got {frames.tolist()}")
     if not np.all(np.isfinite(frames)) or not np.all(frames == np.round(frames)):
-        raise ValueError(f"`frames` must be integers, got {frames.tolist()}")
+        raise ShellsplineError(f"`frames` must be integers, got {frames.tolist()}")
     frames = frames.astype(np.int64)
     if np.any(np.diff(frames) <= 0):
-        raise ValueError(f"`frames` must be strictly increasing, got {frames.tolist()}")
+        raise ShellsplineError(f"`frames` must be strictly increasing, got {frames.tolist()}")
     if frames[0] != 0:
-        raise ValueError(f"`frames` must start at 0, got {frames.tolist()}")
+        raise ShellsplineError(f"`frames` must start at 0, got {frames.tolist()}")
     if K is None:
         K = int(frames[-1] + ((frames[-1] - frames[-2]) if periodic else 0))
     K = int(K)
     if K < 1 or K > MAX_FRAMES:
-        raise ValueError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
+        raise ShellsplineError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
     if periodic and frames[-1] >= K:
-        raise ValueError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K is "
+        raise ShellsplineError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K is "
                          f"frame 0 again), got frames {frames.tolist()}")
     if frames[-1] > K:
-        raise ValueError(f"`K`={K} is smaller than the last keyframe frame {int(frames[-1])}")
+        raise ShellsplineError(f"`K`={K} is smaller than the last keyframe frame {int(frames[-1])}")
     return frames, K
 
 
@@ -472,12 +473,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     bc = _canonical_choice(bc, "bc", BOUNDARY_CONDITIONS)
     for name, val in (("eta", eta), ("mu", mu), ("lam", lam)):
         if not np.isfinite(val) or val < 0:
-            raise ValueError(f"`{name}` must be a finite non-negative number, got {val!r}")
+            raise ShellsplineError(f"`{name}` must be a finite non-negative number, got {val!r}")
     if mu == 0 and lam == 0:
-        raise ValueError("`mu` and `lam` cannot both be zero (the membrane energy would vanish)")
+        raise ShellsplineError("`mu` and `lam` cannot both be zero (the membrane energy would vanish)")
     workers = 1 if workers is None else int(workers)
     if workers < 1:
-        raise ValueError(f"`workers` must be >= 1, got {workers}")
+        raise ShellsplineError(f"`workers` must be >= 1, got {workers}")
 
     if isinstance(keyframes, Keyframes):
         kf = keyframes
@@ -494,14 +495,14 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     if pinned is not None:
         pinned = np.asarray(pinned, dtype=np.int64).ravel()
         if pinned.size and (pinned.min() < 0 or pinned.max() >= kf.V.shape[1]):
-            raise ValueError(f"`pinned` indices must lie in [0, {kf.V.shape[1]}), got range "
+            raise ShellsplineError(f"`pinned` indices must lie in [0, {kf.V.shape[1]}), got range "
                              f"[{pinned.min()}, {pinned.max()}]")
         if pinned.size == 0:
             pinned = None
     frames, K = canonical_frames(kf.V.shape[0], kf.frames if frames is None else frames, K, bc)
     if bc == "hermite" and (len(frames) < 4 or frames[1] != 1 or frames[-2] != K - 1
                             or frames[-1] != K):
-        raise ValueError("bc='hermite' needs keyframes at frames 0, 1, K-1 and K (the poses at "
+        raise ShellsplineError("bc='hermite' needs keyframes at frames 0, 1, K-1 and K (the poses at "
                          f"1 and K-1 fix the end velocities); got frames {frames.tolist()} "
                          f"with K={K}")
     Vkey = kf.V
@@ -552,7 +553,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     else:
         fixpoint = int(fixpoint)
         if fixpoint < 0:
-            raise ValueError(f"`fixpoint` must be a non-negative number of iterations, got "
+            raise ShellsplineError(f"`fixpoint` must be a non-negative number of iterations, got "
                              f"{fixpoint}")
         fixpoint_log: list = []
         lta_args = dict(frames=frames, K=K, bc=bc, mu=mu, lam=lam, eta=eta, reference=reference,
@@ -569,7 +570,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                              f"~4 min it takes at {AUTO_COARSE_VERTICES} (--coarse "
                              f"{AUTO_COARSE_VERTICES} solves there and prolongs)")
         if fine and n_coarse is None:
-            raise ValueError("`fine=True` refines a multiresolution run: it needs `coarse` "
+            raise ShellsplineError("`fine=True` refines a multiresolution run: it needs `coarse` "
                              f"(a vertex count or fraction below the {n} vertices), got "
                              f"coarse={coarse!r}")
         if (n_coarse is None or fine) and n > FULL_RESOLUTION_WARN:
@@ -689,17 +690,17 @@ def _coarse_target(coarse, n, method: str = "lta"):
         try:
             coarse = float(c) if any(ch in c for ch in ".e") else int(c)
         except ValueError:
-            raise ValueError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction in "
+            raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction in "
                              f"(0, 1), got {coarse!r}") from None
     if isinstance(coarse, bool):
-        raise ValueError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, got "
+        raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, got "
                          f"{coarse!r}")
     if isinstance(coarse, (float, np.floating)) and 0 < coarse < 1:
         target = int(round(coarse * n))
     elif float(coarse) == int(coarse) and int(coarse) >= 4:
         target = int(coarse)
     else:
-        raise ValueError(f"`coarse` must be a vertex count >= 4 or a fraction in (0, 1), got "
+        raise ShellsplineError(f"`coarse` must be a vertex count >= 4 or a fraction in (0, 1), got "
                          f"{coarse!r}")
     return None if target >= n else max(target, 4)
 
@@ -721,7 +722,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         if isinstance(reference, (int, np.integer)) and not isinstance(reference, bool):
             ref_idx, ref_kind = int(reference), "constant"
             if not 0 <= ref_idx < J:
-                raise ValueError(f"`reference` keyframe index must lie in [0, {J}), got "
+                raise ShellsplineError(f"`reference` keyframe index must lie in [0, {J}), got "
                                  f"{reference}")
         else:
             ref_kind = _canonical_choice(reference, "reference", REFERENCES)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ._errors import ShellsplineError
 from ._linalg import SparseCholesky
 from .decimate import Decimation, _canonical_pinned
 from .descriptors import _cross
@@ -100,12 +101,12 @@ def spline_time_weights(frames, K: int, bc: str = "natural") -> np.ndarray:
 def _checked_frames(frames, K):
     fr = np.asarray(frames)
     if fr.ndim != 1 or fr.size == 0 or not np.issubdtype(fr.dtype, np.integer):
-        raise ValueError(f"`frames` must be a non-empty 1-D integer array, got {frames!r}")
+        raise ShellsplineError(f"`frames` must be a non-empty 1-D integer array, got {frames!r}")
     if isinstance(K, (bool, np.bool_)) or not isinstance(K, (int, np.integer)) or K < 1:
-        raise ValueError(f"`K` must be an integer >= 1, got {K!r}")
+        raise ShellsplineError(f"`K` must be an integer >= 1, got {K!r}")
     fr = fr.astype(np.int64)
     if (np.diff(fr) <= 0).any() or fr[0] < 0 or fr[-1] > K:
-        raise ValueError(f"`frames` must be strictly increasing in [0, K={K}], got "
+        raise ShellsplineError(f"`frames` must be strictly increasing in [0, K={K}], got "
                          f"{fr.tolist()}")
     return fr, int(K)
 
@@ -196,13 +197,13 @@ class Prolongation:
         if Vs.ndim == 2:
             Vs = Vs[None]
         if not isinstance(dec, Decimation):
-            raise ValueError(f"`dec` must be a Decimation, got {type(dec).__name__}")
+            raise ShellsplineError(f"`dec` must be a Decimation, got {type(dec).__name__}")
         if Vs.ndim != 3 or Vs.shape[1:] != (dec.n_fine, 3):
-            raise ValueError(f"`Vs_fine` must have shape (J, {dec.n_fine}, 3), got {Vs.shape}")
+            raise ShellsplineError(f"`Vs_fine` must have shape (J, {dec.n_fine}, 3), got {Vs.shape}")
         J, n, _ = Vs.shape
         if isinstance(F_fine, Topology):
             if F_fine.n_vertices != n:
-                raise ValueError(f"`F_fine` is a Topology of {F_fine.n_vertices} vertices, "
+                raise ShellsplineError(f"`F_fine` is a Topology of {F_fine.n_vertices} vertices, "
                                  f"expected {n}")
             T = F_fine
         else:
@@ -212,11 +213,11 @@ class Prolongation:
         fr = np.asarray(frames)
         if fr.shape != (J,) or not np.issubdtype(fr.dtype, np.integer) or \
                 (np.diff(fr) <= 0).any():
-            raise ValueError(f"`frames` must be {J} strictly increasing integers, got "
+            raise ShellsplineError(f"`frames` must be {J} strictly increasing integers, got "
                              f"{np.asarray(frames).tolist()}")
         pin = _canonical_pinned(pinned, n)
         if pin.any() and not (Vs[:, pin] == Vs[:1, pin]).all():
-            raise ValueError("`pinned` vertices must be identical in all keyframes")
+            raise ShellsplineError("`pinned` vertices must be identical in all keyframes")
         # uniform graph Laplacian and the bi-Laplacian split free/kept
         E = T.E
         A = sp.coo_matrix((np.ones(2 * E.shape[0]), (np.r_[E[:, 0], E[:, 1]],
@@ -263,7 +264,7 @@ class Prolongation:
         single = Vc.ndim == 2
         Vb = Vc[None] if single else Vc
         if Vb.ndim != 3 or Vb.shape[1:] != (self.kept.shape[0], 3):
-            raise ValueError(f"`Vc` must have shape (..., {self.kept.shape[0]}, 3), got "
+            raise ShellsplineError(f"`Vc` must have shape (..., {self.kept.shape[0]}, 3), got "
                              f"{Vc.shape}")
         S = self._base_vm(Vb).transpose(1, 0, 2)
         return S[0] if single else np.ascontiguousarray(S)
@@ -357,18 +358,18 @@ class Prolongation:
         """
         Vc = np.asarray(Vc, dtype=np.float64)
         if Vc.ndim != 3 or Vc.shape[1:] != (self.kept.shape[0], 3):
-            raise ValueError(f"`Vc` must have shape (K+1, {self.kept.shape[0]}, 3), got "
+            raise ShellsplineError(f"`Vc` must have shape (K+1, {self.kept.shape[0]}, 3), got "
                              f"{Vc.shape}")
         if K is None:
             K = Vc.shape[0] - 1
         if Vc.shape[0] != K + 1:
-            raise ValueError(f"`Vc` must hold K+1 = {K + 1} frames, got {Vc.shape[0]}")
+            raise ShellsplineError(f"`Vc` must hold K+1 = {K + 1} frames, got {Vc.shape[0]}")
         fr = self.frames if frames is None else np.asarray(frames)
         if fr.shape != self.frames.shape or not (fr == self.frames).all():
-            raise ValueError(f"`frames` must equal the keyframe frames given to encode "
+            raise ShellsplineError(f"`frames` must equal the keyframe frames given to encode "
                              f"{self.frames.tolist()}, got {np.asarray(frames).tolist()}")
         if self.frames[-1] > K:
-            raise ValueError(f"`K` = {K} is before the last keyframe frame {self.frames[-1]}")
+            raise ShellsplineError(f"`K` = {K} is before the last keyframe frame {self.frames[-1]}")
         J = self.frames.shape[0]
         if isinstance(time_weights, str):
             tw = time_weights.lower()
@@ -377,12 +378,12 @@ class Prolongation:
             elif tw == "spline":
                 W = spline_time_weights(self.frames, K, bc)
             else:
-                raise ValueError(f"`time_weights` must be 'linear', 'spline' or a (K+1,J) "
+                raise ShellsplineError(f"`time_weights` must be 'linear', 'spline' or a (K+1,J) "
                                  f"array, got {time_weights!r}")
         else:
             W = np.asarray(time_weights, dtype=np.float64)
             if W.shape != (K + 1, J) or not np.isfinite(W).all():
-                raise ValueError(f"`time_weights` must be a finite ({K + 1},{J}) array, got "
+                raise ShellsplineError(f"`time_weights` must be a finite ({K + 1},{J}) array, got "
                                  f"shape {W.shape}")
         out = np.zeros((K + 1, self.n_vertices, 3))
         key_of = np.full(K + 1, -1, dtype=np.int64)

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from ._errors import ShellsplineError
 from ._linalg import SparseCholesky, available_backends, nested_dissection
 from .descriptors import face_areas, lta_descriptors, lta_jacobian, wrap_angle
 from .topology import Topology
@@ -168,7 +169,7 @@ class GaussNewton:
         self._cycle, self._last_cg = None, 0
         ordering = str(ordering).lower()
         if ordering not in ("auto", "amd", "nd"):
-            raise ValueError(f"`ordering` must be 'auto', 'amd' or 'nd', got {ordering!r}")
+            raise ShellsplineError(f"`ordering` must be 'auto', 'amd' or 'nd', got {ordering!r}")
         if ordering == "auto":
             ordering = "nd" if T.n_vertices > LARGE_MESH else "amd"
         self.ordering = ordering
