@@ -100,7 +100,9 @@ def _batch(args) -> int:
     from .batch import EXIT_INTERRUPTED, load_job, run_batch
 
     if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+        from ._errors import ShellsplineError
+
+        raise ShellsplineError(f"--workers must be >= 1, got {args.workers}")
     job = load_job(args.job)
     if args.output:
         job = job.with_output(args.output)

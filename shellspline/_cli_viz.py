@@ -5,6 +5,8 @@ import argparse
 import math
 import sys
 
+from ._errors import ShellsplineError
+
 _KEYS = """keys in the window:
   space        play / pause (also the button left of the slider)
   left, right  previous / next frame
@@ -97,7 +99,7 @@ def _render(args) -> int:
     from . import viz
 
     if not any((args.gif, args.mp4, args.strip, args.glb)):
-        raise ValueError("render: nothing to write; give --gif, --mp4, --strip and/or --glb")
+        raise ShellsplineError("render: nothing to write; give --gif, --mp4, --strip and/or --glb")
     seq = viz.load_source(args.out)
     frames = None if args.frames is None else viz._checked_frames(args.frames, seq.K)
     # every option and output checked before the first (slow) render
@@ -109,9 +111,9 @@ def _render(args) -> int:
     viz._checked_size(args.size, None)
     viz._view_vectors(args.view)
     if not (math.isfinite(args.fps) and args.fps > 0):
-        raise ValueError(f"--fps must be a positive number, got {args.fps}")
+        raise ShellsplineError(f"--fps must be a positive number, got {args.fps}")
     if args.columns is not None and args.columns < 1:
-        raise ValueError(f"--columns must be >= 1, got {args.columns}")
+        raise ShellsplineError(f"--columns must be >= 1, got {args.columns}")
     annotate = not args.no_labels
     for path in (args.gif, args.mp4):
         if path:

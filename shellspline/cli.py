@@ -1,19 +1,30 @@
 """Command-line front end: ``shellspline interpolate KEYFRAME... -o OUT``.
 
-Uses only the public API. Exit codes: 0 success, 1 finished but some frame did not converge
-or the quality check failed, 2 bad input or usage.
+Uses only the public API. Exit codes: 0 success, 1 finished but some frame did not converge,
+the quality check failed or a time limit was reached, 2 bad input or usage (a
+:class:`~shellspline.ShellsplineError`) or an I/O error on the user's paths (missing file,
+permission, full disk), 3 internal error (a bug: any other exception; ``SHELLSPLINE_DEBUG=1``
+prints its traceback), 130 interrupted.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
+
+from ._errors import ShellsplineError
 
 __all__ = ["main"]
 
-EXIT_OK, EXIT_WARN, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_WARN, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
+DEBUG_ENV = "SHELLSPLINE_DEBUG"
+"""Environment variable: set (to anything but empty or 0) to print the traceback of an
+internal error."""
 
 
 class _Bar:
@@ -145,16 +156,16 @@ def _interpolate(args) -> int:
 
     bar = _Bar(quiet=args.quiet)
     if args.max_iter is not None and args.max_iter < 1:
-        raise ValueError(f"--max-iter must be >= 1, got {args.max_iter}")
+        raise ShellsplineError(f"--max-iter must be >= 1, got {args.max_iter}")
     if args.frames is not None and not args.frames.strip():
-        raise ValueError("--frames is empty")
+        raise ShellsplineError("--frames is empty")
     if not (args.fps > 0 and args.fps < float("inf")):
-        raise ValueError(f"--fps must be a positive number, got {args.fps}")
+        raise ShellsplineError(f"--fps must be a positive number, got {args.fps}")
     t_read = time.perf_counter()
     try:
         frames = ss.read_frames(args.frames) if args.frames else None
     except OverflowError:
-        raise ValueError(f"--frames {args.frames!r}: a frame number is too large") from None
+        raise ShellsplineError(f"--frames {args.frames!r}: a frame number is too large") from None
     kf = ss.read_keyframes(args.keyframes, frames=frames)
     t_read = time.perf_counter() - t_read
     pinned = None
@@ -162,11 +173,11 @@ def _interpolate(args) -> int:
         try:
             pinned = ss.read_indices(args.pinned)
         except OverflowError:
-            raise ValueError(f"--pinned {args.pinned}: a vertex index is too large") from None
+            raise ShellsplineError(f"--pinned {args.pinned}: a vertex index is too large") from None
     if args.fix_boundary:
         bv = kf.topology.boundary_vertices
         if bv.size == 0:
-            raise ValueError("--fix-boundary: the mesh has no boundary")
+            raise ShellsplineError("--fix-boundary: the mesh has no boundary")
         pinned = bv if pinned is None else np.union1d(pinned, bv)
     from .pipeline import REFERENCES
 
@@ -174,20 +185,20 @@ def _interpolate(args) -> int:
     if str(reference).lstrip("-").isdigit():
         reference = int(reference)
     elif str(reference).strip().lower() not in REFERENCES:
-        raise ValueError(f"--reference must be one of {', '.join(REFERENCES)} or a keyframe "
+        raise ShellsplineError(f"--reference must be one of {', '.join(REFERENCES)} or a keyframe "
                          f"index, got {reference!r}")
     if args.fixpoint < 0:
-        raise ValueError(f"--fixpoint must be >= 0, got {args.fixpoint}")
+        raise ShellsplineError(f"--fixpoint must be >= 0, got {args.fixpoint}")
     if args.fixpoint and args.method not in ("lta", "nonlinear"):
-        raise ValueError("--fixpoint applies to --method lta (and nonlinear, whose start it is)")
+        raise ShellsplineError("--fixpoint applies to --method lta (and nonlinear, whose start it is)")
     gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
     solver_options = {}
     if args.max_time is not None and args.method != "nonlinear":
-        raise ValueError("--max-time applies to --method nonlinear only")
+        raise ShellsplineError("--max-time applies to --method nonlinear only")
     if args.ftol is not None and args.method != "nonlinear":
-        raise ValueError("--ftol applies to --method nonlinear only")
+        raise ShellsplineError("--ftol applies to --method nonlinear only")
     if args.ftol is not None and not 0 <= args.ftol < 1:
-        raise ValueError(f"--ftol must be in [0, 1), got {args.ftol}")
+        raise ShellsplineError(f"--ftol must be in [0, 1), got {args.ftol}")
     if args.method == "nonlinear":
         solver_options["max_time_s"] = 600.0 if args.max_time is None else args.max_time
         if args.ftol is not None:
@@ -271,10 +282,100 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
     return EXIT_OK if ok else EXIT_WARN
 
 
+def _value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Option strings of ``parser`` and its subcommands that take exactly one value."""
+    found = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _value_options(sub)
+        elif action.option_strings and action.nargs is None:
+            found.update(action.option_strings)
+    return found
+
+
+_NEGATIVE = re.compile(r"^-[0-9.]")
+
+
+def _protect_negative_values(argv, parser=None):
+    """Attach a negative-looking value to its option (``--frames -3,5`` → ``--frames=-3,5``).
+
+    argparse takes a token such as ``-3,5,10`` or ``-1e-3`` for an option and reports
+    "expected one argument"; attached, the value reaches the option's own check, whose
+    message says what is wrong with it.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    options = _value_options(parser or _build_parser())
+    out, i = [], 0
+    while i < len(argv):
+        tok = str(argv[i])
+        if tok == "--":
+            out.extend(argv[i:])
+            break
+        if tok in options and i + 1 < len(argv) and _NEGATIVE.match(str(argv[i + 1])):
+            glue = "=" if tok.startswith("--") else ""
+            out.append(f"{tok}{glue}{argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
+def _one_line_error(exc: BaseException) -> str:
+    """The message of an input or I/O error on one line (no ``[Errno N]`` prefix)."""
+    if isinstance(exc, OSError) and exc.strerror:
+        text = exc.strerror
+        if exc.filename is not None:
+            text += f": '{os.fsdecode(exc.filename)}'"
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())
+
+
+def _internal_error(exc: BaseException) -> int:
+    """Report an exception that is not an input error as a bug; return :data:`EXIT_INTERNAL`."""
+    import traceback
+
+    where = ""
+    tb = traceback.extract_tb(exc.__traceback__)
+    if tb:
+        where = f" at {Path(tb[-1].filename).name}:{tb[-1].lineno}"
+    debug = os.environ.get(DEBUG_ENV, "").strip() not in ("", "0")
+    if debug:
+        traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
+    msg = " ".join(str(exc).split())
+    if len(msg) > 200:
+        msg = msg[:197] + "..."
+    hint = "" if debug else f"; rerun with {DEBUG_ENV}=1 for the traceback"
+    print(f"shellspline: internal error (a bug in shellspline, not a problem with your input): "
+          f"{type(exc).__name__}: {msg}{where}{hint}", file=sys.stderr)
+    return EXIT_INTERNAL
+
+
+@contextmanager
+def _warnings_as_notes(stream=None):
+    """Python warnings become one-line ``note:`` lines on stderr (no source lines)."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        if "encountered in" in text:  # numpy floating-point warning: say where
+            text += f" (numerical warning at {Path(filename).name}:{lineno})"
+        out = stream or sys.stderr
+        out.write(f"  note: {text}\n")
+        out.flush()
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("once")
+        warnings.showwarning = show
+        yield
+
+
 def main(argv=None) -> int:
     """Entry point of the ``shellspline`` console script; returns the exit code."""
     parser = _build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_protect_negative_values(argv))
     if args.version:
         from . import __version__
 
@@ -290,12 +391,13 @@ def main(argv=None) -> int:
 
     old = signal.signal(signal.SIGTERM, _terminate)
     try:
-        if args.command == "interpolate":
-            return _interpolate(args)
-        if hasattr(args, "func"):
-            return args.func(args)
-    except (ValueError, OverflowError, FileExistsError, FileNotFoundError, OSError) as exc:
-        print(f"shellspline: error: {exc}", file=sys.stderr)
+        with _warnings_as_notes():
+            if args.command == "interpolate":
+                return _interpolate(args)
+            if hasattr(args, "func"):
+                return args.func(args)
+    except (ShellsplineError, OSError) as exc:
+        print(f"shellspline: error: {_one_line_error(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except MemoryError:
         print("shellspline: error: out of memory (fewer frames, --coarse, or more memory)",
@@ -304,6 +406,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("shellspline: interrupted; no output was written", file=sys.stderr)
         return 130
+    except Exception as exc:  # not the input: a bug, never passed off as bad input
+        return _internal_error(exc)
     finally:
         signal.signal(signal.SIGTERM, old)
     return EXIT_USAGE
