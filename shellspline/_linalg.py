@@ -55,7 +55,8 @@ class SparseCholesky:
         if backend == "auto":
             backend = available_backends()[0]
         if backend not in ("cholmod", "splu"):
-            raise ShellsplineError(f"`backend` must be 'auto', 'cholmod' or 'splu', got {backend!r}")
+            raise ShellsplineError(f"`backend` must be 'auto', 'cholmod' or 'splu', got "
+                                   f"{backend!r}")
         if backend == "cholmod" and not _has_cholmod():
             raise ImportError("backend='cholmod' needs cvxopt: pip install 'shellspline[fast]'")
         self.backend = backend
@@ -136,7 +137,8 @@ class SparseCholesky:
             obj._I = cvxopt.matrix(indices.astype(np.int64))
             obj._J = cvxopt.matrix(cols)
         elif backend != "splu":
-            raise ShellsplineError(f"`backend` must be 'auto', 'cholmod' or 'splu', got {backend!r}")
+            raise ShellsplineError(f"`backend` must be 'auto', 'cholmod' or 'splu', got "
+                                   f"{backend!r}")
         obj.refactor_lower(data)
         return obj
 

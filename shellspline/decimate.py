@@ -123,7 +123,7 @@ def canonical_target(target, n: int) -> int:
     """
     if isinstance(target, (bool, np.bool_)):
         raise ShellsplineError(f"`target` must be a vertex count (int) or a fraction (float), got "
-                         f"{target!r}")
+                               f"{target!r}")
     if isinstance(target, (int, np.integer)):
         if target < 4:
             raise ShellsplineError(f"`target` as a vertex count must be >= 4, got {target}")
@@ -133,7 +133,7 @@ def canonical_target(target, n: int) -> int:
             raise ShellsplineError(f"`target` as a fraction must lie in (0, 1], got {target}")
         return int(min(n, max(4, math.ceil(float(target) * n))))
     raise ShellsplineError(f"`target` must be a vertex count (int) or a fraction (float), got "
-                     f"{type(target).__name__} {target!r}")
+                           f"{type(target).__name__} {target!r}")
 
 
 def _canonical_poses(Vs, F, name_V="Vs", name_F="F"):
@@ -142,13 +142,13 @@ def _canonical_poses(Vs, F, name_V="Vs", name_F="F"):
         Vs = Vs[None]
     if Vs.ndim != 3 or Vs.shape[2] != 3 or Vs.shape[0] < 1:
         raise ShellsplineError(f"`{name_V}` must be a (J,n,3) (or (n,3)) array of poses, got shape "
-                         f"{np.shape(Vs)}")
+                               f"{np.shape(Vs)}")
     if not np.isfinite(Vs).all():
         raise ShellsplineError(f"`{name_V}` contains non-finite coordinates")
     if isinstance(F, Topology):
         if F.n_vertices != Vs.shape[1]:
-            raise ShellsplineError(f"`{name_F}` is a Topology of {F.n_vertices} vertices, `{name_V}` "
-                             f"has {Vs.shape[1]}")
+            raise ShellsplineError(f"`{name_F}` is a Topology of {F.n_vertices} vertices, "
+                                   f"`{name_V}` has {Vs.shape[1]}")
         return Vs, F
     T = topology(F, Vs.shape[1], name=f"`{name_F}`")
     return Vs, T
@@ -167,7 +167,7 @@ def _canonical_pinned(pinned, n):
     p = p.astype(np.int64).ravel()
     if p.size and (p.min() < 0 or p.max() >= n):
         raise ShellsplineError(f"`pinned` indices must lie in [0, {n}), got range [{p.min()}, "
-                         f"{p.max()}]")
+                               f"{p.max()}]")
     mask = np.zeros(n, dtype=bool)
     mask[p] = True
     return mask
@@ -869,7 +869,7 @@ def hausdorff_fine_to_coarse(Vs, Vc, Fc, *, k: int = 16, chunk: int = 20_000) ->
         Vs, Vc = Vs[None], Vc[None]
     if Vs.shape[0] != Vc.shape[0]:
         raise ShellsplineError(f"`Vs` and `Vc` must hold the same number of poses, got "
-                         f"{Vs.shape[0]} and {Vc.shape[0]}")
+                               f"{Vs.shape[0]} and {Vc.shape[0]}")
     kk = int(min(k, Fc.shape[0]))
     out = np.zeros(Vs.shape[0])
     step = max(1, int(chunk))

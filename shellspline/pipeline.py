@@ -74,7 +74,8 @@ class InterpolationResult:
 def _canonical_choice(value, name, choices):
     v = str(value).strip().lower()
     if v not in choices:
-        raise ShellsplineError(f"`{name}` must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        raise ShellsplineError(f"`{name}` must be one of {', '.join(map(repr, choices))}, "
+                               f"got {value!r}")
     return v
 
 
@@ -107,8 +108,8 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
     periodic = bc == "periodic"
     if frames is None:
         if bc == "hermite":
-            raise ShellsplineError("bc='hermite' needs explicit `frames`: the poses at frames 1 and "
-                             "K-1 fix the end velocities")
+            raise ShellsplineError("bc='hermite' needs explicit `frames`: the poses at frames 1 "
+                                   "and K-1 fix the end velocities")
         if K is None:
             frames = DEFAULT_STEP * np.arange(J)
             K = int(frames[-1] + (DEFAULT_STEP if periodic else 0))
@@ -124,7 +125,8 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
                 raise ShellsplineError(f"`K`={K} is too small for {J} keyframes")
     frames = np.asarray(frames)
     if frames.ndim != 1 or len(frames) != J:
-        raise ShellsplineError(f"`frames` must have one entry per keyframe ({J}), got {frames.tolist()}")
+        raise ShellsplineError(f"`frames` must have one entry per keyframe ({J}), got "
+                               f"{frames.tolist()}")
     if not np.all(np.isfinite(frames)) or not np.all(frames == np.round(frames)):
         raise ShellsplineError(f"`frames` must be integers, got {frames.tolist()}")
     frames = frames.astype(np.int64)
@@ -138,8 +140,8 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
     if K < 1 or K > MAX_FRAMES:
         raise ShellsplineError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
     if periodic and frames[-1] >= K:
-        raise ShellsplineError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K is "
-                         f"frame 0 again), got frames {frames.tolist()}")
+        raise ShellsplineError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K "
+                               f"is frame 0 again), got frames {frames.tolist()}")
     if frames[-1] > K:
         raise ShellsplineError(f"`K`={K} is smaller than the last keyframe frame {int(frames[-1])}")
     return frames, K
@@ -475,7 +477,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         if not np.isfinite(val) or val < 0:
             raise ShellsplineError(f"`{name}` must be a finite non-negative number, got {val!r}")
     if mu == 0 and lam == 0:
-        raise ShellsplineError("`mu` and `lam` cannot both be zero (the membrane energy would vanish)")
+        raise ShellsplineError("`mu` and `lam` cannot both be zero (the membrane energy would "
+                               "vanish)")
     workers = 1 if workers is None else int(workers)
     if workers < 1:
         raise ShellsplineError(f"`workers` must be >= 1, got {workers}")
@@ -496,15 +499,15 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         pinned = np.asarray(pinned, dtype=np.int64).ravel()
         if pinned.size and (pinned.min() < 0 or pinned.max() >= kf.V.shape[1]):
             raise ShellsplineError(f"`pinned` indices must lie in [0, {kf.V.shape[1]}), got range "
-                             f"[{pinned.min()}, {pinned.max()}]")
+                                   f"[{pinned.min()}, {pinned.max()}]")
         if pinned.size == 0:
             pinned = None
     frames, K = canonical_frames(kf.V.shape[0], kf.frames if frames is None else frames, K, bc)
     if bc == "hermite" and (len(frames) < 4 or frames[1] != 1 or frames[-2] != K - 1
                             or frames[-1] != K):
-        raise ShellsplineError("bc='hermite' needs keyframes at frames 0, 1, K-1 and K (the poses at "
-                         f"1 and K-1 fix the end velocities); got frames {frames.tolist()} "
-                         f"with K={K}")
+        raise ShellsplineError("bc='hermite' needs keyframes at frames 0, 1, K-1 and K (the poses "
+                               f"at 1 and K-1 fix the end velocities); got frames "
+                               f"{frames.tolist()} with K={K}")
     Vkey = kf.V
     J, n = Vkey.shape[:2]
     if bc != "periodic" and K > frames[-1] and method != "linear":
@@ -554,7 +557,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         fixpoint = int(fixpoint)
         if fixpoint < 0:
             raise ShellsplineError(f"`fixpoint` must be a non-negative number of iterations, got "
-                             f"{fixpoint}")
+                                   f"{fixpoint}")
         fixpoint_log: list = []
         lta_args = dict(frames=frames, K=K, bc=bc, mu=mu, lam=lam, eta=eta, reference=reference,
                         workers=workers, gn_options=dict(gn_options or {}),
@@ -571,8 +574,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                              f"{AUTO_COARSE_VERTICES} solves there and prolongs)")
         if fine and n_coarse is None:
             raise ShellsplineError("`fine=True` refines a multiresolution run: it needs `coarse` "
-                             f"(a vertex count or fraction below the {n} vertices), got "
-                             f"coarse={coarse!r}")
+                                   f"(a vertex count or fraction below the {n} vertices), got "
+                                   f"coarse={coarse!r}")
         if (n_coarse is None or fine) and n > FULL_RESOLUTION_WARN:
             prog.message(f"Gauss–Newton at full resolution on {n} vertices takes minutes and "
                          "gigabytes (measured: 154k vertices, K = 50, --fine from 1000 coarse "
@@ -690,18 +693,18 @@ def _coarse_target(coarse, n, method: str = "lta"):
         try:
             coarse = float(c) if any(ch in c for ch in ".e") else int(c)
         except ValueError:
-            raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction in "
-                             f"(0, 1), got {coarse!r}") from None
+            raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction "
+                                   f"in (0, 1), got {coarse!r}") from None
     if isinstance(coarse, bool):
-        raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, got "
-                         f"{coarse!r}")
+        raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, "
+                               f"got {coarse!r}")
     if isinstance(coarse, (float, np.floating)) and 0 < coarse < 1:
         target = int(round(coarse * n))
     elif float(coarse) == int(coarse) and int(coarse) >= 4:
         target = int(coarse)
     else:
         raise ShellsplineError(f"`coarse` must be a vertex count >= 4 or a fraction in (0, 1), got "
-                         f"{coarse!r}")
+                               f"{coarse!r}")
     return None if target >= n else max(target, 4)
 
 
@@ -723,7 +726,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
             ref_idx, ref_kind = int(reference), "constant"
             if not 0 <= ref_idx < J:
                 raise ShellsplineError(f"`reference` keyframe index must lie in [0, {J}), got "
-                                 f"{reference}")
+                                       f"{reference}")
         else:
             ref_kind = _canonical_choice(reference, "reference", REFERENCES)
             ref_idx = 0

@@ -107,7 +107,7 @@ def _checked_frames(frames, K):
     fr = fr.astype(np.int64)
     if (np.diff(fr) <= 0).any() or fr[0] < 0 or fr[-1] > K:
         raise ShellsplineError(f"`frames` must be strictly increasing in [0, K={K}], got "
-                         f"{fr.tolist()}")
+                               f"{fr.tolist()}")
     return fr, int(K)
 
 
@@ -199,12 +199,13 @@ class Prolongation:
         if not isinstance(dec, Decimation):
             raise ShellsplineError(f"`dec` must be a Decimation, got {type(dec).__name__}")
         if Vs.ndim != 3 or Vs.shape[1:] != (dec.n_fine, 3):
-            raise ShellsplineError(f"`Vs_fine` must have shape (J, {dec.n_fine}, 3), got {Vs.shape}")
+            raise ShellsplineError(f"`Vs_fine` must have shape (J, {dec.n_fine}, 3), got "
+                                   f"{Vs.shape}")
         J, n, _ = Vs.shape
         if isinstance(F_fine, Topology):
             if F_fine.n_vertices != n:
                 raise ShellsplineError(f"`F_fine` is a Topology of {F_fine.n_vertices} vertices, "
-                                 f"expected {n}")
+                                       f"expected {n}")
             T = F_fine
         else:
             T = topology(F_fine, n, name="`F_fine`")
@@ -214,7 +215,7 @@ class Prolongation:
         if fr.shape != (J,) or not np.issubdtype(fr.dtype, np.integer) or \
                 (np.diff(fr) <= 0).any():
             raise ShellsplineError(f"`frames` must be {J} strictly increasing integers, got "
-                             f"{np.asarray(frames).tolist()}")
+                                   f"{np.asarray(frames).tolist()}")
         pin = _canonical_pinned(pinned, n)
         if pin.any() and not (Vs[:, pin] == Vs[:1, pin]).all():
             raise ShellsplineError("`pinned` vertices must be identical in all keyframes")
@@ -265,7 +266,7 @@ class Prolongation:
         Vb = Vc[None] if single else Vc
         if Vb.ndim != 3 or Vb.shape[1:] != (self.kept.shape[0], 3):
             raise ShellsplineError(f"`Vc` must have shape (..., {self.kept.shape[0]}, 3), got "
-                             f"{Vc.shape}")
+                                   f"{Vc.shape}")
         S = self._base_vm(Vb).transpose(1, 0, 2)
         return S[0] if single else np.ascontiguousarray(S)
 
@@ -359,7 +360,7 @@ class Prolongation:
         Vc = np.asarray(Vc, dtype=np.float64)
         if Vc.ndim != 3 or Vc.shape[1:] != (self.kept.shape[0], 3):
             raise ShellsplineError(f"`Vc` must have shape (K+1, {self.kept.shape[0]}, 3), got "
-                             f"{Vc.shape}")
+                                   f"{Vc.shape}")
         if K is None:
             K = Vc.shape[0] - 1
         if Vc.shape[0] != K + 1:
@@ -367,7 +368,7 @@ class Prolongation:
         fr = self.frames if frames is None else np.asarray(frames)
         if fr.shape != self.frames.shape or not (fr == self.frames).all():
             raise ShellsplineError(f"`frames` must equal the keyframe frames given to encode "
-                             f"{self.frames.tolist()}, got {np.asarray(frames).tolist()}")
+                                   f"{self.frames.tolist()}, got {np.asarray(frames).tolist()}")
         if self.frames[-1] > K:
             raise ShellsplineError(f"`K` = {K} is before the last keyframe frame {self.frames[-1]}")
         J = self.frames.shape[0]
@@ -379,12 +380,12 @@ class Prolongation:
                 W = spline_time_weights(self.frames, K, bc)
             else:
                 raise ShellsplineError(f"`time_weights` must be 'linear', 'spline' or a (K+1,J) "
-                                 f"array, got {time_weights!r}")
+                                       f"array, got {time_weights!r}")
         else:
             W = np.asarray(time_weights, dtype=np.float64)
             if W.shape != (K + 1, J) or not np.isfinite(W).all():
                 raise ShellsplineError(f"`time_weights` must be a finite ({K + 1},{J}) array, got "
-                                 f"shape {W.shape}")
+                                       f"shape {W.shape}")
         out = np.zeros((K + 1, self.n_vertices, 3))
         key_of = np.full(K + 1, -1, dtype=np.int64)
         key_of[self.frames] = np.arange(J)
