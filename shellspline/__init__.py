@@ -13,9 +13,9 @@ from .decimate import Decimation, decimate
 from .descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
                           lta_jacobian, lta_weights)
 from .geodesic import discrete_geodesic, geodesic_interpolation
-from .io import (Keyframes, keyframes_from_arrays, read_frames, read_indices, read_keyframes,
-                 read_mesh, read_sequence, write_sequence)
-from .lta_spline import lta_spline
+from .io import (Keyframes, check_output_dir, keyframes_from_arrays, read_frames, read_indices,
+                 read_keyframes, read_mesh, read_sequence, write_sequence)
+from .lta_spline import LTASpline, lta_spline
 from .nonlinear_spline import nonlinear_spline
 from .pipeline import InterpolationResult, interpolate, linear_blend
 from .prolong import Prolongation
@@ -28,7 +28,8 @@ from .viz import (SequenceViewer, export_glb, plot, plot_half_axes, preview, ren
 __all__ = [
     "__version__", "MeshError", "ShellsplineError", "Keyframes", "read_keyframes",
     "keyframes_from_arrays", "read_mesh", "read_frames", "read_indices", "read_sequence",
-    "write_sequence", "interpolate", "InterpolationResult", "linear_blend", "lta_spline",
+    "write_sequence", "check_output_dir", "interpolate", "InterpolationResult", "linear_blend",
+    "lta_spline", "LTASpline",
     "lta_descriptors", "lta_jacobian", "lta_weights", "edge_lengths", "face_areas",
     "dihedral_angles", "GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement",
     "Topology", "topology", "decimate", "Decimation", "Prolongation", "discrete_geodesic",

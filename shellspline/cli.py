@@ -165,7 +165,8 @@ def _interpolate(args) -> int:
     try:
         frames = ss.read_frames(args.frames) if args.frames else None
     except OverflowError:
-        raise ShellsplineError(f"--frames {args.frames!r}: a frame number is too large") from None
+        raise ShellsplineError(f"--frames {args.frames!r}: a frame number is too "
+                               "large") from None
     kf = ss.read_keyframes(args.keyframes, frames=frames)
     t_read = time.perf_counter() - t_read
     pinned = None
@@ -179,7 +180,7 @@ def _interpolate(args) -> int:
         if bv.size == 0:
             raise ShellsplineError("--fix-boundary: the mesh has no boundary")
         pinned = bv if pinned is None else np.union1d(pinned, bv)
-    from .pipeline import REFERENCES
+    from .pipeline import REFERENCES, canonical_frames
 
     reference = args.reference
     if str(reference).lstrip("-").isdigit():
@@ -190,7 +191,8 @@ def _interpolate(args) -> int:
     if args.fixpoint < 0:
         raise ShellsplineError(f"--fixpoint must be >= 0, got {args.fixpoint}")
     if args.fixpoint and args.method not in ("lta", "nonlinear"):
-        raise ShellsplineError("--fixpoint applies to --method lta (and nonlinear, whose start it is)")
+        raise ShellsplineError("--fixpoint applies to --method lta (and nonlinear, whose start "
+                               "it is)")
     gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
     solver_options = {}
     if args.max_time is not None and args.method != "nonlinear":
@@ -203,6 +205,13 @@ def _interpolate(args) -> int:
         solver_options["max_time_s"] = 600.0 if args.max_time is None else args.max_time
         if args.ftol is not None:
             solver_options["ftol"] = args.ftol
+    # the output location is checked before any computing (writable, not over an input,
+    # room for the estimated output), so a bad -o costs no solve
+    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames)
+                                      if p and Path(p).is_file()]
+    _, K_out = canonical_frames(kf.J, kf.frames, args.K, args.bc)
+    ss.check_output_dir(args.out, n_frames=K_out + 1, n_vertices=kf.n, n_faces=kf.m,
+                        fmt=args.format, overwrite=args.overwrite, protect=protect)
     if not args.quiet:
         print(f"shellspline {ss.__version__}: {len(args.keyframes)} keyframes, "
               f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)
@@ -213,8 +222,6 @@ def _interpolate(args) -> int:
                          fixpoint=args.fixpoint, progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
-    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames)
-                                      if p and Path(p).is_file()]
     out = ss.write_sequence(args.out, res.V, res.F, res.report, overwrite=args.overwrite,
                             protect=protect, fmt=args.format, fps=args.fps)
     res.report["timings"]["write"] = time.perf_counter() - t0
@@ -384,14 +391,12 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
-    import signal
+    from .parallel import interrupt_exit_code, stop_signals_unwind
 
-    def _terminate(signum, frame):  # SIGTERM unwinds like Ctrl-C: temp outputs are removed
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGTERM, _terminate)
     try:
-        with _warnings_as_notes():
+        # SIGTERM and SIGINT unwind like Ctrl-C (temp outputs removed, workers stopped) and
+        # exit with 128 + the signal (130 SIGINT, 143 SIGTERM)
+        with stop_signals_unwind(), _warnings_as_notes():
             if args.command == "interpolate":
                 return _interpolate(args)
             if hasattr(args, "func"):
@@ -403,13 +408,11 @@ def main(argv=None) -> int:
         print("shellspline: error: out of memory (fewer frames, --coarse, or more memory)",
               file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print("shellspline: interrupted; no output was written", file=sys.stderr)
-        return 130
+        return interrupt_exit_code(exc)
     except Exception as exc:  # not the input: a bug, never passed off as bad input
         return _internal_error(exc)
-    finally:
-        signal.signal(signal.SIGTERM, old)
     return EXIT_USAGE
 
 

@@ -47,6 +47,7 @@ __all__ = [
     "read_indices",
     "read_frames",
     "write_sequence",
+    "check_output_dir",
     "read_sequence",
     "MESH_EXTENSIONS",
 ]
@@ -849,11 +850,14 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
                              indent=2) + "\n"
 
     out = Path(out_dir)
-    target = out.resolve()
-    _check_destination(target, out, overwrite, protect)
+    target = check_output_dir(out, n_frames=V.shape[0], n_vertices=n, n_faces=F.shape[0],
+                              fmt=fmt, overwrite=overwrite, protect=protect)
     parent = target.parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = _fresh_sibling(parent, f".{target.name}.tmp-{os.getpid()}-")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = _fresh_sibling(parent, f".{target.name}.tmp-{os.getpid()}-")
+    except OSError as exc:
+        raise _on_user_path(exc, None, out, "creating") from None
     try:
         if fmt == "glb":
             (tmp / GLB_NAME).write_bytes(glb)
@@ -864,10 +868,125 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
             _write_frames(paths, V, F, fmt, workers)
         (tmp / "report.json").write_text(report_text, encoding="utf-8")
         _move_into_place(tmp, target, overwrite)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, FileExistsError) and exc.errno is None:
+            raise  # our own message: the output appeared while we were writing
+        raise _on_user_path(exc, tmp, out, "writing") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return target
+
+
+#: Lower estimates of the bytes per vertex and per face of one frame (the space check must
+#: never refuse an output that fits): OBJ ``v x y z`` lines with 17 significant digits are
+#: 55-65 bytes, a face line ``f a b c`` 8 bytes and more; PLY stores 3 doubles per vertex and
+#: 13 bytes per face; GLB 24 bytes per vertex and frame (float32 position and normal deltas).
+_BYTES_PER_VERTEX = {"obj": 50, "ply": 24, "glb": 24}
+_BYTES_PER_FACE = {"obj": 8, "ply": 13, "glb": 0}
+
+
+def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces: int = 0,
+                     fmt: str = "obj", overwrite: bool = False, protect=()) -> Path:
+    """Check, before any computing, that :func:`write_sequence` can write ``out_dir``.
+
+    Nothing is created: the nearest existing ancestor of ``out_dir`` must be a directory
+    in which a directory can be created (probed by creating and removing one, which also
+    catches read-only mounts and permissions that the superuser ignores), ``out_dir`` must
+    not contain or replace an input, must not exist unless ``overwrite`` (and then only
+    as an earlier output), and, where the platform tells (:func:`shutil.disk_usage`), the
+    file system must have room for the estimated size of the output.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+        The output directory.
+    n_frames, n_vertices, n_faces : int
+        Size of the sequence to be written (``K+1`` frames), for the free-space estimate;
+        ``0`` skips that check.
+    fmt : {"obj", "ply", "glb"}
+        Output format (bytes per vertex differ).
+    overwrite, protect
+        As for :func:`write_sequence`.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path that will be written.
+
+    Raises
+    ------
+    FileExistsError
+        If ``out_dir`` exists and ``overwrite`` is false, or it exists and is not a directory.
+    ShellsplineError
+        If ``out_dir`` lies under a file, its parent cannot be written, it would contain or
+        replace a protected input, or the file system has too little free space.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> check_output_dir(os.path.join(d, "new", "out"), n_frames=21, n_vertices=5000,
+    ...                  n_faces=9996).name
+    'out'
+    >>> os.listdir(d)  # nothing was created
+    []
+    """
+    out = Path(out_dir)
+    fmt = str(fmt).lower().lstrip(".")
+    if fmt not in _BYTES_PER_VERTEX:
+        raise ShellsplineError(f"fmt must be 'obj', 'ply' or 'glb', got {fmt!r}")
+    target = out.resolve()
+    _check_destination(target, out, overwrite, protect)
+    base = target.parent
+    while not base.is_dir():
+        if base.exists() or base.is_symlink():
+            raise ShellsplineError(f"cannot create output directory '{out}': '{base}' is a "
+                                   "file, not a directory")
+        base = base.parent
+    try:  # a directory created and removed: os.access knows neither read-only mounts nor root
+        _fresh_sibling(base, f".{target.name}.probe-{os.getpid()}-").rmdir()
+    except OSError as exc:
+        raise ShellsplineError(f"cannot create output directory '{out}': cannot write in "
+                               f"'{base}': {(exc.strerror or str(exc)).lower()}") from None
+    need = int(n_frames) * (int(n_vertices) * _BYTES_PER_VERTEX[fmt]
+                            + int(n_faces) * _BYTES_PER_FACE[fmt])
+    if need > 0:
+        try:
+            free = shutil.disk_usage(base).free
+        except (OSError, AttributeError):  # the platform does not say
+            free = None
+        if free is not None and free < need:
+            raise ShellsplineError(f"not enough space for output directory '{out}': about "
+                                   f"{_megabytes(need)} needed, {_megabytes(free)} free in "
+                                   f"'{base}'")
+    return target
+
+
+def _megabytes(nbytes: int) -> str:
+    return f"{nbytes / 1e6:,.1f} MB" if nbytes < 1e9 else f"{nbytes / 1e9:,.1f} GB"
+
+
+def _on_user_path(exc: OSError, tmp: Path | None, out: Path, doing: str) -> OSError:
+    """``exc`` again (same type and errno) with a message that names the user's path.
+
+    A file inside the hidden temporary directory ``tmp`` is named by where it would have
+    landed in ``out``; ``No space left on device`` becomes ``no space left on device
+    writing 'OUT/frame_0012.obj'``.
+    """
+    where = out
+    for name in (exc.filename, exc.filename2):
+        if name is None or tmp is None:
+            continue
+        try:
+            where = out / Path(os.fsdecode(name)).relative_to(tmp)
+            break
+        except ValueError:
+            continue
+    what = exc.strerror or str(exc) or type(exc).__name__
+    what = what[:1].lower() + what[1:]
+    return OSError(exc.errno, f"{what} {doing} '{where}'")  # the errno picks the subclass
 
 
 def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> None:
