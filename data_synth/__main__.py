@@ -1,5 +1,6 @@
 """Command line: ``python -m data_synth NAME OUT [--vertices N] [--format obj|ply|off]
-[--count C]``."""
+[--count C]``, and ``python -m data_synth skinned BVH OUT ...`` (a body skinned to a BVH clip,
+every frame written: see :mod:`data_synth.skinned`)."""
 from __future__ import annotations
 
 import argparse
@@ -25,7 +26,8 @@ def main(argv=None) -> int:
         prog="python -m data_synth",
         description="Write synthetic keyframe meshes (one mesh, shared connectivity): "
                     "OUT/pose_00.<fmt>, pose_01.<fmt>, ..., OUT/frames.txt and, when the data "
-                    "set pins vertices, OUT/pinned.txt.")
+                    "set pins vertices, OUT/pinned.txt. `python -m data_synth skinned BVH OUT` "
+                    "writes a body skinned to a BVH clip instead (see its --help).")
     parser.add_argument("name", choices=NAMES, help="data set")
     parser.add_argument("out", help="output directory (created if missing)")
     parser.add_argument("--vertices", type=int, default=None, metavar="N",
@@ -35,6 +37,10 @@ def main(argv=None) -> int:
                         help="write C varied sequences OUT/NAME_00/, OUT/NAME_01/, ... (for "
                              "batch jobs) instead of one")
     parser.add_argument("--seed", type=int, default=0, help="seed of the --count variation")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["skinned"]:  # its own arguments (a BVH file, a window of frames)
+        from .skinned import main as skinned_main
+        return skinned_main(argv[1:])
     args = parser.parse_args(argv)
     if args.count is not None:
         try:
