@@ -130,6 +130,47 @@ def _smooth_union(A, B, r, lo, h, shape, k):
     return -k * np.log(np.maximum(S, np.exp(-60.0)))
 
 
+def _union_value_grad(X, A, B, r, k):
+    """The smooth union ``phi`` of :func:`_smooth_union` and its gradient at points X (n,3)."""
+    AB = B - A
+    L2 = np.maximum(np.einsum("bi,bi->b", AB, AB), 1e-300)
+    XA = X[:, None, :] - A[None]
+    t = np.clip(np.einsum("nbi,bi->nb", XA, AB) / L2, 0.0, 1.0)
+    diff = XA - t[..., None] * AB[None]  # (n,B,3) from the closest point of each axis
+    dist = np.maximum(np.linalg.norm(diff, axis=2), 1e-300)
+    d = dist - r
+    dmin = d.min(axis=1, keepdims=True)
+    e = np.exp(-(d - dmin) / k)
+    S = e.sum(axis=1, keepdims=True)
+    phi = dmin[:, 0] - k * np.log(S[:, 0])
+    grad = np.einsum("nb,nbi->ni", e / S, diff / dist[..., None])
+    return phi, grad
+
+
+def _relax(V, F, A, B, r, k, iterations: int = 6):
+    """Tangential Laplacian smoothing, each step followed by a projection onto the zero set
+    of the capsule union: smooth, well-shaped triangles on the smooth surface (marching
+    tetrahedra leaves a faceted, stair-stepped surface and slivers)."""
+    import scipy.sparse as sp
+
+    n = V.shape[0]
+    i = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    j = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    adj = sp.csr_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+    adj = ((adj + adj.T) > 0).astype(np.float64)
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    V = V.copy()
+    for _ in range(iterations):
+        phi, g = _union_value_grad(V, A, B, r, k)
+        nrm = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-300)
+        step = adj @ V / deg[:, None] - V
+        V += 0.5 * (step - np.einsum("ni,ni->n", step, nrm)[:, None] * nrm)
+        for _ in range(2):  # Newton steps onto phi = 0
+            phi, g = _union_value_grad(V, A, B, r, k)
+            V -= (phi / np.maximum(np.einsum("ni,ni->n", g, g), 1e-300))[:, None] * g
+    return V
+
+
 def _bone_graph_far(driver, A0, B0, H):
     """(B,B) mask of bone pairs at least three bones apart in the skeleton graph."""
     nb = len(driver)
@@ -147,19 +188,42 @@ def _bone_graph_far(driver, A0, B0, H):
     return (reach @ reach) == 0  # not within two bones of each other
 
 
-def _bind_frame(A, B, radii, far):
-    """Frame where far-apart bones have the largest clearance (distance minus radii)."""
+def _far_pair_distances(A, B, far):
+    """Distances (T,p) between the far bone pairs ``(i, j)`` (p,) at every frame (closest
+    of 6 sample points per bone)."""
     s = np.linspace(0.0, 1.0, 6)
     pts = A[:, :, None] + s[None, None, :, None] * (B - A)[:, :, None]  # (T,B,6,3)
-    T, nb = A.shape[:2]
     i, j = np.nonzero(np.triu(far))
-    if i.size == 0:
-        return 0
-    best = np.full(T, np.inf)
-    for f in range(T):  # T small (a clip window); pairs x 36 point distances per frame
-        d = np.linalg.norm(pts[f, i][:, :, None] - pts[f, j][:, None, :], axis=3)
-        best[f] = np.min(d.min(axis=(1, 2)) - radii[i] - radii[j])
-    return int(np.argmax(best))
+    D = np.empty((A.shape[0], i.size))  # every column is filled below
+    for c in range(0, i.size, 64):  # bounded memory: 64 pairs x 36 sample distances x T
+        d = pts[:, i[c:c + 64], :, None] - pts[:, j[c:c + 64], None, :]
+        D[:, c:c + 64] = np.sqrt(np.einsum("tpabx,tpabx->tpab", d, d)).min(axis=(2, 3))
+    return D, i, j
+
+
+def _bind_and_radii(A, B, radii, reach, far, gap_of_h):
+    """Bind frame and capped radii.
+
+    Only pairs of far bones that move relative to each other over the clip count (thighs,
+    arm and torso; not neck and shoulders, whose overlap is part of the body): the bind
+    frame maximises their smallest clearance ``distance − reach_i − reach_j``, and in that
+    frame the radii of a pair are scaled down (at most to half) until their clearance is at
+    least ``gap_of_h(radii)``, so that no two body parts are nearly touching: the grid would
+    bridge them with a thin web of folded triangles.
+    """
+    D, i, j = _far_pair_distances(A, B, far)
+    moving = np.ptp(D, axis=0) > 0.1 * (reach[i] + reach[j]) if D.size else np.zeros(0, bool)
+    if not moving.any():
+        return 0, radii
+    i, j, D = i[moving], j[moving], D[:, moving]
+    clearance = D - reach[i] - reach[j]
+    bind = int(np.argmax(clearance.min(axis=1)))
+    gap = gap_of_h(radii)
+    scale = np.ones_like(radii)
+    need = np.clip((D[bind] - gap) / (reach[i] + reach[j]), 0.5, 1.0)
+    np.minimum.at(scale, i, need)
+    np.minimum.at(scale, j, need)
+    return bind, radii * scale
 
 
 def marching_tetrahedra(phi, origin, h, clamp: float = 0.05):
@@ -288,23 +352,29 @@ def skinned_body(motion, *, n_vertices: int = 5000, radius: float = 0.03,
     A, B, driver, subtree, leaf = skeleton_bones(motion, P, R)
     H = np.ptp(np.concatenate([A[0], B[0]]), axis=0).max()
     radii = radius * H * (1.0 + subtree) ** (1.0 / 3.0)
-    if bind_frame is None:
-        far = _bone_graph_far(driver, A[0], B[0], H)
-        bind_frame = _bind_frame(A, B, radii, far)
+    ball = 1.4  # radius of the balls at the leaves (head, hands, toes) / their bone's
+    reach = np.where(leaf, ball, 1.0)
+
+    def grid_step(radii):
+        # marching tetrahedra gives about 4.5 A / h² vertices (A: surface area, estimated by
+        # the capsules' sides and balls); aim at `oversample` x n_vertices before decimating,
+        # never coarser than 1/1.5 of the thinnest radius
+        L = np.linalg.norm(B[0] - A[0], axis=1)
+        area = np.sum(2 * np.pi * radii * L) + 4 * np.pi * np.sum((ball * radii[leaf]) ** 2)
+        return min(np.sqrt(4.5 * 0.8 * area / (oversample * n_vertices)), radii.min() / 1.5,
+                   H / 40.0)
+
+    far = _bone_graph_far(driver, A[0], B[0], H)
+    bind, radii = _bind_and_radii(A, B, radii, reach * radii, far,
+                                  lambda r: 2.5 * grid_step(r))
+    bind_frame = bind if bind_frame is None else int(bind_frame)
     A0, B0 = A[bind_frame], B[bind_frame]
-    # balls at the leaves (head, hands, toes), as zero-length capsules
-    Ac = np.concatenate([A0, B0[leaf]])
+    Ac = np.concatenate([A0, B0[leaf]])  # balls as zero-length capsules
     Bc = np.concatenate([B0, B0[leaf]])
-    rc = np.concatenate([radii, 1.4 * radii[leaf]])
+    rc = np.concatenate([radii, ball * radii[leaf]])
     lo = np.minimum(Ac, Bc).min(0) - rc.max() - 0.1 * H
     hi = np.maximum(Ac, Bc).max(0) + rc.max() + 0.1 * H
-    # grid step: marching tetrahedra gives about 4.5 A / h² vertices (A: surface area,
-    # estimated by the capsules' sides and balls); aim at `oversample` x n_vertices before
-    # decimating, never coarser than 1/1.5 of the thinnest radius
-    L = np.linalg.norm(Bc - Ac, axis=1)
-    area = np.sum(2 * np.pi * rc * L) + 4 * np.pi * np.sum(rc[len(A0):] ** 2)
-    h = min(np.sqrt(4.5 * 0.8 * area / (oversample * n_vertices)), rc.min() / 1.5)
-    h = max(h, (hi - lo).max() / 300.0)
+    h = max(grid_step(radii), (hi - lo).max() / 300.0)
     shape = np.ceil((hi - lo) / h).astype(int) + 1
     k = 0.25 * radius * H  # smoothing length of the union (fillets at the joints)
     phi = _smooth_union(Ac, Bc, rc, lo, h, shape, k)
@@ -315,6 +385,7 @@ def skinned_body(motion, *, n_vertices: int = 5000, radius: float = 0.03,
         V, F = dec.V[0], dec.F
     else:
         V, F = Vf, Ff
+    V = _relax(V, F, Ac, Bc, rc, k)
     W = _skin_weights(V, A0, B0, driver, motion.n_joints, max_influences, radius * H)
     return {"V": V, "F": F, "W": W, "bind_frame": int(bind_frame), "P": P, "R": R}
 
@@ -376,7 +447,8 @@ def skinned_sequence(bvh_path, *, start: int = 0, stop: int | None = None, step:
         Approximate vertex count of the body.
     **body_options
         Further options of :func:`skinned_body` (``radius``, ``max_influences``, ``oversample``,
-        ``bind_frame`` relative to the window).
+        ``bind_frame``). The body and its bind pose are built from the whole clip, so
+        every window of one clip poses the same mesh.
 
     Returns
     -------
@@ -397,14 +469,16 @@ def skinned_sequence(bvh_path, *, start: int = 0, stop: int | None = None, step:
 
     if not (isinstance(step, (int, np.integer)) and step >= 1):
         raise ShellsplineError(f"step must be a positive integer, got {step!r}")
-    motion = read_bvh(bvh_path).frames(start, stop, step)
-    if motion.n_frames == 0:
-        raise ShellsplineError(f"{bvh_path}: the window {start}:{stop}:{step} has no frames")
-    body = skinned_body(motion, n_vertices=n_vertices, **body_options)
+    motion = read_bvh(bvh_path)
+    window = np.arange(motion.n_frames)[start:stop:step]
+    if window.size == 0:
+        raise ShellsplineError(f"{bvh_path}: the window {start}:{stop}:{step} of its "
+                               f"{motion.n_frames} frames is empty")
+    body = skinned_body(motion, n_vertices=n_vertices, **body_options)  # bind: whole clip
     b = body["bind_frame"]
-    Vs = linear_blend_skinning(body["V"], body["W"], body["P"][b], body["R"][b], body["P"],
-                               body["R"])
-    return Vs, body["F"], motion.fps
+    Vs = linear_blend_skinning(body["V"], body["W"], body["P"][b], body["R"][b],
+                               body["P"][window], body["R"][window])
+    return Vs, body["F"], motion.fps / step
 
 
 def main(argv=None) -> int:

@@ -143,7 +143,7 @@ def test_cli_writes_frames(tmp_path):
 
 def test_bad_window_raises():
     p = shared_data("motion", "sinusoidal.bvh")
-    with pytest.raises(shellspline.ShellsplineError, match="has no frames"):
+    with pytest.raises(shellspline.ShellsplineError, match="is empty"):
         skinned_sequence(p, start=500)
     with pytest.raises(shellspline.ShellsplineError, match="step must be a positive"):
         skinned_sequence(p, step=0)
