@@ -1,0 +1,335 @@
+"""Real data: in-betweens against ground truth (skinned BVH bodies) and the horse (issue 13).
+
+What is measured
+----------------
+**Ground truth** (``--no-gt`` skips it). For every BVH clip in ``../shared/data/motion``
+(skipped with a message when absent), :mod:`data_synth.skinned` builds a closed body mesh
+around the clip's skeleton and poses it at every frame by linear blend skinning, as games and
+rigs do: the true frames of a window of ``K + 1`` consecutive frames (the middle of the clip,
+``K`` a multiple of 6). Every 3rd and every 6th frame is kept as a keyframe, and the frames in
+between are rebuilt by
+
+* ``lta``: ``shellspline.interpolate`` (LΘA, default options; the body is below the automatic
+  multiresolution threshold, so this is full resolution);
+* ``lta-c1000``: the same with ``coarse=1000`` (full mode only);
+* ``linear``: ``shellspline.linear_blend`` (per-vertex linear blending);
+* ``cubic``: ``scipy.interpolate.CubicSpline`` through the keyframes, per vertex coordinate,
+  natural end conditions.
+
+Error of a frame: rms vertex distance to the true frame over the body's size (the mean over
+the window of each true frame's bounding-box diagonal: the body travels meters, its diagonal
+stays ≈ its height); reported as the rms over the in-between frames (``err``), the worst
+in-between frame (``max``), and the same after a per-frame rigid (Procrustes) alignment to the
+truth (``shape``: the part that no rigid placement can explain). Quality:
+``shellspline.metrics.sequence_defects`` (new flipped / collapsed faces, folded edges, pop),
+Gauss–Newton frames converged / stalled and iterations. Ratios ``lta/linear`` and
+``lta/cubic`` (issue 13's goal: both ≤ 1). Where LΘA loses, the JSON says where: the worst
+frames (error, flips, Gauss–Newton status) and the joints whose vertices carry most of the
+excess error over the cubic spline.
+
+**Horse** (``--no-horse`` skips it): ``../shared/data/horse`` keyframes ``horse-reference,
+horse-03, horse-07`` at frames 0, 20, 40 (K = 40): full resolution (``coarse="none"``),
+``coarse=1000`` and ``coarse=1000, fine=True``, and linear blending: wall time, Gauss–Newton
+frames converged / stalled, iterations median / max, new defects, pop, keyframes exact.
+``--nonlinear`` adds five horse poses (reference, 02, 04, 06, 08) at frames 0, 12, 24, 36,
+48 with ``method="nonlinear"``, ``coarse=1000``, ``solver_options={"max_time_s": 120}``.
+
+Run
+---
+::
+
+    PYTHONPATH=. python3 benchmarks/bench_real.py --quick      # smaller windows, coarse horse
+    PYTHONPATH=. python3 benchmarks/bench_real.py              # full (~10-15 minutes)
+    PYTHONPATH=. python3 benchmarks/bench_real.py --no-horse --clips walk_normal
+
+The tables go to stdout, everything to ``benchmarks/results/bench_real.json`` (``--json``).
+A benchmark, not a test: nothing is asserted.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from _common import _timed, format_table  # noqa: E402  (benchmarks/ is on sys.path)
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+MOTION_DIR = REPO.parent / "shared" / "data" / "motion"
+HORSE_DIR = REPO.parent / "shared" / "data" / "horse"
+DEFAULT_OUT = REPO / "benchmarks" / "results" / "bench_real.json"
+HORSE_KEYS = ("horse-reference", "horse-03", "horse-07")
+HORSE_FRAMES = (0, 20, 40)
+HORSE_NONLINEAR_KEYS = ("horse-reference", "horse-02", "horse-04", "horse-06", "horse-08")
+HORSE_NONLINEAR_FRAMES = (0, 12, 24, 36, 48)
+
+
+# ----------------------------------------------------------------------------------------
+# measurements shared by both parts
+# ----------------------------------------------------------------------------------------
+def gn_summary(report: dict) -> dict:
+    """Gauss–Newton frames converged / stalled and iterations (median, max) of a report."""
+    recs = report.get("frames") or []
+    nit = [r["nit"] for r in recs]
+    return {"frames": len(recs),
+            "converged": int(sum(bool(r["success"]) for r in recs)),
+            "stalled": int(sum(r.get("status") == "stalled" for r in recs)),
+            "it_median": float(np.median(nit)) if nit else None,
+            "it_max": int(max(nit)) if nit else None}
+
+
+def defects(V, T, frames) -> dict:
+    from shellspline.metrics import sequence_defects
+
+    d = sequence_defects(V, T, frames)
+    return {"flipped": d["flipped_faces"], "collapsed": d["collapsed_faces"],
+            "folded": d["folded_edges"], "pop": d["pop"], "per_frame": d["per_frame"]}
+
+
+# ----------------------------------------------------------------------------------------
+# ground truth
+# ----------------------------------------------------------------------------------------
+def _procrustes_residual(X, Y):
+    """Per-frame rms of X (T,n,3) after the best rotation + translation onto Y (T,n,3)."""
+    Xc = X - X.mean(axis=1, keepdims=True)
+    Yc = Y - Y.mean(axis=1, keepdims=True)
+    H = np.einsum("tni,tnj->tij", Xc, Yc)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", U, Vt)))
+    D = np.broadcast_to(np.eye(3), H.shape).copy()
+    D[:, 2, 2] = d
+    R = np.einsum("tij,tjk,tkl->tli", U, D, Vt)  # maps X onto Y: y = R x
+    Z = np.einsum("tij,tnj->tni", R, Xc)
+    return np.sqrt(((Z - Yc) ** 2).sum(-1).mean(-1))
+
+
+def _errors(X, truth, inner, size) -> dict:
+    e = np.sqrt(((X - truth) ** 2).sum(-1).mean(-1)) / size
+    s = _procrustes_residual(X[inner], truth[inner]) / size
+    return {"err": float(np.sqrt(np.mean(e[inner] ** 2))), "max": float(e[inner].max()),
+            "shape": float(np.sqrt(np.mean(s ** 2))), "err_per_frame": e.tolist()}
+
+
+def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
+            coarse: bool) -> dict:
+    """All methods on one clip: the true window, keyframes every ``step`` frames."""
+    import shellspline
+    from scipy.interpolate import CubicSpline
+
+    from data_synth.skinned import linear_blend_skinning, skinned_body
+    from shellspline.bvh import read_bvh
+
+    motion = read_bvh(path)
+    K = (min(window, motion.n_frames - 1) // 6) * 6
+    start = (motion.n_frames - (K + 1)) // 2
+    win = np.arange(start, start + K + 1)
+    body, t_body = _timed(skinned_body, motion, n_vertices=n_vertices)
+    b = body["bind_frame"]
+    truth = linear_blend_skinning(body["V"], body["W"], body["P"][b], body["R"][b],
+                                  body["P"][win], body["R"][win])
+    F = body["F"]
+    T = shellspline.topology(F)
+    size = float(np.mean(np.linalg.norm(np.ptp(truth, axis=1), axis=1)))
+    owner = body["W"].argmax(axis=1)
+    out = {"clip": path.stem, "vertices": int(truth.shape[1]), "faces": int(F.shape[0]),
+           "K": int(K), "start": int(start), "fps": motion.fps, "body_seconds": t_body,
+           "body_size": size, "travel": float(np.linalg.norm(truth[-1].mean(0)
+                                                             - truth[0].mean(0))),
+           "steps": {}}
+    for step in steps:
+        frames = np.arange(0, K + 1, step)
+        inner = np.setdiff1d(np.arange(K + 1), frames)
+        kf = shellspline.keyframes_from_arrays(truth[frames], F, frames=frames)
+        runs = {}
+        res, t = _timed(shellspline.interpolate, kf, workers=workers)
+        runs["lta"] = (res.V, t, gn_summary(res.report))
+        if coarse:
+            res_c, t = _timed(shellspline.interpolate, kf, workers=workers, coarse=1000)
+            runs["lta-c1000"] = (res_c.V, t, gn_summary(res_c.report))
+        Vl, t = _timed(shellspline.linear_blend, truth[frames], frames, K)
+        runs["linear"] = (Vl, t, None)
+        Vc, t = _timed(lambda: CubicSpline(frames, truth[frames], axis=0,
+                                           bc_type="natural")(np.arange(K + 1)))
+        runs["cubic"] = (Vc, t, None)
+        rec = {"keyframes": frames.tolist(), "truth_defects": _strip(defects(truth, T, frames)),
+               "methods": {}}
+        for name, (X, t, gn) in runs.items():
+            rec["methods"][name] = {"seconds": t, "gn": gn, **_errors(X, truth, inner, size),
+                                    **defects(X, T, frames)}
+        rec["where"] = _where(runs, truth, inner, size, owner, motion.names, rec)
+        out["steps"][str(step)] = rec
+    return out
+
+
+def _strip(d: dict) -> dict:
+    return {k: v for k, v in d.items() if k != "per_frame"}
+
+
+def _where(runs, truth, inner, size, owner, names, rec) -> dict:
+    """Where LΘA's error comes from: its worst in-between frames, and the joints whose
+    vertices (by strongest skinning weight) carry most of its excess over the cubic."""
+    lta, cub = rec["methods"]["lta"], rec["methods"]["cubic"]
+    e = np.asarray(lta["err_per_frame"])
+    worst = inner[np.argsort(-e[inner])[:3]]
+    frames_out = [{"frame": int(k), "lta": float(e[k]), "cubic": cub["err_per_frame"][k],
+                   "linear": rec["methods"]["linear"]["err_per_frame"][k],
+                   "flipped": lta["per_frame"]["flipped"][k]} for k in worst]
+    d_l = ((runs["lta"][0][inner] - truth[inner]) ** 2).sum(-1).mean(0)  # (n,)
+    d_c = ((runs["cubic"][0][inner] - truth[inner]) ** 2).sum(-1).mean(0)
+    J = owner.max() + 1
+    excess = np.bincount(owner, d_l - d_c, minlength=J)
+    total = max(float(np.sum(d_l - d_c)), 1e-300)
+    joints = []
+    for j in np.argsort(-excess)[:3]:
+        m = owner == j
+        joints.append({"joint": names[j], "vertices": int(m.sum()),
+                       "share_of_excess": float(excess[j] / total),
+                       "lta": float(np.sqrt(d_l[m].mean()) / size),
+                       "cubic": float(np.sqrt(d_c[m].mean()) / size)})
+    # error of the frames next to a keyframe vs the others (mid-gap)
+    step = int(np.diff(rec["keyframes"][:2])[0]) if len(rec["keyframes"]) > 1 else 1
+    off = np.minimum(inner % step, step - inner % step)
+    near = [float(np.sqrt(np.mean(e[inner[off == o]] ** 2))) for o in np.unique(off)]
+    return {"worst_frames": frames_out, "joints": joints, "by_distance_to_keyframe": near}
+
+
+def gt_tables(cases) -> str:
+    rows, ratio_rows = [], []
+    for c in cases:
+        for step, rec in c["steps"].items():
+            m = rec["methods"]
+            for name, r in m.items():
+                gn = r["gn"] or {}
+                rows.append([f"{c['clip']} /{step}", name, 1e3 * r["err"], 1e3 * r["max"],
+                             1e3 * r["shape"], r["flipped"], r["collapsed"], r["folded"],
+                             r["pop"], f"{gn['converged']}/{gn['stalled']}/{gn['frames']}"
+                             if gn else "-",
+                             f"{gn['it_median']:g}/{gn['it_max']}" if gn else "-",
+                             r["seconds"]])
+            for name in [n for n in m if n.startswith("lta")]:
+                ratio_rows.append([f"{c['clip']} /{step}", name,
+                                   m[name]["err"] / m["linear"]["err"],
+                                   m[name]["err"] / m["cubic"]["err"],
+                                   ", ".join(f"{j['joint']} {100 * j['share_of_excess']:.0f}%"
+                                             for j in rec["where"]["joints"]
+                                             if j["share_of_excess"] > 0.1) or "-"])
+    t1 = format_table(["clip /step", "method", "err‰", "max‰", "shape‰", "flip", "coll",
+                       "fold", "pop", "GN conv/stall/n", "it med/max", "s"], rows)
+    t2 = format_table(["clip /step", "method", "/linear", "/cubic",
+                       "excess over cubic (joints)"], ratio_rows)
+    return t1 + "\n\n" + t2
+
+
+# ----------------------------------------------------------------------------------------
+# horse
+# ----------------------------------------------------------------------------------------
+def horse_runs(workers: int, quick: bool, nonlinear: bool) -> list[dict]:
+    import shellspline
+
+    kf = shellspline.read_keyframes([HORSE_DIR / f"{k}.obj" for k in HORSE_KEYS],
+                                    frames=list(HORSE_FRAMES))
+    T = kf.topology
+    configs = [("coarse=1000", {"coarse": 1000})] if quick else [
+        ("full", {"coarse": "none"}), ("coarse=1000", {"coarse": 1000}),
+        ("coarse=1000 fine", {"coarse": 1000, "fine": True})]
+    out = []
+    for label, opts in configs:
+        res, t = _timed(shellspline.interpolate, kf, workers=workers, **opts)
+        out.append(_horse_record(label, res.V, kf, T, t, gn_summary(res.report)))
+    Vl, t = _timed(shellspline.linear_blend, kf.V, kf.frames, int(kf.frames[-1]))
+    out.append(_horse_record("linear", Vl, kf, T, t, None))
+    if nonlinear:
+        kn = shellspline.read_keyframes([HORSE_DIR / f"{k}.obj" for k in HORSE_NONLINEAR_KEYS],
+                                        frames=list(HORSE_NONLINEAR_FRAMES))
+        res, t = _timed(shellspline.interpolate, kn, method="nonlinear", coarse=1000,
+                        workers=workers, solver_options={"max_time_s": 120})
+        rec = _horse_record("nonlinear 5 poses c1000", res.V, kn, kn.topology, t,
+                            gn_summary(res.report))
+        rec["nonlinear"] = {k: v for k, v in (res.report.get("nonlinear") or {}).items()
+                            if isinstance(v, (int, float, str, bool))}
+        out.append(rec)
+    return out
+
+
+def _horse_record(label, V, kf, T, seconds, gn) -> dict:
+    d = defects(V, T, kf.frames)
+    exact = all(np.array_equal(V[f], kf.V[j]) for j, f in enumerate(kf.frames))
+    return {"run": label, "vertices": int(V.shape[1]), "K": int(V.shape[0] - 1),
+            "seconds": seconds, "gn": gn, "keyframes_exact": bool(exact), **_strip(d)}
+
+
+def horse_table(runs) -> str:
+    rows = []
+    for r in runs:
+        gn = r["gn"] or {}
+        rows.append([r["run"], r["seconds"],
+                     f"{gn['converged']}/{gn['stalled']}/{gn['frames']}" if gn else "-",
+                     f"{gn['it_median']:g}/{gn['it_max']}" if gn else "-",
+                     r["flipped"], r["collapsed"], r["folded"], r["pop"],
+                     r["keyframes_exact"]])
+    return format_table(["horse K=40", "s", "GN conv/stall/n", "it med/max", "flip", "coll",
+                         "fold", "pop", "keys exact"], rows)
+
+
+# ----------------------------------------------------------------------------------------
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true",
+                    help="ground truth: 30-frame windows, 2000-vertex bodies; horse: "
+                         "coarse=1000 only")
+    ap.add_argument("--json", default=str(DEFAULT_OUT), metavar="PATH",
+                    help=f"where to write the results (default {DEFAULT_OUT})")
+    ap.add_argument("--no-horse", action="store_true", help="skip the horse runs")
+    ap.add_argument("--no-gt", action="store_true", help="skip the ground-truth runs")
+    ap.add_argument("--nonlinear", action="store_true",
+                    help="also the nonlinear spline on five horse poses (minutes)")
+    ap.add_argument("--clips", nargs="+", metavar="NAME",
+                    help="only the BVH clips whose file name contains one of these")
+    ap.add_argument("--window", type=int, default=None,
+                    help="frames per ground-truth window (default 60, --quick 30)")
+    ap.add_argument("--vertices", type=int, default=None,
+                    help="vertices of the skinned body (default 3000, --quick 2000)")
+    ap.add_argument("--workers", type=int, default=1, help="interpolate workers (default 1)")
+    args = ap.parse_args(argv)
+    window = args.window or (30 if args.quick else 60)
+    n_vertices = args.vertices or (2000 if args.quick else 3000)
+    result = {"started": time.strftime("%Y-%m-%dT%H:%M:%S"), "argv": sys.argv[1:],
+              "platform": {"python": platform.python_version(), "cpus": os.cpu_count(),
+                           "load": os.getloadavg()},
+              "ground_truth": [], "horse": []}
+    if not args.no_gt:
+        clips = sorted(MOTION_DIR.glob("*.bvh")) if MOTION_DIR.is_dir() else []
+        if args.clips:
+            clips = [c for c in clips if any(s in c.name for s in args.clips)]
+        if not clips:
+            print(f"ground truth skipped: no BVH clips in {MOTION_DIR}")
+        for c in clips:
+            print(f"... {c.name}", flush=True)
+            result["ground_truth"].append(gt_case(c, window, n_vertices, (3, 6), args.workers,
+                                                  coarse=not args.quick))
+        if result["ground_truth"]:
+            print("\nGround truth (errors in ‰ of the body size; flip/coll/fold: new defects)")
+            print(gt_tables(result["ground_truth"]))
+    if not args.no_horse:
+        if not HORSE_DIR.is_dir():
+            print(f"horse skipped: {HORSE_DIR} not present")
+        else:
+            print("... horse", flush=True)
+            result["horse"] = horse_runs(args.workers, args.quick, args.nonlinear)
+            print("\n" + horse_table(result["horse"]))
+    result["load_after"] = os.getloadavg()
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1, default=float))
+    print(f"\nwritten {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
