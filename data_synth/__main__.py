@@ -7,6 +7,7 @@ import argparse
 import sys
 
 from . import FORMATS, NAMES, generate, write_batch, write_keyframes
+from .dcc import DCC_NAMES, write_dcc
 
 
 def main(argv=None) -> int:
@@ -28,7 +29,9 @@ def main(argv=None) -> int:
                     "OUT/pose_00.<fmt>, pose_01.<fmt>, ..., OUT/frames.txt and, when the data "
                     "set pins vertices, OUT/pinned.txt. `python -m data_synth skinned BVH OUT` "
                     "writes a body skinned to a BVH clip instead (see its --help).")
-    parser.add_argument("name", choices=NAMES, help="data set")
+    parser.add_argument("name", choices=NAMES + DCC_NAMES,
+                        help="data set (dcc_tube: polygons, UV seam, fin, isolated vertex and "
+                             "two components, as a DCC tool exports them)")
     parser.add_argument("out", help="output directory (created if missing)")
     parser.add_argument("--vertices", type=int, default=None, metavar="N",
                         help="approximate vertex count (default: the data set's default)")
@@ -42,6 +45,13 @@ def main(argv=None) -> int:
         from .skinned import main as skinned_main
         return skinned_main(argv[1:])
     args = parser.parse_args(argv)
+    if args.name in DCC_NAMES:
+        if args.count is not None or args.vertices is not None:
+            parser.error(f"{args.name} takes neither --count nor --vertices")
+        paths = write_dcc(args.name, args.out, args.format)
+        print(f"{args.name}: wrote {len(paths)} poses {paths[0].name}..{paths[-1].name} to "
+              f"{paths[0].parent}, frames.txt")
+        return 0
     if args.count is not None:
         try:
             dirs = write_batch(args.name, args.out, args.count, args.vertices, args.format,

@@ -175,6 +175,8 @@ def _interpolate(args) -> int:
             pinned = ss.read_indices(args.pinned)
         except OverflowError:
             raise ShellsplineError(f"--pinned {args.pinned}: a vertex index is too large") from None
+        if kf.source is not None:  # the file numbers the input's vertices
+            pinned = kf.source.solve_vertices(pinned, "--pinned")
     if args.fix_boundary:
         bv = kf.topology.boundary_vertices
         if bv.size == 0:
@@ -222,8 +224,11 @@ def _interpolate(args) -> int:
                          fixpoint=args.fixpoint, progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
-    out = ss.write_sequence(args.out, res.V, res.F, res.report, overwrite=args.overwrite,
-                            protect=protect, fmt=args.format, fps=args.fps)
+    if res.source is not None:  # the input's polygons and numbering, written back
+        res.report["source_mesh"] = res.source.summary()
+    V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K, args.bc)
+    out = ss.write_sequence(args.out, V_out, res.F, res.report, overwrite=args.overwrite,
+                            protect=protect, fmt=args.format, fps=args.fps, source=res.source)
     res.report["timings"]["write"] = time.perf_counter() - t0
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)

@@ -8,16 +8,21 @@ what was found, never as a traceback from inside numpy or trimesh.
 Formats
 -------
 * **OBJ** is parsed by a small vectorised reader of our own: ``v`` and ``f`` lines only,
-  ``f a/b/c`` and negative (relative) indices understood, texture coordinates, normals,
-  groups and materials ignored. trimesh's OBJ loader is not used because, even with
-  ``process=False``, it drops vertices no face uses (unless ``maintain_order=True``),
-  splits vertices at texture/normal seams, needs Pillow for any file with ``vt`` lines,
-  and silently triangulates polygons.
+  polygons of any size, ``f a/b/c`` and negative (relative) indices understood, a UTF-8
+  byte-order mark skipped, texture coordinates, normals, ``o/g/s/usemtl/mtllib/l/vp`` lines
+  ignored. trimesh's OBJ loader is not used because, even with ``process=False``, it drops
+  vertices no face uses (unless ``maintain_order=True``), splits vertices at texture/normal
+  seams, needs Pillow for any file with ``vt`` lines, and triangulates polygons per file.
 * **PLY** (ASCII and binary) and **OFF** are read with
   ``trimesh.load(path, process=False)``, which keeps the vertex order and merges nothing.
-  trimesh silently triangulates polygons in both (and reorders the faces of files that mix
-  triangles and polygons), so the face count declared in the file header is compared with
-  the number of triangles loaded, and any difference is reported as "non-triangle faces".
+  trimesh triangulates polygons per file (and reorders the faces of files that mix triangles
+  and polygons), so when the face count declared in the header differs from the number of
+  triangles loaded the polygons are taken from the file itself (PLY: trimesh's raw element
+  data; OFF: the face lines).
+
+Polygons are triangulated once for the whole keyframe set, seams welded and fin faces and
+isolated vertices set aside for the solve (:mod:`shellspline.source_mesh`); the map back to
+the input is :attr:`Keyframes.source`.
 
 Output: :func:`write_sequence` writes ``frame_0000.obj ... frame_K.obj`` (or binary
 little-endian PLY with ``double`` coordinates) and ``report.json`` atomically: all files go
@@ -37,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import MeshError, ShellsplineError, tol
+from .source_mesh import SourceMesh, solve_mesh, triangulate_polygons
 from .topology import Topology, topology
 
 __all__ = [
@@ -83,7 +89,11 @@ class Keyframes:
         One name per keyframe (the file path as given, or ``"keyframe j"``); used in
         messages.
     pinned : (p,) int64 numpy array or None
-        Sorted, unique indices of vertices to hold fixed, or ``None``.
+        Sorted, unique indices of vertices to hold fixed, or ``None`` (solve-mesh indices).
+    source : SourceMesh or None
+        How ``V`` and ``F`` (the *solve mesh*) map back to the input's vertices and polygons
+        when they differ (polygons triangulated, seams welded, fins or isolated vertices set
+        aside); ``None`` for a clean triangle mesh, whose solve mesh is the input.
 
     Examples
     --------
@@ -101,6 +111,7 @@ class Keyframes:
     frames: np.ndarray | None
     names: list[str]
     pinned: np.ndarray | None = None
+    source: SourceMesh | None = None
     _topology: Topology | None = field(default=None, init=False, repr=False)
 
     @property
@@ -145,8 +156,9 @@ class Keyframes:
     def __repr__(self) -> str:
         frames = None if self.frames is None else self.frames.tolist()
         pinned = None if self.pinned is None else f"<{self.pinned.size} vertices>"
+        source = "" if self.source is None else f", source=<{self.source.n_source} vertices>"
         return (f"Keyframes(J={self.J}, n={self.n}, m={self.m}, frames={frames}, "
-                f"names={self.names!r}, pinned={pinned})")
+                f"names={self.names!r}, pinned={pinned}{source})")
 
 
 # ----------------------------------------------------------------------------------------
@@ -157,11 +169,13 @@ class _Unreadable(Exception):
 
 
 def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a triangle mesh from an OBJ, PLY or OFF file, keeping the vertex order.
+    """Read a mesh from an OBJ, PLY or OFF file as triangles, keeping the vertex order.
 
     Nothing is merged, reordered or dropped (vertices no face uses are kept). Coordinates
-    are returned as float64 (float32 PLY data is converted exactly). Only parsing problems
-    are checked here; see :func:`read_keyframes` for the geometric checks.
+    are returned as float64 (float32 PLY data is converted exactly). Polygons are
+    triangulated by :func:`shellspline.source_mesh.triangulate_polygons` on this one pose
+    (:func:`read_keyframes` triangulates once for all keyframes instead). Only parsing
+    problems are checked here; see :func:`read_keyframes` for the geometric checks.
 
     Parameters
     ----------
@@ -179,8 +193,8 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     ------
     MeshError
         "cannot read '<path>': <reason>" if the file is missing, unreadable, malformed or
-        has an unknown extension; "<path>: non-triangle faces (...)" for quads or polygons;
-        "<path>: ... separate objects" for a multi-object scene.
+        has an unknown extension; "<path>: ... separate objects" for a multi-object scene;
+        "<path>: ... face indices must lie in [0, n)" for an index out of range.
 
     Examples
     --------
@@ -192,6 +206,15 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     >>> V.shape, F.tolist()
     ((3, 3), [[0, 1, 2]])
     """
+    V, offsets, indices = _read_polygons(path)
+    name = str(path)
+    _check_indices(offsets, indices, V.shape[0], name)
+    F, _ = triangulate_polygons(V[None], offsets, indices, name)
+    return V, F
+
+
+def _read_polygons(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``V (n,3)``, polygon ``offsets (P+1,)`` and corner ``indices (N,)`` of a mesh file."""
     name = str(path)
     p = Path(path)
     ext = p.suffix.lower()
@@ -204,9 +227,9 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
         if p.is_dir():
             raise _Unreadable("is a directory")
         if ext == ".obj":
-            V, F = _parse_obj(p.read_bytes(), name)
+            V, offsets, indices = _parse_obj(p.read_bytes(), name)
         else:
-            V, F = _read_with_trimesh(p, ext, name)
+            V, offsets, indices = _read_with_trimesh(p, ext, name)
     except MeshError:
         raise
     except _Unreadable as exc:
@@ -215,7 +238,26 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
         raise MeshError(f"cannot read '{name}': {exc.strerror or exc}") from None
     except Exception as exc:  # trimesh raises many kinds; report one line, no traceback
         raise MeshError(f"cannot read '{name}': {_one_line(exc)}") from None
-    return V, F
+    return V, offsets, indices
+
+
+def _check_indices(offsets: np.ndarray, indices: np.ndarray, n: int, name: str) -> None:
+    """Polygon corners must be vertices; a polygon must not repeat a vertex."""
+    if indices.size and (indices.min() < 0 or indices.max() >= n):
+        raise MeshError(f"{name}: face indices must lie in [0, {n}), got range "
+                        f"[{indices.min()}, {indices.max()}]")
+    sizes = np.diff(offsets)
+    if sizes.size and (sizes == 3).all():
+        F = indices.reshape(-1, 3)
+        bad = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
+    else:
+        key = np.sort(np.repeat(np.arange(sizes.size), sizes) * np.int64(max(n, 1)) + indices)
+        bad = np.zeros(sizes.size, dtype=bool)
+        bad[key[1:][key[1:] == key[:-1]] // max(n, 1)] = True
+    if bad.any():
+        t = int(np.flatnonzero(bad)[0])
+        raise MeshError(f"{name}: face {t} {indices[offsets[t]:offsets[t + 1]].tolist()} "
+                        f"repeats a vertex ({int(bad.sum())} such faces)")
 
 
 def _one_line(exc: BaseException) -> str:
@@ -225,8 +267,11 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Vectorised OBJ reader: ``v`` and ``f`` lines, global vertex numbering."""
+def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vectorised OBJ reader: ``v`` and ``f`` lines, global vertex numbering; returns
+    ``V``, polygon offsets and corner indices."""
+    if data[:3] == b"\xef\xbb\xbf":  # UTF-8 byte-order mark (Windows editors, exporters)
+        data = data[3:]
     if b"\0" in data:
         raise _Unreadable("binary data in a text OBJ file")
     if b"\\\n" in data or b"\\\r\n" in data:  # line continuations
@@ -239,8 +284,8 @@ def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     vlines = [ln for ln in lines if ln[:2] == b"v "]
     flines = [ln for ln in lines if ln[:2] == b"f "]
     V = _obj_vertices(vlines)
-    F = _obj_faces(flines, lines, name, slashes=b"/" in data)
-    return V, F
+    offsets, indices = _obj_faces(flines, lines, name, slashes=b"/" in data)
+    return V, offsets, indices
 
 
 def _regular_tokens(rows: list[bytes], width: int) -> list[bytes] | None:
@@ -282,40 +327,47 @@ def _obj_vertices(vlines: list[bytes]) -> np.ndarray:
 
 
 def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *,
-               slashes: bool) -> np.ndarray:
+               slashes: bool) -> tuple[np.ndarray, np.ndarray]:
     if not flines:
-        return np.zeros((0, 3), dtype=np.int64)
+        return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
     tokens = _regular_tokens(flines, 4)
-    if tokens is None:
-        sizes = np.array([len(ln.split()) - 1 for ln in flines])
-        bad = np.flatnonzero(sizes != 3)
-        t = int(bad[0])
-        line_no = _line_number(lines, t)
-        raise MeshError(f"{name}: non-triangle faces ({bad.size} such faces; face {t} on "
-                        f"line {line_no} has {sizes[t]} vertices); only triangle meshes are "
-                        "supported")
-    del tokens[::4]
+    if tokens is not None:  # triangles only: the fast path
+        del tokens[::4]
+        sizes = None
+    else:  # polygons: every face line starts with the token b"f", no index token is b"f"
+        tokens = b" ".join(flines).split()
+        starts = [i for i, t in enumerate(tokens) if t == b"f"]
+        sizes = np.diff(np.array(starts + [len(tokens)], dtype=np.int64)) - 1
+        if (sizes < 3).any():
+            t = int(np.flatnonzero(sizes < 3)[0])
+            raise _Unreadable(f"face {t} on line {_line_number(lines, t)} has {sizes[t]} "
+                              "vertices (a face needs at least 3)")
+        tokens = [t for t in tokens if t != b"f"]
     if slashes:
         tokens = [t.split(b"/", 1)[0] for t in tokens]
     try:
-        idx = np.array(list(map(int, tokens)), dtype=np.int64).reshape(-1, 3)
+        idx = np.array(list(map(int, tokens)), dtype=np.int64)
     except ValueError:
         bad = next(t for t in tokens if not re.fullmatch(rb"[+-]?\d+", t))
         raise _Unreadable(f"face index '{bad.decode('ascii', 'replace')}' is not an "
                           "integer") from None
+    if sizes is None:
+        sizes = np.full(len(flines), 3, dtype=np.int64)
+    offsets = np.zeros(sizes.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
     if (idx == 0).any():
-        t = int(np.flatnonzero((idx == 0).any(axis=1))[0])
+        t = int(np.searchsorted(offsets, np.flatnonzero(idx == 0)[0], side="right") - 1)
         raise _Unreadable(f"face {t} uses vertex index 0 (OBJ indices start at 1)")
     neg = idx < 0
     if neg.any():
         # relative indices count back from the last vertex defined before the face line
         kinds = [ln[:2] for ln in lines if ln[:2] in (b"v ", b"f ")]
         is_v = np.array([k == b"v " for k in kinds])
-        v_before = np.cumsum(is_v)[~is_v]
-        idx = np.where(neg, idx + v_before[:, None], idx - 1)
+        v_before = np.repeat(np.cumsum(is_v)[~is_v], sizes)
+        idx = np.where(neg, idx + v_before, idx - 1)
     else:
         idx -= 1
-    return idx
+    return offsets, idx
 
 
 def _line_number(lines: list[bytes], occurrence: int) -> int:
@@ -329,11 +381,24 @@ def _line_number(lines: list[bytes], occurrence: int) -> int:
     return -1  # pragma: no cover
 
 
-def _read_with_trimesh(p: Path, ext: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+def _read_with_trimesh(p: Path, ext: str, name: str):
     import trimesh
 
     declared = _ply_header_counts(p) if ext == ".ply" else _off_header_counts(p)
-    loaded = trimesh.load(str(p), file_type=ext[1:], process=False)
+    own = _read_ply if ext == ".ply" else _read_off
+    try:
+        loaded = trimesh.load(str(p), file_type=ext[1:], process=False)
+    except Exception as exc:
+        if declared is None or not isinstance(exc, (ValueError, IndexError, TypeError)):
+            raise
+        # trimesh reads neither binary PLY nor OFF files that mix polygon sizes
+        try:
+            return own(p)
+        except (_Unreadable, ValueError, IndexError):
+            nv, nf = declared
+            raise _Unreadable(f"the data does not match the header, which declares {nv} "
+                              f"vertices and {nf} faces (truncated file or wrong counts; "
+                              f"{_one_line(exc)})") from None
     if isinstance(loaded, trimesh.Scene):
         geoms = list(loaded.geometry.values())
         if len(geoms) > 1:
@@ -350,17 +415,127 @@ def _read_with_trimesh(p: Path, ext: str, name: str) -> tuple[np.ndarray, np.nda
     if declared is not None:
         nv, nf = declared
         if nf is not None and F.shape[0] != nf:
-            if F.shape[0] > nf:
-                raise MeshError(f"{name}: non-triangle faces (the file declares {nf} "
-                                f"face{'s' if nf != 1 else ''}, "
-                                f"which triangulate to {F.shape[0]} triangles); only "
-                                "triangle meshes are supported")
-            raise _Unreadable(f"the file declares {nf} faces but {F.shape[0]} were found "
-                              "(truncated?)")
+            if F.shape[0] < nf:
+                raise _Unreadable(f"the file declares {nf} faces but {F.shape[0]} were found "
+                                  "(truncated?)")
+            # polygons, which trimesh triangulated (and may have reordered): read as written
+            return own(p)
         if nv is not None and V.shape[0] != nv:
             raise _Unreadable(f"the file declares {nv} vertices but {V.shape[0]} were found "
                               "(truncated?)")
-    return V, F
+    return V, _polygon_offsets(np.full(F.shape[0], 3)), F.ravel()
+
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
+              "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
+              "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
+              "float64": "f8"}
+
+
+def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A PLY reader for polygon faces of mixed sizes (ASCII or binary, any element layout;
+    list properties are read record by record)."""
+    data = p.read_bytes()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise _Unreadable("not a PLY file (no 'ply' magic or no end_header)")
+    body = data[data.index(b"\n", end) + 1:]
+    fmt, elements = None, []
+    for ln in data[:end].decode("ascii", "replace").splitlines()[1:]:
+        t = ln.split()
+        if not t or t[0] in ("comment", "obj_info"):
+            continue
+        if t[0] == "format":
+            fmt = t[1]
+        elif t[0] == "element":
+            elements.append((t[1], int(t[2]), []))
+        elif t[0] == "property" and elements:
+            kind = ("list", _PLY_TYPES[t[2]], _PLY_TYPES[t[3]]) if t[1] == "list" \
+                else _PLY_TYPES[t[1]]
+            elements[-1][2].append((t[-1], kind))
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise _Unreadable(f"unknown PLY format {fmt!r}")
+    order = "<" if fmt == "binary_little_endian" else ">"
+    tokens = body.split() if fmt == "ascii" else None
+    pos = 0
+    V = faces = None
+    for ename, count, props in elements:
+        if all(not isinstance(k, tuple) for _, k in props):   # fixed-size records
+            if tokens is not None:
+                width = len(props)
+                rec = np.array(tokens[pos:pos + count * width], dtype=np.float64)
+                if rec.size != count * width:
+                    raise _Unreadable(f"element '{ename}' is truncated")
+                rec = rec.reshape(count, width)
+                cols = {n: rec[:, i] for i, (n, _) in enumerate(props)}
+                pos += count * width
+            else:
+                dt = np.dtype([(n, order + k) for n, k in props])
+                if pos + count * dt.itemsize > len(body):
+                    raise _Unreadable(f"element '{ename}' is truncated")
+                rec = np.frombuffer(body, dtype=dt, count=count, offset=pos)
+                cols = {n: rec[n] for n, _ in props}
+                pos += count * dt.itemsize
+            if ename == "vertex":
+                V = np.stack([cols[c].astype(np.float64) for c in "xyz"], axis=1)
+            continue
+        lists = []
+        for _ in range(count):                                    # record by record
+            for pname, kind in props:
+                if isinstance(kind, tuple):
+                    if tokens is not None:
+                        k = int(tokens[pos])
+                        vals = [int(x) for x in tokens[pos + 1:pos + 1 + k]]
+                        pos += 1 + k
+                    else:
+                        cdt, idt = np.dtype(order + kind[1]), np.dtype(order + kind[2])
+                        k = int(np.frombuffer(body, cdt, 1, pos)[0])
+                        vals = np.frombuffer(body, idt, k, pos + cdt.itemsize)
+                        pos += cdt.itemsize + k * idt.itemsize
+                    if len(vals) != k:
+                        raise _Unreadable(f"element '{ename}' is truncated")
+                    if pname in ("vertex_indices", "vertex_index"):
+                        lists.append(vals)
+                else:
+                    pos += 1 if tokens is not None else np.dtype(kind).itemsize
+        if ename == "face":
+            faces = lists
+    if tokens is None and pos != len(body) or tokens is not None and pos != len(tokens):
+        raise _Unreadable("the data does not match the header")
+    if V is None:
+        V = np.zeros((0, 3))
+    sizes = np.array([len(f) for f in faces or []], dtype=np.int64)
+    indices = (np.concatenate([np.asarray(f, dtype=np.int64) for f in faces])
+               if faces else np.zeros(0, dtype=np.int64))
+    return V, _polygon_offsets(sizes), indices
+
+
+def _read_off(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An OFF reader for polygon faces ``k i1 .. ik [colour]`` of mixed sizes."""
+    rows = [ln.split("#", 1)[0].split()
+            for ln in p.read_text(encoding="ascii", errors="replace").splitlines()]
+    rows = [r for r in rows if r]
+    if not rows or not rows[0][0].upper().endswith("OFF"):
+        raise _Unreadable("not an OFF file")
+    head = rows[0][1:] if len(rows[0]) > 1 else rows[1]
+    start = 1 if len(rows[0]) > 1 else 2
+    nv, nf = int(head[0]), int(head[1])
+    vrows, frows = rows[start:start + nv], rows[start + nv:start + nv + nf]
+    if len(vrows) != nv or len(frows) != nf:
+        raise _Unreadable(f"the file declares {nv} vertices and {nf} faces but is shorter")
+    V = np.array([r[:3] for r in vrows], dtype=np.float64).reshape(-1, 3)
+    sizes = np.array([int(r[0]) for r in frows], dtype=np.int64)
+    if any(len(r) <= k for r, k in zip(frows, sizes)):
+        raise _Unreadable("a face line is shorter than its vertex count")
+    indices = np.array([int(i) for r, k in zip(frows, sizes) for i in r[1:k + 1]],
+                       dtype=np.int64)
+    return V, _polygon_offsets(sizes), indices
+
+
+def _polygon_offsets(sizes: np.ndarray) -> np.ndarray:
+    offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    return offsets
 
 
 def _ply_header_counts(p: Path) -> tuple[int | None, int | None] | None:
@@ -404,25 +579,32 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
     ----------
     paths : sequence of str or path-like
         One mesh file per keyframe (OBJ, PLY or OFF; formats may be mixed), in time order.
+        Every keyframe has the same polygons (triangles, quads, n-gons).
     frames : (J,) int array-like, str or path, optional
         Frame index of each keyframe: non-negative, strictly increasing integers. A string
         or path is parsed by :func:`read_frames`. ``None`` leaves the choice to the caller.
     pinned : (p,) int array-like, (n,) bool mask, str or path, optional
-        Vertices to hold fixed; a string or path is read with :func:`read_indices`.
+        Vertices to hold fixed (numbered as in the files); a string or path is read with
+        :func:`read_indices`.
 
     Returns
     -------
     Keyframes
-        With ``names`` the paths as given and the topology already built.
+        With ``names`` the paths as given and the topology already built. Polygons are
+        triangulated once for all keyframes, vertices coincident in every keyframe welded,
+        fin faces and unused vertices set aside (:func:`shellspline.source_mesh.solve_mesh`);
+        ``source`` maps back to the files' vertices and polygons.
 
     Raises
     ------
     MeshError
         With a one-line message naming the file and the problem: unreadable, missing or
-        malformed file, unknown extension, empty mesh, non-triangle faces, different vertex
-        counts or face lists between keyframes, non-manifold edges, inconsistent
-        orientation, degenerate (zero-area) faces, NaN/inf coordinates, fewer than two
-        keyframes, bad ``frames`` or ``pinned``.
+        malformed file (or a header that does not match its data), unknown extension, empty
+        mesh, different vertex counts or polygon lists between keyframes, indices out of
+        range, a polygon repeating a vertex or that cannot be triangulated, an edge that
+        stays non-manifold after fins are set aside, inconsistent orientation, degenerate
+        (zero-area) faces, NaN/inf or overflowing coordinates, fewer than two keyframes, bad
+        ``frames`` or ``pinned`` (or a pinned vertex that is set aside).
 
     Examples
     --------
@@ -446,19 +628,18 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
         raise MeshError(f"need at least 2 keyframes, got {len(paths)}{got}")
     frames = _canonical_frames(frames, len(paths))
     Vs: list[np.ndarray] = []
-    F0 = None
     for j, p in enumerate(paths):
-        V, F = read_mesh(p)
-        _check_not_empty(V, F, names[j])
+        V, offsets, indices = _read_polygons(p)
+        _check_not_empty(V, offsets[:-1], names[j])
         if j == 0:
-            F0 = F
+            off0, idx0 = offsets, indices
         else:
             if V.shape[0] != Vs[0].shape[0]:
                 raise MeshError(f"{names[j]} has {V.shape[0]} vertices but {names[0]} has "
                                 f"{Vs[0].shape[0]}")
-            _check_same_faces(F, F0, names[j], names[0])
+            _check_same_polygons(offsets, indices, off0, idx0, names[j], names[0])
         Vs.append(V)
-    return _validated(np.stack(Vs), F0, frames, names, pinned)
+    return _validated(np.stack(Vs), off0, idx0, frames, names, pinned)
 
 
 def keyframes_from_arrays(V, F, frames=None, names=None, pinned=None) -> Keyframes:
@@ -480,7 +661,9 @@ def keyframes_from_arrays(V, F, frames=None, names=None, pinned=None) -> Keyfram
     Returns
     -------
     Keyframes
-        Holding float64/int64 copies of the inputs.
+        Holding float64/int64 copies of the inputs. As for files, vertices coincident in
+        every keyframe are welded and fin faces and unused vertices set aside; ``source``
+        then maps back to the arrays given (``None`` when nothing changed).
 
     Raises
     ------
@@ -541,7 +724,8 @@ def keyframes_from_arrays(V, F, frames=None, names=None, pinned=None) -> Keyfram
             raise MeshError(f"{names[j]} has {X.shape[0]} vertices but {names[0]} has "
                             f"{Vs[0].shape[0]}")
         Vs.append(X)
-    return _validated(np.stack(Vs), F, frames, names, pinned)
+    return _validated(np.stack(Vs), _polygon_offsets(np.full(F.shape[0], 3)), F.ravel(),
+                      frames, names, pinned)
 
 
 def _check_not_empty(V: np.ndarray, F: np.ndarray, name: str) -> None:
@@ -551,19 +735,32 @@ def _check_not_empty(V: np.ndarray, F: np.ndarray, name: str) -> None:
         raise MeshError(f"{name}: empty mesh (no faces)")
 
 
-def _check_same_faces(F: np.ndarray, F0: np.ndarray, name: str, name0: str) -> None:
-    if F.shape != F0.shape:
-        raise MeshError(f"{name}: face list differs from {name0} ({name} has {F.shape[0]} "
-                        f"faces, {name0} has {F0.shape[0]})")
-    diff = (F != F0).any(axis=1)
-    if diff.any():
-        t = int(np.flatnonzero(diff)[0])
-        raise MeshError(f"{name}: face list differs from {name0} (first difference at face "
-                        f"{t}: {F[t].tolist()} vs {F0[t].tolist()})")
+def _check_same_polygons(offsets, indices, off0, idx0, name: str, name0: str) -> None:
+    if offsets.shape == off0.shape and np.array_equal(offsets, off0) and \
+            np.array_equal(indices, idx0):
+        return
+    if offsets.shape != off0.shape:
+        raise MeshError(f"{name}: face list differs from {name0} ({name} has "
+                        f"{offsets.size - 1} faces, {name0} has {off0.size - 1})")
+    P = offsets.size - 1
+    diff = np.diff(offsets) != np.diff(off0)
+    if not diff.any():
+        diff = np.add.reduceat(indices != idx0, offsets[:-1]) > 0 if P else diff
+    t = int(np.flatnonzero(diff)[0])
+    raise MeshError(f"{name}: face list differs from {name0} (first difference at face {t}: "
+                    f"{indices[offsets[t]:offsets[t + 1]].tolist()} vs "
+                    f"{idx0[off0[t]:off0[t + 1]].tolist()})")
 
 
-def _validated(Vs: np.ndarray, F: np.ndarray, frames, names: list[str], pinned) -> Keyframes:
-    """Checks shared by both constructors; ``Vs`` (J,n,3) float64, shapes already agree."""
+#: Coordinates are refused above this magnitude: the shell energy's Hessians hold fourth
+#: powers of lengths (squared areas), and (1e75)^4 = 1e300 still fits a float64.
+MAX_COORDINATE = 1e75
+
+
+def _validated(Vs: np.ndarray, offsets: np.ndarray, indices: np.ndarray, frames,
+               names: list[str], pinned) -> Keyframes:
+    """Checks shared by both constructors; ``Vs`` (J,n,3) float64, shapes already agree;
+    the polygons (``offsets``, ``indices``) are those of every keyframe."""
     J, n = Vs.shape[:2]
     for j in range(J):
         finite = np.isfinite(Vs[j]).all(axis=1)
@@ -571,16 +768,26 @@ def _validated(Vs: np.ndarray, F: np.ndarray, frames, names: list[str], pinned) 
             bad = np.flatnonzero(~finite)
             raise MeshError(f"{names[j]}: {bad.size} vertices have NaN/inf coordinates "
                             f"(first: vertex {int(bad[0])} = {Vs[j, bad[0]].tolist()})")
-    T = topology(F, n, name=names[0])
+        big = np.abs(Vs[j]).max()
+        if big > MAX_COORDINATE:
+            raise MeshError(f"{names[j]}: coordinates overflow: the largest magnitude is "
+                            f"{big:.3g}, above {MAX_COORDINATE:g} squared areas do not fit a "
+                            "float64 (rescale the mesh)")
+    _check_indices(offsets, indices, n, names[0])
+    V, F, source, tri_poly = solve_mesh(Vs, offsets, indices, names[0])
     for j in range(J):
-        _check_degenerate(Vs[j], T.F, names[j])
-    kf = Keyframes(V=Vs, F=T.F, frames=frames, names=list(names),
-                   pinned=_canonical_pinned(pinned, n))
+        _check_degenerate(V[j], F, names[j], source, tri_poly)
+    T = topology(F, V.shape[1], name=names[0])
+    pinned = _canonical_pinned(pinned, n)
+    if source is not None and pinned is not None:
+        pinned = source.solve_vertices(pinned)
+    kf = Keyframes(V=V, F=T.F, frames=frames, names=list(names), pinned=pinned, source=source)
     kf._topology = T
     return kf
 
 
-def _check_degenerate(V: np.ndarray, F: np.ndarray, name: str) -> None:
+def _check_degenerate(V: np.ndarray, F: np.ndarray, name: str, source=None,
+                      tri_poly=None) -> None:
     """Raise for faces with area below ``tol.degenerate_area * mean_edge_length**2``."""
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     e1, e2 = b - a, c - a
@@ -591,8 +798,14 @@ def _check_degenerate(V: np.ndarray, F: np.ndarray, name: str) -> None:
     if bad.any():
         idx = np.flatnonzero(bad)
         t = int(idx[0])
-        raise MeshError(f"{name}: {idx.size} degenerate (zero-area) faces, first is face {t} "
-                        f"{F[t].tolist()} (area {area[t]:.3g} <= {tol.degenerate_area:g} x "
+        if source is None:
+            what = f"face {t} {F[t].tolist()}"
+        else:
+            p = int(tri_poly[t])
+            corners = source.poly_indices[source.poly_offsets[p]:source.poly_offsets[p + 1]]
+            what = f"face {t} (of input face {p} {corners.tolist()})"
+        raise MeshError(f"{name}: {idx.size} degenerate (zero-area) faces, first is {what} "
+                        f"(area {area[t]:.3g} <= {tol.degenerate_area:g} x "
                         f"mean edge length^2 = {tol.degenerate_area * mean_len ** 2:.3g})")
 
 
@@ -753,7 +966,7 @@ def _parse_integers(text: str, what: str) -> np.ndarray:
 # Writing sequences
 # ----------------------------------------------------------------------------------------
 def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: bool = False,
-                   protect=(), workers: int = 1, fps: float = 24.0) -> Path:
+                   protect=(), workers: int = 1, fps: float = 24.0, source=None) -> Path:
     """Write a sequence of poses as ``frame_0000.obj ...`` plus ``report.json``, atomically.
 
     Everything is written into a temporary sibling directory
@@ -791,6 +1004,10 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         ``fork`` start method where available.
     fps : float
         Frames per second of the GLB animation (``fmt="glb"`` only).
+    source : SourceMesh, optional
+        Write the input's mesh back (:attr:`Keyframes.source`): ``V`` is then
+        ``(K+1,n_source,3)`` in the input's vertex indexing (:meth:`SourceMesh.expand`), and
+        OBJ and PLY frames get the input's polygons, GLB its triangles; ``F`` is not used.
 
     Returns
     -------
@@ -827,6 +1044,14 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     V = np.asarray(V, dtype=np.float64)
     if V.ndim != 3 or V.shape[2] != 3 or V.shape[0] == 0:
         raise ShellsplineError(f"V must be a (K+1,n,3) array of poses, got shape {V.shape}")
+    polygons = None
+    if source is not None:
+        if V.shape[1] != source.n_source:
+            raise ShellsplineError(f"with `source`, V must hold the input's {source.n_source} "
+                                   f"vertices (SourceMesh.expand), got shape {V.shape}")
+        F = source.triangles
+        if (np.diff(source.poly_offsets) != 3).any():
+            polygons = (source.poly_offsets, source.poly_indices)
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3 or (F.size and not np.issubdtype(F.dtype, np.integer)):
         raise ShellsplineError(f"F must be an (m,3) integer array, got shape {F.shape} and "
@@ -865,7 +1090,7 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
             K = V.shape[0] - 1
             width = max(4, len(str(K)))
             paths = [tmp / f"frame_{k:0{width}d}.{fmt}" for k in range(K + 1)]
-            _write_frames(paths, V, F, fmt, workers)
+            _write_frames(paths, V, F, fmt, workers, polygons)
         (tmp / "report.json").write_text(report_text, encoding="utf-8")
         _move_into_place(tmp, target, overwrite)
     except OSError as exc:
@@ -1038,15 +1263,20 @@ def _move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
 
 
 def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
-                  workers: int) -> None:
-    block = _obj_faces_block(F) if fmt == "obj" else _ply_faces_bytes(F)
+                  workers: int, polygons=None) -> None:
+    if polygons is None:
+        block = _obj_faces_block(F) if fmt == "obj" else _ply_faces_bytes(F)
+        m = F.shape[0]
+    else:  # the input's polygons (offsets, indices)
+        block = _obj_polygons_block(*polygons) if fmt == "obj" else _ply_polygons_bytes(*polygons)
+        m = polygons[0].size - 1
     workers = min(workers, len(paths))
     if workers <= 1:
         for k, p in enumerate(paths):
             if fmt == "obj":
                 _write_obj_frame(p, V[k], block)
             else:
-                _write_ply_frame(p, V[k], block, F.shape[0])
+                _write_ply_frame(p, V[k], block, m)
         return
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
@@ -1055,7 +1285,7 @@ def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
     chunks = np.array_split(np.arange(len(paths)), workers)
     with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
         futures = [ex.submit(_write_frames_chunk, [paths[k] for k in c], V[c], block, fmt,
-                             F.shape[0]) for c in chunks]
+                             m) for c in chunks]
         try:
             for fut in futures:
                 fut.result()
@@ -1076,6 +1306,23 @@ def _write_frames_chunk(paths, Vc, block, fmt, m) -> None:
 def _obj_faces_block(F: np.ndarray) -> bytes:
     """The ``f a b c`` lines (1-based) of every frame, formatted once."""
     return (("f %d %d %d\n" * F.shape[0]) % tuple((F + 1).ravel().tolist())).encode("ascii")
+
+
+def _obj_polygons_block(offsets: np.ndarray, indices: np.ndarray) -> bytes:
+    """The ``f a b c ...`` lines (1-based) of polygons, formatted once."""
+    fmt = "".join("f" + " %d" * int(s) + "\n" for s in np.diff(offsets))
+    return (fmt % tuple((indices + 1).tolist())).encode("ascii")
+
+
+def _ply_polygons_bytes(offsets: np.ndarray, indices: np.ndarray) -> bytes:
+    """Binary PLY face records ``uchar count, int32 indices...`` of polygons."""
+    sizes = np.diff(offsets)
+    P = sizes.size
+    out = np.zeros(P + 4 * indices.size, dtype=np.uint8)
+    out[4 * offsets[:-1] + np.arange(P)] = sizes
+    pos = 4 * np.arange(indices.size) + np.repeat(np.arange(P), sizes) + 1
+    out[pos[:, None] + np.arange(4)] = indices.astype("<i4").view(np.uint8).reshape(-1, 4)
+    return out.tobytes()
 
 
 def _write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes) -> None:
@@ -1139,14 +1386,17 @@ def _jsonable(obj, where: str):
 
 
 def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Read a directory written by :func:`write_sequence`.
+    """Read a directory written by :func:`write_sequence`, or a ``.glb`` animation file.
 
     Frame files (``frame_*.obj`` / ``frame_*.ply``) are read when present, else
-    ``animation.glb`` (float32 coordinates, see :func:`shellspline.gltf.read_glb`).
+    ``animation.glb`` (float32 coordinates, see :func:`shellspline.gltf.read_glb`). Frames
+    written with the input's polygons are triangulated once for the whole sequence
+    (:func:`shellspline.source_mesh.triangulate_polygons`).
 
     Parameters
     ----------
     out_dir : str or path-like
+        An output directory, or the path of a ``.glb`` file.
 
     Returns
     -------
@@ -1164,8 +1414,16 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
         vertex count or faces.
     """
     d = Path(out_dir)
+    if d.suffix.lower() == ".glb" and d.is_file():
+        from .gltf import read_glb
+
+        try:
+            Vg, Fg, _ = read_glb(d)
+        except ShellsplineError as exc:
+            raise MeshError(str(exc)) from None
+        return Vg, Fg, _read_report(d.parent) if d.name == GLB_NAME else {}
     if not d.is_dir():
-        raise MeshError(f"cannot read sequence '{d}': not a directory")
+        raise MeshError(f"cannot read sequence '{d}': not a directory or a .glb file")
     found = {}
     for p in d.iterdir():
         mt = _FRAME_RE.match(p.name)
@@ -1189,19 +1447,22 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
         missing = sorted(set(range(ks[-1] + 1)) - set(ks))
         raise MeshError(f"{d}: frames are not numbered 0..{ks[-1]} without gaps (missing "
                         f"{missing[:5]})")
-    Vs, F0 = [], None
+    Vs = []
     for k in ks:
         name = str(found[k])
-        V, F = read_mesh(found[k])
-        if F0 is None:
-            F0, name0 = F, name
+        V, offsets, indices = _read_polygons(found[k])
+        if not Vs:
+            off0, idx0, name0 = offsets, indices, name
+            _check_indices(offsets, indices, V.shape[0], name)
         else:
             if V.shape[0] != Vs[0].shape[0]:
                 raise MeshError(f"{name} has {V.shape[0]} vertices but {name0} has "
                                 f"{Vs[0].shape[0]}")
-            _check_same_faces(F, F0, name, name0)
+            _check_same_polygons(offsets, indices, off0, idx0, name, name0)
         Vs.append(V)
-    return np.stack(Vs), F0, _read_report(d)
+    V = np.stack(Vs)
+    F, _ = triangulate_polygons(V, off0, idx0, name0)
+    return V, F, _read_report(d)
 
 
 def _read_report(d: Path) -> dict:

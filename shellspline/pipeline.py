@@ -58,6 +58,10 @@ class InterpolationResult:
         energies and quality checks.
     Z : (K+1,d) float64 array or None
         Target LΘA descriptors of every frame (``method="lta"``).
+    source : SourceMesh or None
+        The keyframes' :attr:`~shellspline.io.Keyframes.source`: how ``V`` and ``F`` (the
+        solve mesh) map back to the input's vertices and polygons
+        (``source.expand(V, frames, K, bc)``); ``None`` for a clean triangle mesh.
     """
 
     V: np.ndarray
@@ -65,6 +69,7 @@ class InterpolationResult:
     frames: np.ndarray
     report: dict = field(default_factory=dict)
     Z: np.ndarray | None = None
+    source: object | None = None
 
     @property
     def K(self) -> int:
@@ -670,7 +675,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     report["timings"] = dict(prog.timings)
     report["timings"]["total"] = time.perf_counter() - t_start
     report["platform"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
-    return InterpolationResult(V=V, F=T.F, frames=frames, report=_jsonable(report), Z=Z)
+    return InterpolationResult(V=V, F=T.F, frames=frames, report=_jsonable(report), Z=Z,
+                               source=kf.source)
 
 
 AUTO_COARSE_ABOVE = 20_000

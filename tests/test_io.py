@@ -209,14 +209,26 @@ def test_quad_face(tmp_path, ext):
         write_off(p, V, F)
     else:
         write_ply_ascii(p, V, F)
-    raises_mesh_error(lambda: sio.read_mesh(p), f"quad.{ext}", "non-triangle faces")
+    V2, F2 = sio.read_mesh(p)  # polygons are triangulated (they were refused before)
+    assert np.array_equal(V2, V)
+    # the quad's two triangles first (a diagonal of 0-1-2-3, same orientation), then 1-5-6
+    assert F2.shape == (3, 3) and F2[2].tolist() == [1, 4, 5]
+    assert sorted(map(sorted, F2[:2].tolist())) in ([[0, 1, 2], [0, 2, 3]], [[0, 1, 3], [1, 2, 3]])
+    n = np.cross(V2[F2[:, 1]] - V2[F2[:, 0]], V2[F2[:, 2]] - V2[F2[:, 0]])
+    assert (n[:, 2] > 0).all()
 
 
 def test_non_manifold_edge(tmp_path):
     V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]])
     F = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])  # edge (0,1) has three faces
     paths = [write_obj(tmp_path / f"nm{j}.obj", V * (j + 1), F) for j in range(2)]
-    raises_mesh_error(lambda: sio.read_keyframes(paths), "nm0.obj", "non-manifold edge")
+    kf = sio.read_keyframes(paths)  # the third face is set aside as a fin (refused before)
+    assert kf.F.tolist() == [[0, 1, 2], [1, 0, 3]] and kf.n == 4
+    assert kf.source.fin_polygons.tolist() == [2] and kf.source.set_aside.tolist() == [4]
+    # a face given three times: after setting one aside, two traverse each edge alike
+    F = np.array([[0, 1, 2], [0, 1, 2], [0, 1, 2]])
+    paths = [write_obj(tmp_path / f"nn{j}.obj", V * (j + 1), F) for j in range(2)]
+    raises_mesh_error(lambda: sio.read_keyframes(paths), "nn0.obj", "not consistently oriented")
 
 
 def test_inconsistent_orientation(tmp_path):

@@ -1,0 +1,459 @@
+"""Real exports: from the polygons and vertices of the input files to the solve mesh and back.
+
+Meshes exported by DCC tools (Blender, Maya, 3ds Max) are rarely the clean, edge-manifold
+triangle meshes the shell model needs. :func:`solve_mesh` turns the keyframes' polygons into
+one triangle mesh for the solve, and a :class:`SourceMesh` maps its results back:
+
+* **Polygons** (quads, n-gons) are triangulated **once for the whole keyframe set**, so every
+  keyframe has the same triangles: a quad takes the diagonal whose worst triangle, over all
+  keyframes, has the best quality; an n-gon (5 or more corners) is cut by ``mapbox_earcut``
+  (the ear-clipping library trimesh uses; optional extra ``dcc``) in its plane in every
+  keyframe, and the candidate whose worst triangle over all keyframes is best is kept.
+* **Seams**: vertices that are coincident in **every** keyframe (to round-off: the same cell of
+  a grid of ``1e-10 x`` the bounding-box diagonal) are welded into one solve vertex, so a mesh
+  split at UV or normal seams cannot tear.
+* **Fins**: where an edge has more than two faces, the faces are grouped into *sheets*
+  (faces connected through edges with exactly two faces); on each such edge the sheets are
+  kept largest first while the edge keeps at most two faces, and the others are set aside.
+* **Set-aside vertices** (isolated ones and those only fin faces use) are not solved: each is
+  attached to the solve face of its nearest solve vertex (in keyframe 0) and moves with that
+  face's frame, its coordinates in the frame blended linearly between keyframes
+  (:meth:`SourceMesh.expand`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._errors import MeshError
+
+__all__ = ["SourceMesh", "solve_mesh", "triangulate_polygons", "WELD_TOLERANCE"]
+
+#: Vertices whose positions agree in every keyframe to this fraction of the bounding-box
+#: diagonal of keyframe 0 are welded (a grid cell: round-off of exported text is ~1e-16).
+WELD_TOLERANCE = 1e-10
+_SQRT3x4 = 4.0 * np.sqrt(3.0)
+
+
+@dataclass(frozen=True, eq=False)
+class SourceMesh:
+    """The map between the input files' mesh (the *source*) and the solve mesh.
+
+    Attributes
+    ----------
+    n_source : int
+        Number of vertices in the input files.
+    poly_offsets : (P+1,) int64 numpy array
+        Polygon ``p`` of the input is ``poly_indices[poly_offsets[p]:poly_offsets[p+1]]``.
+    poly_indices : (N,) int64 numpy array
+        Corner vertices of all input polygons, source indexing, in file order.
+    triangles : (t,3) int64 numpy array
+        The triangulation of every input polygon (fins included), source indexing.
+    to_solve : (n_source,) int64 numpy array
+        Solve vertex of every source vertex; ``-1`` for a vertex set aside.
+    set_aside : (s,) int64 numpy array
+        Source indices of the vertices set aside (isolated or used by fin faces only).
+    anchors : (s,3) int64 numpy array
+        Solve face (three solve vertices) that carries each set-aside vertex.
+    exact : (e,) int64 numpy array
+        Source vertices whose keyframe coordinates are restored bit for bit at keyframes
+        (set-aside vertices and welded duplicates).
+    exact_V : (J,e,3) float64 numpy array
+        Their keyframe coordinates.
+    fin_polygons : (q,) int64 numpy array
+        Input polygons set aside as fins.
+    n_welded : int
+        Source vertices merged into another one.
+    """
+
+    n_source: int
+    poly_offsets: np.ndarray
+    poly_indices: np.ndarray
+    triangles: np.ndarray
+    to_solve: np.ndarray
+    set_aside: np.ndarray
+    anchors: np.ndarray
+    exact: np.ndarray
+    exact_V: np.ndarray
+    fin_polygons: np.ndarray
+    n_welded: int
+
+    @property
+    def n_solve(self) -> int:
+        """Number of solve vertices."""
+        return int(self.to_solve.max()) + 1
+
+    @property
+    def n_polygons(self) -> int:
+        """Number of input polygons."""
+        return int(self.poly_offsets.shape[0] - 1)
+
+    def summary(self) -> dict:
+        """Counts for reports: polygons, triangles, welded, set-aside vertices, fin polygons."""
+        sizes = np.diff(self.poly_offsets)
+        return {"source_vertices": self.n_source, "polygons": self.n_polygons,
+                "non_triangle_polygons": int((sizes != 3).sum()),
+                "welded_vertices": int(self.n_welded),
+                "set_aside_vertices": int(self.set_aside.size),
+                "fin_polygons": int(self.fin_polygons.size)}
+
+    def solve_vertices(self, idx, what: str = "pinned") -> np.ndarray:
+        """Solve-mesh indices of source vertices ``idx`` (sorted, unique).
+
+        Raises
+        ------
+        MeshError
+            If an index is out of range or names a vertex set aside for the solve.
+        """
+        idx = np.asarray(idx, dtype=np.int64).ravel()
+        out = (idx < 0) | (idx >= self.n_source)
+        if out.any():
+            raise MeshError(f"{what} vertex indices must lie in [0, {self.n_source}), got "
+                            f"{int(idx[out][0])} ({int(out.sum())} out of range)")
+        to = self.to_solve[idx]
+        if (to < 0).any():
+            raise MeshError(f"{what} vertex {int(idx[to < 0][0])} is set aside for the solve "
+                            f"(isolated, or used by fin faces only; {int((to < 0).sum())} such)")
+        return np.unique(to)
+
+    def expand(self, V, frames, K: int | None = None, bc: str = "natural") -> np.ndarray:
+        """Poses of the solve mesh → poses of the input's vertices.
+
+        Parameters
+        ----------
+        V : (K+1,n,3) float array
+            A sequence on the solve mesh whose frames ``frames[j]`` are the keyframes.
+        frames : (J,) int array
+            Keyframe frames (as for :func:`shellspline.interpolate`).
+        K : int, optional
+            Last frame; default ``V.shape[0] - 1`` (given, it must agree).
+        bc : {"natural", "periodic", "hermite"}
+            ``"periodic"``: frames after the last keyframe blend back into keyframe 0.
+
+        Returns
+        -------
+        (K+1,n_source,3) float64 numpy array
+            Welded vertices take their solve vertex's position; a set-aside vertex moves with
+            the orthonormal frame of its anchor face, its coordinates in that frame blended
+            linearly between the keyframes around each frame. At keyframes every source vertex
+            has its input coordinates bit for bit.
+
+        Raises
+        ------
+        MeshError
+            If ``V`` does not have the solve mesh's vertex count or ``frames``/``K`` do not
+            fit it.
+        """
+        V = np.asarray(V, dtype=np.float64)
+        if V.ndim != 3 or V.shape[1:] != (self.n_solve, 3):
+            raise MeshError(f"V must be a (K+1,{self.n_solve},3) sequence on the solve mesh, "
+                            f"got shape {V.shape}")
+        frames = np.asarray(frames, dtype=np.int64).ravel()
+        if K is None:
+            K = V.shape[0] - 1
+        if int(K) != V.shape[0] - 1 or frames.size != self.exact_V.shape[0] or \
+                frames.min() < 0 or frames.max() > K:
+            raise MeshError(f"frames {frames.tolist()} and K={K} do not fit a sequence of "
+                            f"{V.shape[0]} frames with {self.exact_V.shape[0]} keyframes")
+        from .timeline import keyframe_bracket
+
+        periodic = str(bc).lower() == "periodic"
+        out = np.zeros((V.shape[0], self.n_source, 3))
+        kept = self.to_solve >= 0
+        out[:, kept] = V[:, self.to_solve[kept]]
+        if self.set_aside.size:
+            origin, R = _face_frames(V, self.anchors)           # (K+1,s,3), (K+1,s,3,3)
+            j_sa = np.searchsorted(self.exact, self.set_aside)
+            X = self.exact_V[:, j_sa]                            # (J,s,3)
+            local = np.einsum("jsba,jsb->jsa", R[frames], X - origin[frames])
+            j0, j1, t = keyframe_bracket(frames, int(K), periodic)
+            loc = (1.0 - t)[:, None, None] * local[j0] + t[:, None, None] * local[j1]
+            out[:, self.set_aside] = origin + np.einsum("ksab,ksb->ksa", R, loc)
+        for j, f in enumerate(frames):
+            out[f, self.exact] = self.exact_V[j]
+        if periodic and self.exact.size:
+            out[K, self.exact] = self.exact_V[0]
+        return out
+
+
+def _face_frames(V: np.ndarray, tri: np.ndarray):
+    """Origin ``a`` and orthonormal frame ``[e1 e2 n]`` (as columns) of triangles per pose."""
+    a, b, c = V[:, tri[:, 0]], V[:, tri[:, 1]], V[:, tri[:, 2]]
+    e1 = b - a
+    n = np.cross(e1, c - a)
+    e1 /= np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-300)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+    e2 = np.cross(n, e1)
+    return a, np.stack([e1, e2, n], axis=-1)
+
+
+# ----------------------------------------------------------------------------------------
+# Triangulation
+# ----------------------------------------------------------------------------------------
+def triangulate_polygons(Vs, offsets, indices, name: str = "mesh"):
+    """Triangulate polygons once for a whole set of poses.
+
+    Parameters
+    ----------
+    Vs : (J,n,3) float array
+        The poses (keyframes).
+    offsets : (P+1,) int array
+        Polygon ``p`` is ``indices[offsets[p]:offsets[p+1]]`` (at least 3 corners).
+    indices : (N,) int array
+        Corner vertex indices.
+    name : str
+        Used in error messages.
+
+    Returns
+    -------
+    F : (t,3) int64 numpy array
+        Triangles, oriented like their polygon, polygons in order.
+    polygon : (t,) int64 numpy array
+        The polygon each triangle comes from.
+
+    Raises
+    ------
+    MeshError
+        If an n-gon cannot be triangulated, or n-gons are present and ``mapbox_earcut`` is
+        not installed.
+
+    Notes
+    -----
+    A triangle's quality is ``4 sqrt(3) A / (l1² + l2² + l3²)`` (1 for an equilateral
+    triangle), with the area ``A`` signed against the polygon's Newell normal in that pose, so
+    a triangle that folds over its polygon scores below zero. Among the candidates of a
+    polygon the one whose worst triangle over all poses scores highest is kept; ties keep the
+    first candidate (for a quad ``abcd``: the diagonal ``ac``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V = np.array([[0., 0, 0], [4, 0, 0], [4, 1, 0], [0, 1, 0]])  # a long thin quad
+    >>> V2 = V.copy(); V2[2, 2] = 1.0                                    # ... bent in pose 2
+    >>> F, p = triangulate_polygons(np.stack([V, V2]), [0, 4], [0, 1, 2, 3])
+    >>> F.tolist(), p.tolist()
+    ([[1, 2, 3], [1, 3, 0]], [0, 0])
+    """
+    Vs = np.asarray(Vs, dtype=np.float64)
+    offsets = np.asarray(offsets, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    sizes = np.diff(offsets)
+    P = sizes.size
+    tris: list[np.ndarray] = []
+    owner: list[np.ndarray] = []
+    for s in np.unique(sizes):
+        polys = np.flatnonzero(sizes == s)
+        C = indices[offsets[polys][:, None] + np.arange(s)]     # (p,s)
+        if s == 3:
+            T = C[:, None, :]
+        elif s == 4:
+            cand = np.stack([C[:, [0, 1, 2, 0, 2, 3]], C[:, [1, 2, 3, 1, 3, 0]]], axis=1)
+            T = _best_candidate(Vs, C, cand.reshape(len(polys), 2, 2, 3))
+        else:
+            T = _earcut_polygons(Vs, C, polys, name)
+        tris.append(T.reshape(-1, 3))
+        owner.append(np.repeat(polys, T.shape[1]))
+    F = np.concatenate(tris) if tris else np.zeros((0, 3), dtype=np.int64)
+    own = np.concatenate(owner) if owner else np.zeros(0, dtype=np.int64)
+    order = np.argsort(own, kind="stable")
+    assert P == 0 or own.max() < P
+    return F[order].astype(np.int64), own[order].astype(np.int64)
+
+
+def _newell_normals(Vs: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Newell normals (J,p,3) of polygons ``C`` (p,s) in every pose (unnormalised)."""
+    P0 = Vs[:, C]                        # (J,p,s,3)
+    P1 = np.roll(P0, -1, axis=2)
+    return np.cross(P0, P1).sum(axis=2) * 0.5
+
+
+def _best_candidate(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarray:
+    """Per polygon, the candidate triangulation (c of cand (p,c,t,3)) with the best worst
+    signed quality over all poses; returns (p,t,3)."""
+    N = _newell_normals(Vs, C)                                   # (J,p,3)
+    N /= np.maximum(np.linalg.norm(N, axis=-1, keepdims=True), 1e-300)
+    A, B, Cc = (Vs[:, cand[..., i]] for i in range(3))           # (J,p,c,t,3)
+    area2 = np.einsum("jpctx,jpx->jpct", np.cross(B - A, Cc - A), N)
+    l2 = (((B - A) ** 2).sum(-1) + ((Cc - B) ** 2).sum(-1) + ((A - Cc) ** 2).sum(-1))
+    q = 0.5 * _SQRT3x4 * area2 / np.maximum(l2, 1e-300)
+    score = q.min(axis=(0, 3))                                    # (p,c)
+    best = np.argmax(score, axis=1)                               # first on ties
+    return cand[np.arange(cand.shape[0]), best]
+
+
+def _earcut_polygons(Vs: np.ndarray, C: np.ndarray, polys: np.ndarray, name: str) -> np.ndarray:
+    """Triangulations (p,s-2,3) of s-gons by ear clipping in their plane, best over poses."""
+    try:
+        import mapbox_earcut
+    except ImportError:
+        raise MeshError(f"{name}: {len(polys)} polygons with {C.shape[1]} corners need the "
+                        "optional package mapbox_earcut (pip install 'shellspline[dcc]')"
+                        ) from None
+    J, (p, s) = Vs.shape[0], C.shape
+    N = _newell_normals(Vs, C)
+    rings = np.array([s], dtype=np.uint32)
+    out = np.zeros((p, s - 2, 3), dtype=np.int64)
+    for i in range(p):
+        cands = []
+        for j in range(J):
+            n = N[j, i]
+            nn = np.linalg.norm(n)
+            if nn == 0:
+                continue
+            n = n / nn
+            u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+            u /= np.linalg.norm(u)
+            w = np.cross(n, u)
+            X = Vs[j, C[i]]
+            xy = np.stack([X @ u, X @ w], axis=1)
+            t = np.asarray(mapbox_earcut.triangulate_float64(xy, rings), dtype=np.int64)
+            if t.size != 3 * (s - 2):
+                continue
+            t = t.reshape(-1, 3)
+            d = xy[t]
+            cross = ((d[:, 1, 0] - d[:, 0, 0]) * (d[:, 2, 1] - d[:, 0, 1])
+                     - (d[:, 1, 1] - d[:, 0, 1]) * (d[:, 2, 0] - d[:, 0, 0]))
+            t[cross < 0] = t[cross < 0][:, [0, 2, 1]]
+            t = t[np.lexsort(t.T[::-1])]
+            if not any(np.array_equal(t, c) for c in cands):
+                cands.append(t)
+        if not cands:
+            raise MeshError(f"{name}: polygon {int(polys[i])} with {s} corners cannot be "
+                            "triangulated (degenerate or self-intersecting in every keyframe)")
+        cand = C[i][np.stack(cands)]                               # (c,s-2,3)
+        out[i] = _best_candidate(Vs, C[i:i + 1], cand[None])[0]
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# Welding, fins, set-aside vertices
+# ----------------------------------------------------------------------------------------
+def _weld_map(Vs: np.ndarray) -> np.ndarray:
+    """Representative (lowest index) of every vertex among those coincident in all poses."""
+    J, n = Vs.shape[:2]
+    rep = np.arange(n)
+    lo, hi = Vs[0].min(axis=0), Vs[0].max(axis=0)
+    diag = float(np.linalg.norm(hi - lo))
+    if not np.isfinite(diag) or diag == 0 or n < 2:
+        return rep
+    cell = WELD_TOLERANCE * diag
+    Q0 = np.round((Vs[0] - lo) / cell).astype(np.int64)
+    _, inv0, counts0 = np.unique(Q0, axis=0, return_inverse=True, return_counts=True)
+    inv0 = inv0.ravel()
+    cand = np.flatnonzero(counts0[inv0] > 1)
+    if cand.size == 0:
+        return rep
+    Q = np.round((Vs[:, cand] - lo) / cell).astype(np.int64)        # (J,c,3)
+    key = Q.transpose(1, 0, 2).reshape(cand.size, -1)
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    first = np.full(inv.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, inv, cand)
+    rep[cand] = first[inv]
+    return rep
+
+
+def _fin_faces(F: np.ndarray, n: int) -> np.ndarray:
+    """Mask of faces set aside so that no edge keeps more than two faces (see module doc)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = F.shape[0]
+    fins = np.zeros(m, dtype=bool)
+    src, dst = F[:, [1, 2, 0]].ravel(), F[:, [2, 0, 1]].ravel()
+    key = np.minimum(src, dst) * np.int64(n) + np.maximum(src, dst)
+    face = np.repeat(np.arange(m), 3)
+    _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+    if (counts <= 2).all():
+        return fins
+    # sheets: faces connected through edges with exactly two faces
+    two = counts[inv] == 2
+    order = np.argsort(inv[two], kind="stable")
+    pairs = face[two][order].reshape(-1, 2)
+    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+    _, sheet = connected_components(adj, directed=False)
+    size = np.bincount(sheet)
+    for _ in range(m):  # each round sets aside at least one sheet, or stops
+        live = ~fins[face]
+        c = np.bincount(inv[live], minlength=counts.size)
+        bad = np.flatnonzero(c > 2)
+        if bad.size == 0:
+            break
+        drop = set()
+        for e in bad:
+            fs = face[live & (inv == e)]
+            sh, nf = np.unique(sheet[fs], return_counts=True)
+            rank = np.lexsort((sh, -size[sh]))
+            kept = 0
+            for r in rank:
+                if r == rank[0] or kept + nf[r] <= 2:
+                    kept += nf[r]
+                else:
+                    drop.add(int(sh[r]))
+        if not drop:
+            break  # a sheet meets itself on an edge: left for topology() to report
+        fins |= np.isin(sheet, list(drop))
+    return fins
+
+
+def solve_mesh(Vs, offsets, indices, name: str = "mesh"):
+    """Split an input mesh into the solve mesh and its :class:`SourceMesh` map.
+
+    Parameters
+    ----------
+    Vs : (J,n,3) float64 numpy array
+        Keyframe poses of the input vertices (finite).
+    offsets : (P+1,) int64 numpy array
+        Polygon offsets (see :class:`SourceMesh`).
+    indices : (N,) int64 numpy array
+        Polygon corners, in ``[0, n)``.
+    name : str
+        Used in error messages.
+
+    Returns
+    -------
+    V : (J,n_solve,3) float64 numpy array
+        Solve-mesh poses.
+    F : (m,3) int64 numpy array
+        Solve-mesh triangles.
+    source : SourceMesh or None
+        ``None`` when the input is already a triangle mesh with nothing welded or set aside
+        (then ``V`` and ``F`` are the inputs).
+    tri_polygon : (m,) int64 numpy array
+        Input polygon of every solve triangle (for messages).
+    """
+    J, n = Vs.shape[:2]
+    sizes = np.diff(offsets)
+    if (sizes == 3).all():
+        tris, tri_poly = indices.reshape(-1, 3), np.arange(sizes.size, dtype=np.int64)
+    else:
+        tris, tri_poly = triangulate_polygons(Vs, offsets, indices, name)
+    rep = _weld_map(Vs)
+    F = rep[tris]
+    fins = _fin_faces(F, n)
+    used = np.zeros(n, dtype=bool)
+    used[F[~fins].ravel()] = True
+    welded = rep != np.arange(n)
+    if (sizes == 3).all() and not welded.any() and not fins.any() and used.all():
+        return Vs, tris, None, tri_poly
+    keep_v = np.flatnonzero(used & ~welded)     # representatives used by kept faces
+    solve_of = np.full(n, -1, dtype=np.int64)
+    solve_of[keep_v] = np.arange(keep_v.size)
+    to_solve = solve_of[rep]
+    Fs = to_solve[F[~fins]]
+    set_aside = np.flatnonzero(to_solve < 0)
+    anchors = np.zeros((set_aside.size, 3), dtype=np.int64)
+    if set_aside.size:
+        from scipy.spatial import cKDTree
+
+        _, near = cKDTree(Vs[0, keep_v]).query(Vs[0, set_aside])
+        first_face = np.full(keep_v.size, -1, dtype=np.int64)
+        first_face[Fs[::-1].ravel()] = np.repeat(np.arange(Fs.shape[0])[::-1], 3)
+        anchors = Fs[first_face[near]]
+    exact = np.flatnonzero((to_solve < 0) | welded)
+    src = SourceMesh(n_source=n, poly_offsets=offsets, poly_indices=indices, triangles=tris,
+                     to_solve=to_solve, set_aside=set_aside, anchors=anchors, exact=exact,
+                     exact_V=np.ascontiguousarray(Vs[:, exact]),
+                     fin_polygons=np.unique(tri_poly[fins]), n_welded=int(welded.sum()))
+    return np.ascontiguousarray(Vs[:, keep_v]), Fs, src, tri_poly[~fins]
