@@ -142,10 +142,11 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     # Other subcommands live in their own modules; each registers parsers that set `func`.
-    from . import _cli_batch, _cli_viz
+    from . import _cli_batch, _cli_path, _cli_viz
 
     _cli_viz.add_parsers(sub)
     _cli_batch.add_parsers(sub)
+    _cli_path.add_parsers(sub)
     return p
 
 

@@ -1,0 +1,194 @@
+"""Pose files (TUM, KITTI, EuRoC, our CSV/JSON) and the ``shellspline path`` command."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import shared_data
+
+from shellspline._cli_path import build_curve, keyframe_indices
+from shellspline._errors import ShellsplineError
+from shellspline.cli import main
+from shellspline.groups import SE3, se3, so3
+from shellspline.posefiles import FORMATS, detect_format, read_poses, write_poses
+
+SUFFIX = {"tum": ".txt", "kitti": ".txt", "euroc": ".csv", "csv": ".csv", "json": ".json"}
+
+
+def _track(n=40, seed=0):
+    rng = np.random.default_rng(seed)
+    t = 100.0 + np.cumsum(rng.uniform(0.05, 0.15, n))
+    T = SE3.exp(np.cumsum(rng.normal(size=(n, 6)) * 0.05, axis=0))
+    return t, T
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_pose_files_round_trip_and_are_detected(tmp_path, fmt):
+    t, T = _track()
+    path = tmp_path / f"poses{SUFFIX[fmt]}"
+    tt = t - t[0] if fmt == "euroc" else t
+    write_poses(path, tt, T, fmt, origin_ns=1_403_636_579_758_555_392 if fmt == "euroc" else 0)
+    assert detect_format(path) == fmt
+    back = read_poses(path)
+    assert back.format == fmt
+    np.testing.assert_allclose(back.T, T, atol=1e-11)
+    expect = np.arange(t.size, dtype=float) if fmt == "kitti" else tt
+    np.testing.assert_allclose(back.t, expect, atol=1e-9, rtol=0)
+    if fmt == "euroc":
+        assert back.origin_ns == 1_403_636_579_758_555_392
+        first = path.read_text().splitlines()[1].split(",")[0]
+        assert first == "1403636579758555392"  # nanoseconds written back exactly
+    assert not list(tmp_path.glob(".*tmp"))  # atomic: no temporary left behind
+
+
+def test_written_quaternions_are_sign_continuous_and_scalar_last(tmp_path):
+    ang = np.linspace(0, 4 * np.pi, 50)
+    T = se3.from_rt(so3.exp(ang[:, None] * [0, 0, 1.0]), np.zeros(3))
+    write_poses(tmp_path / "p.txt", np.arange(50.0), T, "tum")
+    q = np.loadtxt(tmp_path / "p.txt")[:, 4:]
+    assert np.all(np.einsum("ni,ni->n", q[1:], q[:-1]) > 0)
+    np.testing.assert_allclose(q[0], [0, 0, 0, 1], atol=1e-15)
+    write_poses(tmp_path / "p.csv", np.arange(50.0), T, "euroc")
+    qe = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[:, 4:8]  # w x y z
+    np.testing.assert_allclose(qe, q[:, [3, 0, 1, 2]], atol=1e-12)
+
+
+@pytest.mark.parametrize("content,name,match", [
+    ("1 0 0 0 0 0 0 1\n2 2 3 4 5 6 7\n", "a.txt", r"a\.txt:2: expected 8 numbers"),
+    ("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 2\n", "a.txt", r"a\.txt:2: quaternion norm 2"),
+    ("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", "a.txt", r"a\.txt:2: times must increase"),
+    ("# c\n1 0 0 0 0 0 x 1\n", "a.txt", r"a\.txt:2: not a number: 'x'"),
+    ("1 2 3 4 5\n", "a.txt", r"a\.txt:1: cannot tell the pose format: 5 numbers"),
+    ("# only comments\n", "a.txt", r"a\.txt: no poses"),
+    ("2 0 0 0 0 1 0 0 0 0 1 0\n", "k.txt", r"k\.txt:1: the 3x3 block is not a rotation"),
+    ("t,tx,ty,tz,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0.5,0,0\n", "c.csv", r"c\.csv:3: expected 8"),
+    ("#timestamp [ns],x\n1.5,0,0,0,1,0,0,0\n", "e.csv", r"e\.csv:2: EuRoC timestamps are"),
+    ('{"t": [0], "position": [[0, 0]], "quaternion_xyzw": [[0, 0, 0, 1]]}', "j.json",
+     r"j\.json: expected t \(n,\), position \(n, 3\)"),
+    ('{"t": [0]', "j.json", r"j\.json:1: invalid JSON"),
+])
+def test_bad_pose_files_give_one_line_errors_naming_file_and_line(tmp_path, content, name,
+                                                                  match):
+    p = tmp_path / name
+    p.write_text(content)
+    with pytest.raises(ShellsplineError, match=match) as exc:
+        read_poses(p)
+    assert "\n" not in str(exc.value)
+
+
+def test_keyframe_indices_keep_first_and_last():
+    np.testing.assert_array_equal(keyframe_indices(10, 3), [0, 3, 6, 9])
+    np.testing.assert_array_equal(keyframe_indices(11, 3), [0, 3, 6, 9, 10])
+    np.testing.assert_array_equal(keyframe_indices(5, 1), np.arange(5))
+    np.testing.assert_array_equal(keyframe_indices(5, 100), [0, 4])
+
+
+@pytest.mark.parametrize("fmt", ["tum", "kitti", "euroc", "csv", "json"])
+def test_path_writes_every_input_time_in_the_input_format(tmp_path, fmt, capsys):
+    t, T = _track(31)
+    src = tmp_path / f"in{SUFFIX[fmt]}"
+    write_poses(src, t - t[0] if fmt == "euroc" else t, T, fmt)
+    out = tmp_path / f"out{SUFFIX[fmt]}"
+    assert main(["path", str(src), "-o", str(out), "--keep-every", "4"]) == 0
+    a, b = read_poses(src), read_poses(out)
+    assert b.format == fmt
+    np.testing.assert_allclose(b.t, a.t, atol=1e-9)
+    keys = keyframe_indices(a.t.size, 4)
+    np.testing.assert_allclose(b.T[keys], a.T[keys], atol=1e-9)  # keyframes exact
+    # in-betweens: the C² spline through the keyframes, evaluated at the input times
+    ref = build_curve(a.t[keys], a.T[keys])(a.t)
+    np.testing.assert_allclose(b.T, ref, atol=1e-9)
+    err = capsys.readouterr().err
+    assert "9 keyframes" in err and "in-between" in err  # 0, 4, ..., 28 and 30
+
+
+def test_path_rate_times_format_kinds_groups(tmp_path):
+    t, T = _track(25)
+    src = tmp_path / "in.txt"
+    write_poses(src, t, T, "tum")
+    out = tmp_path / "o.csv"
+    assert main(["path", str(src), "-o", str(out), "--rate", "20", "--format", "csv",
+                 "--kind", "bezier", "--group", "so3xr3", "-q"]) == 0
+    b = read_poses(out)
+    assert b.format == "csv"
+    np.testing.assert_allclose(np.diff(b.t), 0.05, atol=1e-9)
+    assert b.t[0] == pytest.approx(t[0]) and b.t[-1] <= t[-1] + 1e-9
+    times = tmp_path / "times.txt"
+    times.write_text("# times\n" + "\n".join(str(x) for x in np.linspace(t[0], t[-1], 7)))
+    out2 = tmp_path / "o2.json"
+    assert main(["path", str(src), "-o", str(out2), "--times", str(times), "--format", "json",
+                 "--kind", "bspline", "--keep-every", "3", "-q"]) == 0
+    d = json.loads(out2.read_text())
+    assert len(d["t"]) == 7
+    b2 = read_poses(out2)
+    np.testing.assert_allclose(b2.T[[0, -1]], T[[0, -1]], atol=1e-9)  # clamped B-spline ends
+
+
+def test_path_periodic_and_clamped(tmp_path):
+    ang = np.linspace(0, 2 * np.pi, 13)
+    T = se3.from_rt(so3.exp(ang[:, None] * [0, 0, 1.0]),
+                    np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1))
+    T[-1] = T[0]
+    src = tmp_path / "circle.txt"
+    write_poses(src, ang, T, "tum")
+    out = tmp_path / "o.txt"
+    assert main(["path", str(src), "-o", str(out), "--bc", "periodic", "--rate", "50",
+                 "-q"]) == 0
+    b = read_poses(out)
+    # a body turning once around a circle, keyframes every 30 degrees: the path stays on
+    # the circle (screw motions between keyframes are exact circle arcs here)
+    np.testing.assert_allclose(np.linalg.norm(b.T[:, :2, 3], axis=1), 1, atol=1e-3)
+    assert main(["path", str(src), "-o", str(out), "--bc", "clamped", "-q"]) == 0
+
+
+def test_path_errors_exit_2_with_one_line(tmp_path, capsys):
+    t, T = _track(10)
+    src = tmp_path / "in.txt"
+    write_poses(src, t, T, "tum")
+    out = str(tmp_path / "o.txt")
+    cases = [
+        (["--bc", "periodic"], "needs the last pose equal to the first"),
+        (["--kind", "bezier", "--bc", "clamped"], "applies to --kind interp only"),
+        (["--keep-every", "0"], "--keep-every must be >= 1"),
+        (["--rate", "-1"], "--rate must be > 0"),
+    ]
+    for extra, msg in cases:
+        assert main(["path", str(src), "-o", out] + extra) == 2
+        err = capsys.readouterr().err
+        assert msg in err and err.count("\n") == 1
+    times = tmp_path / "times.txt"
+    times.write_text(f"{t[0] - 1}\n")
+    assert main(["path", str(src), "-o", out, "--times", str(times)]) == 2
+    assert "times must lie in" in capsys.readouterr().err
+    assert main(["path", str(tmp_path / "missing.txt"), "-o", out]) == 2
+    assert "no such pose file" in capsys.readouterr().err
+
+
+def test_path_plot(tmp_path):
+    pytest.importorskip("matplotlib")
+    t, T = _track(20)
+    src = tmp_path / "in.txt"
+    write_poses(src, t, T, "tum")
+    png = tmp_path / "p.png"
+    assert main(["path", str(src), "-o", str(tmp_path / "o.txt"), "--keep-every", "5",
+                 "--plot", str(png), "-q"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_camera_ground_truth_spline_beats_linear_between_keyframes(tmp_path):
+    gt = shared_data("camera", "freiburg1_xyz-groundtruth.txt")
+    a = read_poses(gt)
+    assert a.t.size == 3000 and a.format == "tum"
+    n = 600
+    t, T = a.t[:n], a.T[:n]
+    keys = keyframe_indices(n, 10)
+    rest = np.setdiff1d(np.arange(n), keys)
+    ours = build_curve(t[keys], T[keys])(t)
+    from shellspline.curves import geodesic_interpolant
+    from shellspline.groups import SO3xR3
+
+    lin = geodesic_interpolant(SO3xR3, t[keys], T[keys])(t)
+    dp = np.linalg.norm(ours[rest, :3, 3] - T[rest, :3, 3], axis=1)
+    dl = np.linalg.norm(lin[rest, :3, 3] - T[rest, :3, 3], axis=1)
+    assert np.sqrt(np.mean(dp ** 2)) < 0.7 * np.sqrt(np.mean(dl ** 2))
