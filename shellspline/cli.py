@@ -175,7 +175,14 @@ def _interpolate(args) -> int:
         try:
             pinned = ss.read_indices(args.pinned)
         except OverflowError:
-            raise ShellsplineError(f"--pinned {args.pinned}: a vertex index is too large") from None
+            raise ShellsplineError(f"--pinned {args.pinned}: a vertex index is too "
+                                   "large") from None
+        n_input = kf.n if kf.source is None else kf.source.n_source
+        bad = (pinned < 0) | (pinned >= n_input)
+        if bad.any():
+            raise ShellsplineError(f"--pinned {args.pinned}: vertex indices must lie in [0, "
+                                   f"{n_input}), got {int(pinned[bad][0])} ({int(bad.sum())} "
+                                   "out of range)")
         if kf.source is not None:  # the file numbers the input's vertices
             pinned = kf.source.solve_vertices(pinned, "--pinned")
     if args.fix_boundary:

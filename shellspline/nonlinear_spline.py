@@ -104,7 +104,8 @@ class NonlinearSplineResult:
     energy : float
         Final ``F^K`` (eq. 7).
     energies : list of float
-        ``F^K`` at the initial point and after every outer iteration (non-increasing).
+        ``F^K`` at the initial point and after every outer iteration (non-increasing); empty
+        (and ``energy`` NaN) when ``max_time_s`` ran out before the first evaluation ended.
     grad_norms : list of float
         Euclidean norm of the gradient at the same points.
     times : list of float
@@ -153,6 +154,14 @@ class NonlinearSplineResult:
     midpoint_newton_iterations: int = 0
     hessian: list = field(default_factory=list)
     final_phase_iteration: int | None = None
+
+
+class _TimeUp(Exception):
+    """Raised inside the solver when ``max_time_s`` has passed (:meth:`check_time`)."""
+
+
+def _copy(a):
+    return None if a is None else a.copy()
 
 
 class NonlinearSplineProblem:
@@ -221,6 +230,8 @@ class NonlinearSplineProblem:
         self.nfev = 0
         self.midpoint_iterations = 0
         self.midpoint_failures = 0
+        #: wall-clock limit (``time.perf_counter()`` value) checked by :meth:`check_time`
+        self.deadline = None
 
     # -- variables ---------------------------------------------------------------------------
     @property
@@ -246,6 +257,7 @@ class NonlinearSplineProblem:
         """Geodesic midpoints ``(T,n,3)`` of all terms for node poses ``S`` (eq. 8)."""
         M = self._warm(S)
         for t, (a, _, b) in enumerate(self.terms):
+            self.check_time()
             res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol)
             self.midpoint_iterations += res.nit
             self.midpoint_failures += not res.success
@@ -294,6 +306,7 @@ class NonlinearSplineProblem:
         G = np.zeros((self.n_nodes, 3 * self.n))
         ctxs, geos = [], []
         for t, (a, k, b) in enumerate(self.terms):
+            self.check_time()
             res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol,
                                     max_iter=max_newton)
             self.midpoint_iterations += res.nit
@@ -339,6 +352,12 @@ class NonlinearSplineProblem:
         if self.pinned is not None:
             G[:, (3 * self.pinned[:, None] + np.arange(3)).ravel()] = 0.0
         return F, G.reshape(self.n_nodes, self.n, 3)
+
+    def check_time(self) -> None:
+        """Raise :class:`_TimeUp` once :attr:`deadline` has passed (checked in every loop of
+        the solver that can take long: midpoint solves, Hessian products, retractions)."""
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            raise _TimeUp
 
     def rigid_bases(self, S) -> list:
         """Per free node: orthonormal basis ``(len(free_dofs), r)`` of the infinitesimal rigid
@@ -450,7 +469,12 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     memory : int
         L-BFGS memory.
     max_time_s : float, optional
-        Stop (unconverged, with a warning) after this many seconds of optimisation.
+        Wall-clock limit in seconds of the whole call, the set-up and the first evaluation
+        included: checked before every midpoint solve, Hessian product, model term and
+        retracted shell, so it is overrun by at most one of those (or one factorization of
+        the preconditioner). When it is reached the result is the last accepted iterate,
+        unconverged, with a warning and the message "time limit ... reached" (the initial
+        path, with empty ``energies``, if the first evaluation did not finish).
     hessian : {"auto", "exact", "gauss-newton"}
         ``"gauss-newton"`` optimiser: CG on the Gauss–Newton model (cheap products, good
         while the midpoints are close to the shells), on the exact reduced Hessian
@@ -513,10 +537,17 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     >>> res.success, res.V.shape
     (True, (5, 42, 3))
     """
+    t0 = time.perf_counter()  # max_time_s covers the set-up and the first evaluation too
+    if max_time_s is not None and not (isinstance(max_time_s, (int, float, np.number))
+                                       and 0 < max_time_s < np.inf):
+        raise ShellsplineError(f"`max_time_s` must be a positive number of seconds, got "
+                               f"{max_time_s!r}")
     W = _make_energy(T, energy, mu, lam, eta)
     Vkey = _checked_keyframes(Vkey, W.n_vertices)
     prob = NonlinearSplineProblem(W, frames, K, bc, pinned=pinned, midpoint_tol=midpoint_tol,
                                   backend=backend)
+    if max_time_s is not None:
+        prob.deadline = t0 + float(max_time_s)
     K, frames = prob.K, prob.frames
     if len(frames) != len(Vkey):
         raise ShellsplineError(f"`frames` must have one entry per keyframe ({len(Vkey)}), "
@@ -537,7 +568,6 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
             raise ShellsplineError("`init` must be finite")
     V0[frames] = Vkey
     S0 = V0[:prob.n_nodes].copy()
-    t0 = time.perf_counter()
     energies, norms, times = [], [], []
     last = {}
 
@@ -577,14 +607,21 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         return _finish(prob, S0, V0, Vkey, [F], [0.0], 0, True, "no free frames", t0, periodic)
 
     x0 = prob.x_of(S0)
-    F0, g0 = fun(x0)
+    try:
+        F0, g0 = fun(x0)
+    except _TimeUp:  # the initial path is returned, its energy unknown
+        prob.midpoints = prob.last = None
+        return _finish(prob, S0, V0, Vkey, [], [], 0, False, f"not converged: time limit of "
+                       f"{max_time_s} s reached before the first evaluation finished", t0,
+                       periodic)
     g0n = float(np.linalg.norm(g0))
     energies.append(F0)
     norms.append(g0n)
     times.append(time.perf_counter() - t0)
     if callback is not None:
         callback(0, F0, g0n)
-    state = {"nit": 0, "done": g0n == 0.0}
+    # the last accepted iterate and its midpoints: the result when the time limit interrupts
+    state = {"nit": 0, "done": g0n == 0.0, "x": x0, "midpoints": _copy(prob.midpoints)}
     stats = {"cg_iterations": [], "step_lengths": [], "hessian": [], "exact": False}
 
     def cb(intermediate_result):
@@ -594,6 +631,7 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         else:
             F, g = fun(x)
         state["nit"] += 1
+        state["x"], state["midpoints"] = x, _copy(prob.midpoints)
         gn = float(np.linalg.norm(g))
         energies.append(F)
         norms.append(gn)
@@ -615,22 +653,27 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     if state["done"]:
         message = "converged: gradient norm reduced by gtol"
     else:
-        if cg_tol is None:
-            cg_tol = 0.5 if globalization == "trust-region" else 0.1
-        if optimizer == "gauss-newton" and globalization == "trust-region":
-            if retract is None:
-                retract = hasattr(prob.energy, "T")
-            x, message = _trust_region(prob, fun, x0, F0, g0, S0, cb, max_iter, cg_tol,
-                                       cg_max_iter, stats, hessian=hessian, gtol=gtol,
-                                       retraction=_Retraction(prob, S0) if retract else None,
-                                       final_phase=bool(final_phase))
-        elif optimizer == "gauss-newton":
-            x, message = _gauss_newton(prob, fun, x0, F0, g0, S0, cb, max_iter,
-                                       _step_cap(prob, S0, 2.0), cg_tol, cg_max_iter, stats,
-                                       hessian=hessian)
-        else:
-            precond = _Preconditioner(prob, S0) if precondition else None
-            x, message = _lbfgs(prob, fun, x0, F0, g0, S0, precond, cb, max_iter, memory)
+        try:
+            if cg_tol is None:
+                cg_tol = 0.5 if globalization == "trust-region" else 0.1
+            if optimizer == "gauss-newton" and globalization == "trust-region":
+                if retract is None:
+                    retract = hasattr(prob.energy, "T")
+                retraction = _Retraction(prob, S0) if retract else None
+                x, message = _trust_region(prob, fun, x0, F0, g0, S0, cb, max_iter, cg_tol,
+                                           cg_max_iter, stats, hessian=hessian, gtol=gtol,
+                                           retraction=retraction, final_phase=bool(final_phase))
+            elif optimizer == "gauss-newton":
+                x, message = _gauss_newton(prob, fun, x0, F0, g0, S0, cb, max_iter,
+                                           _step_cap(prob, S0, 2.0), cg_tol, cg_max_iter, stats,
+                                           hessian=hessian)
+            else:
+                precond = _Preconditioner(prob, S0) if precondition else None
+                x, message = _lbfgs(prob, fun, x0, F0, g0, S0, precond, cb, max_iter, memory)
+        except _TimeUp:  # the last accepted iterate (its midpoints kept in state)
+            x, message = state["x"], ""
+            state["timeout"] = True
+            prob.midpoints = state["midpoints"]
         if state.get("stalled"):
             message = (f"converged: energy changed by at most ftol over the last "
                        f"{FTOL_WINDOW} iterations")
@@ -639,7 +682,7 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         elif state.get("timeout"):
             message = f"not converged: time limit of {max_time_s} s reached"
     S = prob.nodes_of(x, S0)
-    if "x" not in last or not np.array_equal(last["x"], x):
+    if not state.get("timeout") and ("x" not in last or not np.array_equal(last["x"], x)):
         fun(x)
     prob.last = None  # release the kept factorizations and geometry
     if hasattr(prob.energy, "retain"):
@@ -688,6 +731,7 @@ class GaussNewtonModel:
         self.idx[prob.free_nodes] = np.arange(len(prob.free_nodes))
         self.ops = []
         for t, (a, k, b) in enumerate(prob.terms):
+            prob.check_time()
             m = self.ctx[t]["m"]  # the midpoint where A_t was factored
             self.ops.append((W.hessian(S[k], m, "11") if self.idx[k] >= 0 else None,
                              W.hessian(S[k], m, "22"), W.mixed_operator(S[k], m),
@@ -720,6 +764,7 @@ class GaussNewtonModel:
         about twice the cost; far from the minimiser this cheaper, stiffer product makes the
         faster progress (see :data:`_MODEL_REFINE`), so the trust region's first phase uses it.
         """
+        self.prob.check_time()
         prob = self.prob
         W = prob.energy
         S = self.S
@@ -784,6 +829,7 @@ class GaussNewtonModel:
         the four constraint products shared). Used by the final Newton phase of the trust
         region (:data:`_FINAL_PHASE`).
         """
+        self.prob.check_time()
         prob = self.prob
         W = prob.energy
         S, n = self.S, prob.n
@@ -869,6 +915,7 @@ class GaussNewtonModel:
 
     def matvec(self, x) -> np.ndarray:
         """Model Hessian times ``x`` (flat over free nodes × free DOFs)."""
+        self.prob.check_time()
         prob = self.prob
         V = self._full(x)
         out = np.zeros_like(V)
@@ -1197,6 +1244,7 @@ class _Retraction:
 
         out = S + D
         for k in self.prob.free_nodes:
+            self.prob.check_time()
             J, z = lta_jacobian(S[k], self.T, return_values=True)
             r = self.gn.solve(z + J @ D[k].ravel(), self.w, S[k] + D[k])
             if np.all(np.isfinite(r.V)):
@@ -1403,7 +1451,8 @@ def _finish(prob, S, V0, Vkey, energies, norms, nit, success, message, t0, perio
         V[K] = Vkey[0]
     if not success:
         warnings.warn(f"nonlinear_spline: {message}", RuntimeWarning, stacklevel=3)
-    return NonlinearSplineResult(V=V, frames=prob.frames, energy=float(energies[-1]),
+    return NonlinearSplineResult(V=V, frames=prob.frames,
+                                 energy=float(energies[-1]) if energies else float("nan"),
                                  energies=[float(e) for e in energies],
                                  grad_norms=[float(g) for g in norms], nit=int(nit),
                                  nfev=prob.nfev, success=bool(success), message=message,

@@ -832,9 +832,10 @@ def _nonlinear_stage(Vkey, T, pinned, Vinit, frames, K, bc, mu, lam, eta, solver
                               **opts)
     rec = {"success": bool(nl.success), "nit": int(nl.nit), "nfev": int(nl.nfev),
            "message": nl.message, "optimizer": nl.optimizer,
-           "energy_initial": float(nl.energies[0]), "energy_final": float(nl.energy),
-           "grad_norm_initial": float(nl.grad_norms[0]),
-           "grad_norm_final": float(nl.grad_norms[-1]), "seconds": float(nl.time_s),
+           # None: the time limit ran out before the first evaluation finished
+           "energy_initial": _at(nl.energies, 0), "energy_final": _at(nl.energies, -1),
+           "grad_norm_initial": _at(nl.grad_norms, 0),
+           "grad_norm_final": _at(nl.grad_norms, -1), "seconds": float(nl.time_s),
            "cg_iterations": [int(c) for c in nl.cg_iterations],
            "midpoint_newton_iterations": int(nl.midpoint_newton_iterations),
            "vertices": int(Vkey.shape[1]),
@@ -846,6 +847,10 @@ def _nonlinear_stage(Vkey, T, pinned, Vinit, frames, K, bc, mu, lam, eta, solver
     if not nl.success:
         prog.message(f"nonlinear spline: {nl.message}")
     return nl.V, rec
+
+
+def _at(history, i):
+    return float(history[i]) if len(history) else None
 
 
 def _geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_prefix=""):
