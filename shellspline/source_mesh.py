@@ -15,10 +15,11 @@ one triangle mesh for the solve, and a :class:`SourceMesh` maps its results back
 * **Fins**: where an edge has more than two faces, the faces are grouped into *sheets*
   (faces connected through edges with exactly two faces); on each such edge the sheets are
   kept largest first while the edge keeps at most two faces, and the others are set aside.
-* **Set-aside vertices** (isolated ones and those only fin faces use) are not solved: each is
-  attached to the solve face of its nearest solve vertex (in keyframe 0) and moves with that
-  face's frame, its coordinates in the frame blended linearly between keyframes
-  (:meth:`SourceMesh.expand`).
+* **Set-aside vertices** are not solved. One that a fin face uses (a fin's tip) is attached to
+  the solve face of its nearest solve vertex (in keyframe 0) and moves with that face's
+  frame, its coordinates in the frame blended linearly between keyframes; an isolated vertex
+  (no face uses it, so nothing ties it to the surface) follows the per-vertex linear blend of
+  its keyframe positions (:meth:`SourceMesh.expand`).
 """
 from __future__ import annotations
 
@@ -55,7 +56,8 @@ class SourceMesh:
     set_aside : (s,) int64 numpy array
         Source indices of the vertices set aside (isolated or used by fin faces only).
     anchors : (s,3) int64 numpy array
-        Solve face (three solve vertices) that carries each set-aside vertex.
+        Solve face (three solve vertices) that carries each set-aside vertex of a fin face;
+        ``-1`` rows for isolated vertices (linear blend).
     exact : (e,) int64 numpy array
         Source vertices whose keyframe coordinates are restored bit for bit at keyframes
         (set-aside vertices and welded duplicates).
@@ -134,9 +136,10 @@ class SourceMesh:
         Returns
         -------
         (K+1,n_source,3) float64 numpy array
-            Welded vertices take their solve vertex's position; a set-aside vertex moves with
-            the orthonormal frame of its anchor face, its coordinates in that frame blended
-            linearly between the keyframes around each frame. At keyframes every source vertex
+            Welded vertices take their solve vertex's position; a fin's set-aside vertex moves
+            with the orthonormal frame of its anchor face, its coordinates in that frame
+            blended linearly between the keyframes around each frame; an isolated vertex is
+            blended linearly between its keyframe positions. At keyframes every source vertex
             has its input coordinates bit for bit.
 
         Raises
@@ -163,13 +166,17 @@ class SourceMesh:
         kept = self.to_solve >= 0
         out[:, kept] = V[:, self.to_solve[kept]]
         if self.set_aside.size:
-            origin, R = _face_frames(V, self.anchors)           # (K+1,s,3), (K+1,s,3,3)
-            j_sa = np.searchsorted(self.exact, self.set_aside)
-            X = self.exact_V[:, j_sa]                            # (J,s,3)
-            local = np.einsum("jsba,jsb->jsa", R[frames], X - origin[frames])
             j0, j1, t = keyframe_bracket(frames, int(K), periodic)
+            X = self.exact_V[:, np.searchsorted(self.exact, self.set_aside)]   # (J,s,3)
+            fin = self.anchors[:, 0] >= 0
+            local = X.copy()                                     # isolated: world coordinates
+            if fin.any():
+                origin, R = _face_frames(V, self.anchors[fin])   # (K+1,f,3), (K+1,f,3,3)
+                local[:, fin] = np.einsum("jsba,jsb->jsa", R[frames], X[:, fin] - origin[frames])
             loc = (1.0 - t)[:, None, None] * local[j0] + t[:, None, None] * local[j1]
-            out[:, self.set_aside] = origin + np.einsum("ksab,ksb->ksa", R, loc)
+            if fin.any():
+                loc[:, fin] = origin + np.einsum("ksab,ksb->ksa", R, loc[:, fin])
+            out[:, self.set_aside] = loc
         for j, f in enumerate(frames):
             out[f, self.exact] = self.exact_V[j]
         if periodic and self.exact.size:
@@ -443,14 +450,15 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh"):
     to_solve = solve_of[rep]
     Fs = to_solve[F[~fins]]
     set_aside = np.flatnonzero(to_solve < 0)
-    anchors = np.zeros((set_aside.size, 3), dtype=np.int64)
-    if set_aside.size:
+    anchors = np.full((set_aside.size, 3), -1, dtype=np.int64)
+    on_fin = np.isin(rep[set_aside], F[fins])
+    if on_fin.any():
         from scipy.spatial import cKDTree
 
-        _, near = cKDTree(Vs[0, keep_v]).query(Vs[0, set_aside])
+        _, near = cKDTree(Vs[0, keep_v]).query(Vs[0, set_aside[on_fin]])
         first_face = np.full(keep_v.size, -1, dtype=np.int64)
         first_face[Fs[::-1].ravel()] = np.repeat(np.arange(Fs.shape[0])[::-1], 3)
-        anchors = Fs[first_face[near]]
+        anchors[on_fin] = Fs[first_face[near]]
     exact = np.flatnonzero((to_solve < 0) | welded)
     src = SourceMesh(n_source=n, poly_offsets=offsets, poly_indices=indices, triangles=tris,
                      to_solve=to_solve, set_aside=set_aside, anchors=anchors, exact=exact,

@@ -283,6 +283,25 @@ def test_expand_carries_set_aside_vertices_rigidly(tube):
         assert np.allclose(out[k], V0 @ _rotation(0.1 * k).T, atol=1e-12), k
 
 
+def test_expand_blends_isolated_vertices_linearly(tube):
+    """An isolated vertex has no face to ride on: it follows the per-vertex linear blend of its
+    keyframe positions (keyframes 0, 10, 20), whatever the solve mesh does."""
+    from shellspline.source_mesh import solve_mesh
+
+    Vs, F, src, _ = solve_mesh(tube["V"], tube["offsets"], tube["indices"])
+    frames, K = np.array([0, 10, 20]), 20
+    seq = np.repeat(Vs[:1], K + 1, axis=0) * 1.5
+    seq[frames] = Vs
+    out = src.expand(seq, frames, K)
+    X = tube["V"][:, tube["isolated"]]
+    for k in range(K + 1):
+        j, t = min(k // 10, 1), (k - 10 * min(k // 10, 1)) / 10
+        assert np.allclose(out[k, tube["isolated"]], (1 - t) * X[j] + t * X[j + 1],
+                           rtol=0, atol=1e-15), k
+    assert (src.anchors[src.set_aside == tube["isolated"]] == -1).all()
+    assert (src.anchors[src.set_aside == tube["fin_vertex"]] >= 0).all()
+
+
 def test_write_back_polygons_obj_and_ply(tmp_path, tube):
     kf = sio.read_keyframes(write_set(tmp_path, tube), frames=tube["frames"])
     K = int(kf.frames[-1])
