@@ -279,7 +279,8 @@ class PathSolver:
         return out
 
     # -- Newton --------------------------------------------------------------------------
-    def solve(self, A, B, X0, *, tol: float = 1e-9, max_iter: int = 50) -> GeodesicResult:
+    def solve(self, A, B, X0, *, tol: float = 1e-9, max_iter: int = 50,
+              check=None) -> GeodesicResult:
         """Minimise the path energy over the inner shells, starting from ``X0``.
 
         Parameters
@@ -291,6 +292,9 @@ class PathSolver:
         tol : float
             Stop when the max-norm of the gradient is below ``tol * energy.scale(A)``.
         max_iter : int
+        check : callable, optional
+            Called before every Newton iteration; may raise to abandon the solve (the
+            nonlinear spline's time limit).
 
         Returns
         -------
@@ -307,6 +311,8 @@ class PathSolver:
         nit = 0
         g_next = None  # the gradient at X when a round-off-level step already computed it
         for nit in range(max_iter + 1):
+            if check is not None:
+                check()
             g = self.gradient(A, X, B)[:, self.free] if g_next is None else g_next
             g_next = None
             gn = float(np.abs(g).max())

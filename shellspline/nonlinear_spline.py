@@ -258,7 +258,8 @@ class NonlinearSplineProblem:
         M = self._warm(S)
         for t, (a, _, b) in enumerate(self.terms):
             self.check_time()
-            res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol)
+            res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol,
+                                    check=self.check_time)
             self.midpoint_iterations += res.nit
             self.midpoint_failures += not res.success
             M[t] = res.V[1]
@@ -308,7 +309,7 @@ class NonlinearSplineProblem:
         for t, (a, k, b) in enumerate(self.terms):
             self.check_time()
             res = self.solver.solve(S[a], S[b], M[t][None], tol=self.midpoint_tol,
-                                    max_iter=max_newton)
+                                    max_iter=max_newton, check=self.check_time)
             self.midpoint_iterations += res.nit
             if abort_on_failure and not res.success:
                 self.nfev += 1
