@@ -14,13 +14,15 @@ between are rebuilt by
 * ``lta-c1000``: the same with ``coarse=1000`` (full mode only);
 * ``linear``: ``shellspline.linear_blend`` (per-vertex linear blending);
 * ``cubic``: ``scipy.interpolate.CubicSpline`` through the keyframes, per vertex coordinate,
-  natural end conditions.
+  natural end conditions;
+* ``lta-cold`` (``--cold``, a diagnostic): LΘA with ``warm_start=False``.
 
 Error of a frame: rms vertex distance to the true frame over the body's size (the mean over
 the window of each true frame's bounding-box diagonal: the body travels meters, its diagonal
 stays ≈ its height); reported as the rms over the in-between frames (``err``), the worst
 in-between frame (``max``), and the same after a per-frame rigid (Procrustes) alignment to the
-truth (``shape``: the part that no rigid placement can explain). Quality:
+truth (``shape``: the part that no rigid placement can explain; ``rigid`` =
+``sqrt(err² − shape²)``, the rms rigid misplacement of the frames). Quality:
 ``shellspline.metrics.sequence_defects`` (new flipped / collapsed faces, folded edges, pop),
 Gauss–Newton frames converged / stalled and iterations. Ratios ``lta/linear`` and
 ``lta/cubic`` (issue 13's goal: both ≤ 1). Where LΘA loses, the JSON says where: the worst
@@ -112,12 +114,15 @@ def _procrustes_residual(X, Y):
 def _errors(X, truth, inner, size) -> dict:
     e = np.sqrt(((X - truth) ** 2).sum(-1).mean(-1)) / size
     s = _procrustes_residual(X[inner], truth[inner]) / size
-    return {"err": float(np.sqrt(np.mean(e[inner] ** 2))), "max": float(e[inner].max()),
-            "shape": float(np.sqrt(np.mean(s ** 2))), "err_per_frame": e.tolist()}
+    err, shape = float(np.sqrt(np.mean(e[inner] ** 2))), float(np.sqrt(np.mean(s ** 2)))
+    # err² = shape² + rigid²: the rigid part is the rms of the per-frame rigid misplacement
+    return {"err": err, "max": float(e[inner].max()), "shape": shape,
+            "rigid": float(np.sqrt(max(err ** 2 - shape ** 2, 0.0))),
+            "err_per_frame": e.tolist()}
 
 
 def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
-            coarse: bool) -> dict:
+            coarse: bool, cold: bool = False) -> dict:
     """All methods on one clip: the true window, keyframes every ``step`` frames."""
     import shellspline
     from scipy.interpolate import CubicSpline
@@ -152,6 +157,9 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
         if coarse:
             res_c, t = _timed(shellspline.interpolate, kf, workers=workers, coarse=1000)
             runs["lta-c1000"] = (res_c.V, t, gn_summary(res_c.report))
+        if cold:
+            res_w, t = _timed(shellspline.interpolate, kf, workers=workers, warm_start=False)
+            runs["lta-cold"] = (res_w.V, t, gn_summary(res_w.report))
         Vl, t = _timed(shellspline.linear_blend, truth[frames], frames, K)
         runs["linear"] = (Vl, t, None)
         Vc, t = _timed(lambda: CubicSpline(frames, truth[frames], axis=0,
@@ -162,7 +170,8 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
         for name, (X, t, gn) in runs.items():
             rec["methods"][name] = {"seconds": t, "gn": gn, **_errors(X, truth, inner, size),
                                     **defects(X, T, frames)}
-        rec["where"] = _where(runs, truth, inner, size, owner, motion.names, rec)
+        rec["where"] = {name: _where(name, runs, truth, inner, size, owner, motion.names, rec)
+                        for name in runs if name.startswith("lta")}
         out["steps"][str(step)] = rec
     return out
 
@@ -171,16 +180,16 @@ def _strip(d: dict) -> dict:
     return {k: v for k, v in d.items() if k != "per_frame"}
 
 
-def _where(runs, truth, inner, size, owner, names, rec) -> dict:
-    """Where LΘA's error comes from: its worst in-between frames, and the joints whose
+def _where(name, runs, truth, inner, size, owner, names, rec) -> dict:
+    """Where an LΘA run's error comes from: its worst in-between frames, and the joints whose
     vertices (by strongest skinning weight) carry most of its excess over the cubic."""
-    lta, cub = rec["methods"]["lta"], rec["methods"]["cubic"]
+    lta, cub = rec["methods"][name], rec["methods"]["cubic"]
     e = np.asarray(lta["err_per_frame"])
     worst = inner[np.argsort(-e[inner])[:3]]
     frames_out = [{"frame": int(k), "lta": float(e[k]), "cubic": cub["err_per_frame"][k],
                    "linear": rec["methods"]["linear"]["err_per_frame"][k],
                    "flipped": lta["per_frame"]["flipped"][k]} for k in worst]
-    d_l = ((runs["lta"][0][inner] - truth[inner]) ** 2).sum(-1).mean(0)  # (n,)
+    d_l = ((runs[name][0][inner] - truth[inner]) ** 2).sum(-1).mean(0)  # (n,)
     d_c = ((runs["cubic"][0][inner] - truth[inner]) ** 2).sum(-1).mean(0)
     J = owner.max() + 1
     excess = np.bincount(owner, d_l - d_c, minlength=J)
@@ -207,7 +216,7 @@ def gt_tables(cases) -> str:
             for name, r in m.items():
                 gn = r["gn"] or {}
                 rows.append([f"{c['clip']} /{step}", name, 1e3 * r["err"], 1e3 * r["max"],
-                             1e3 * r["shape"], r["flipped"], r["collapsed"], r["folded"],
+                             1e3 * r["shape"], 1e3 * r["rigid"], r["flipped"], r["collapsed"], r["folded"],
                              r["pop"], f"{gn['converged']}/{gn['stalled']}/{gn['frames']}"
                              if gn else "-",
                              f"{gn['it_median']:g}/{gn['it_max']}" if gn else "-",
@@ -217,9 +226,9 @@ def gt_tables(cases) -> str:
                                    m[name]["err"] / m["linear"]["err"],
                                    m[name]["err"] / m["cubic"]["err"],
                                    ", ".join(f"{j['joint']} {100 * j['share_of_excess']:.0f}%"
-                                             for j in rec["where"]["joints"]
+                                             for j in rec["where"][name]["joints"]
                                              if j["share_of_excess"] > 0.1) or "-"])
-    t1 = format_table(["clip /step", "method", "err‰", "max‰", "shape‰", "flip", "coll",
+    t1 = format_table(["clip /step", "method", "err‰", "max‰", "shape‰", "rigid‰", "flip", "coll",
                        "fold", "pop", "GN conv/stall/n", "it med/max", "s"], rows)
     t2 = format_table(["clip /step", "method", "/linear", "/cubic",
                        "excess over cubic (joints)"], ratio_rows)
@@ -289,6 +298,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-gt", action="store_true", help="skip the ground-truth runs")
     ap.add_argument("--nonlinear", action="store_true",
                     help="also the nonlinear spline on five horse poses (minutes)")
+    ap.add_argument("--cold", action="store_true",
+                    help="ground truth: also LΘA with warm_start=False (diagnostic: each frame "
+                         "starts from the keyframe blend)")
     ap.add_argument("--clips", nargs="+", metavar="NAME",
                     help="only the BVH clips whose file name contains one of these")
     ap.add_argument("--window", type=int, default=None,
@@ -312,7 +324,7 @@ def main(argv=None) -> int:
         for c in clips:
             print(f"... {c.name}", flush=True)
             result["ground_truth"].append(gt_case(c, window, n_vertices, (3, 6), args.workers,
-                                                  coarse=not args.quick))
+                                                  coarse=not args.quick, cold=args.cold))
         if result["ground_truth"]:
             print("\nGround truth (errors in ‰ of the body size; flip/coll/fold: new defects)")
             print(gt_tables(result["ground_truth"]))
