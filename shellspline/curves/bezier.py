@@ -12,7 +12,7 @@ import numpy as np
 from .._errors import ShellsplineError
 from ..groups.lie import group
 
-__all__ = ["geodesic", "bezier", "bezier_velocity", "bezier_ckl"]
+__all__ = ["geodesic", "de_casteljau", "bezier", "bezier_velocity", "bezier_ckl"]
 
 
 def _times(s, name="s"):
@@ -64,6 +64,57 @@ def geodesic(G, a, b, s):
     return bezier(G, P, s)
 
 
+def de_casteljau(G, P, s, velocity=False):
+    """The geodesic de Casteljau algorithm with one parameter per curve.
+
+    Parameters
+    ----------
+    G : LieGroup
+    P : (..., n + 1, *G.shape) ndarray
+        Control points of independent curves.
+    s : array_like, broadcastable to ``P.shape[:-len(G.shape)-1]``
+        One parameter per curve.
+    velocity : bool
+        Also return the exact body velocity ``g^{-1} dg/ds``.
+
+    Returns
+    -------
+    g : (..., *G.shape) ndarray
+    xi : (..., G.dim) ndarray, only with ``velocity``
+
+    Notes
+    -----
+    ``b_{i,0} = g_i``, ``b_{i,j} = interp_s(b_{i,j-1}, b_{i+1,j-1})``, ``g = b_{0,n}`` (seed 002
+    algorithm 4.1.2, eq. 4.2). The velocity is forward-mode differentiation through each
+    interpolation ``c = a exp(s W)``, ``W = log(a^{-1} b)``, ``E = a^{-1} b``:
+    ``xi_E = -Ad_{E^{-1}} xi_a + xi_b``, ``W' = J_r(W)^{-1} xi_E``,
+    ``xi_c = Ad_{exp(-s W)} xi_a + J_r(s W) (W + s W')``.
+    """
+    k = len(G.shape)
+    b = np.asarray(P, dtype=np.float64)
+    ax = b.ndim - k - 1  # the control-point axis
+    s = np.asarray(s, dtype=np.float64)
+    sv = s[..., None]  # broadcast over the control-point axis
+    sw = sv[..., None]
+    xi = np.zeros(b.shape[:ax + 1] + (G.dim,)) if velocity else None
+    while b.shape[ax] > 1:
+        m = b.shape[ax] - 1
+        lo, hi = np.take(b, range(m), axis=ax), np.take(b, range(1, m + 1), axis=ax)
+        if not velocity:
+            b = G.interp(lo, hi, sv)
+            continue
+        xlo, xhi = xi[..., :m, :], xi[..., 1:, :]
+        E = G.compose(G.inverse(lo), hi)
+        W = G.log(E)
+        dW = G.jac_right_inv(W, xhi - G.adjoint(G.inverse(E), xlo))
+        sW = sw * W
+        step = G.exp(sW)
+        b = G.compose(lo, step)
+        xi = G.adjoint(G.inverse(step), xlo) + G.jac_right(sW, W + sw * dW)
+    g = np.take(b, 0, axis=ax)
+    return (g, xi[..., 0, :]) if velocity else g
+
+
 def bezier(G, P, s):
     """Bézier curve on a Lie group by the geodesic de Casteljau algorithm.
 
@@ -83,20 +134,14 @@ def bezier(G, P, s):
 
     Notes
     -----
-    ``b_{i,0} = g_i``, ``b_{i,j} = interp_s(b_{i,j-1}, b_{i+1,j-1})``, return ``b_{0,n}``
-    (seed 002 eq. 4.2). Equal to the Crouch–Kun–Leite product form :func:`bezier_ckl`.
+    See :func:`de_casteljau`. Equal to the Crouch–Kun–Leite product form :func:`bezier_ckl`
+    (seed corollary 4.2.11).
     """
     G = group(G)
     s, scalar = _times(s)
     b, k = _expand(G, P, s)
-    ax = b.ndim - k - 1  # the control-point axis
-    sv = s.reshape((-1, 1))
-    while b.shape[ax] > 1:
-        lo = np.take(b, range(b.shape[ax] - 1), axis=ax)
-        hi = np.take(b, range(1, b.shape[ax]), axis=ax)
-        b = G.interp(lo, hi, sv)
-    out = np.take(b, 0, axis=ax)
-    return np.take(out, 0, axis=ax - 1) if scalar else out
+    out = de_casteljau(G, b, s)
+    return np.take(out, 0, axis=out.ndim - k - 1) if scalar else out
 
 
 def bezier_velocity(G, P, s):
@@ -112,37 +157,15 @@ def bezier_velocity(G, P, s):
     -------
     g : (..., T, *G.shape) ndarray
     xi : (..., T, G.dim) ndarray
-        Derivative with respect to ``s`` (divide by ``r - s`` for a curve on ``[r, s]``).
-
-    Notes
-    -----
-    Forward-mode differentiation through each interpolation ``c = a exp(s W)`` with
-    ``W = log(a^{-1} b)``:
-    ``xi_E = -Ad_{E^{-1}} xi_a + xi_b`` for ``E = a^{-1} b``, ``W' = J_r(W)^{-1} xi_E``,
-    ``xi_c = Ad_{exp(-s W)} xi_a + J_r(s W) (W + s W')``. At ``s = 0`` this gives the seed's
-    end velocity ``n g_0 V_0^1`` (proposition 4.2.8).
+        Derivative with respect to ``s`` (divide by ``r - s`` for a curve on ``[r, s]``). At
+        ``s = 0`` it is the seed's end velocity ``n V_0^1`` (proposition 4.2.8).
     """
     G = group(G)
     s, scalar = _times(s)
     b, k = _expand(G, P, s)
-    ax = b.ndim - k - 1
-    xi = np.zeros(b.shape[:ax + 1] + (G.dim,))
-    sv = s.reshape((-1, 1))
-    sw = sv[..., None]
-    while b.shape[ax] > 1:
-        m = b.shape[ax] - 1
-        lo, hi = np.take(b, range(m), axis=ax), np.take(b, range(1, m + 1), axis=ax)
-        xlo, xhi = xi[..., :m, :], xi[..., 1:, :]
-        E = G.compose(G.inverse(lo), hi)
-        W = G.log(E)
-        dW = G.jac_right_inv(W, xhi - G.adjoint(G.inverse(E), xlo))
-        sW = sw * W
-        step = G.exp(sW)
-        b = G.compose(lo, step)
-        xi = G.adjoint(G.inverse(step), xlo) + G.jac_right(sW, W + sw * dW)
-    g, xi = np.take(b, 0, axis=ax), xi[..., 0, :]
+    g, xi = de_casteljau(G, b, s, velocity=True)
     if scalar:
-        return np.take(g, 0, axis=ax - 1), xi[..., 0, :]
+        return np.take(g, 0, axis=g.ndim - k - 1), xi[..., 0, :]
     return g, xi
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from .._errors import ShellsplineError
 from ..groups.lie import group
-from .bezier import bezier, bezier_velocity
+from .bezier import de_casteljau
 
 __all__ = ["PiecewiseBezier", "SplineSolve", "cubic_spline", "quadratic_spline",
            "hermite_spline", "geodesic_interpolant"]
@@ -84,7 +84,8 @@ class PiecewiseBezier:
         self.t = _check_times(t, "t")
         self.control = np.asarray(control, dtype=np.float64)
         k = len(G.shape)
-        if self.control.ndim < k + 2 or self.control.shape[self.control.ndim - k - 2] != self.t.size - 1:
+        nseg = self.control.shape[self.control.ndim - k - 2] if self.control.ndim >= k + 2 else -1
+        if nseg != self.t.size - 1:
             raise ShellsplineError(f"control must have shape (..., {self.t.size - 1}, n+1, "
                                    f"*{G.shape}), got {self.control.shape}")
         self.solve = solve or SplineSolve()
@@ -114,16 +115,7 @@ class PiecewiseBezier:
         return np.take(self.control, i, axis=self._ax)
 
     def _eval_segments(self, P, s):
-        # de Casteljau with a per-time parameter: broadcast s over (..., T, n)
-        G = self.G
-        k = len(G.shape)
-        b = P
-        ax = b.ndim - k - 1
-        sv = s.reshape(s.shape + (1,))
-        while b.shape[ax] > 1:
-            m = b.shape[ax] - 1
-            b = G.interp(np.take(b, range(m), axis=ax), np.take(b, range(1, m + 1), axis=ax), sv)
-        return np.take(b, 0, axis=ax)
+        return de_casteljau(self.G, P, s)
 
     def __call__(self, t):
         """Points at times ``t (T,)`` (or a float): ``(..., T, *G.shape)``."""
@@ -155,28 +147,8 @@ class PiecewiseBezier:
         return out
 
     def _velocity_s(self, P, s):
-        # exact body velocity d/ds of each time's own segment: bezier_velocity on a diagonal
-        G = self.G
-        k = len(G.shape)
-        lead = P.shape[:P.ndim - k - 1]
-        # treat (..., T) as independent curves with one time each is too costly; instead run the
-        # forward-mode recursion with per-time s (same formulas as bezier_velocity)
-        b = P
-        ax = b.ndim - k - 1
-        xi = np.zeros(lead + (P.shape[ax], G.dim))
-        sw = s.reshape(s.shape + (1, 1))
-        while b.shape[ax] > 1:
-            m = b.shape[ax] - 1
-            lo, hi = np.take(b, range(m), axis=ax), np.take(b, range(1, m + 1), axis=ax)
-            xlo, xhi = xi[..., :m, :], xi[..., 1:, :]
-            E = G.compose(G.inverse(lo), hi)
-            W = G.log(E)
-            dW = G.jac_right_inv(W, xhi - G.adjoint(G.inverse(E), xlo))
-            sW = sw * W
-            step = G.exp(sW)
-            b = G.compose(lo, step)
-            xi = G.adjoint(G.inverse(step), xlo) + G.jac_right(sW, W + sw * dW)
-        return np.take(b, 0, axis=ax), xi[..., 0, :]
+        # exact body velocity d/ds, each time on its own segment (extended past its ends)
+        return de_casteljau(self.G, P, s, velocity=True)
 
     def velocity(self, t, frame="body"):
         """Velocities at times ``t``: ``(..., T, G.dim)``.
@@ -223,15 +195,14 @@ class PiecewiseBezier:
 
 
 class _Rows:
-    """A tuple of per-segment arrays ``(..., N)`` (or None) stored as one ``(N, F)`` table, so
-    that gathering the segments of many times is one contiguous row gather."""
+    """A tuple of per-segment arrays ``(..., N)`` (or None) stored as one ``(F, N)`` table, so
+    that gathering the segments of many times is one ``np.take`` into contiguous rows."""
 
     def __init__(self, tree):
         self.leaves, self.spec = [], []
         self._flatten(tree)
         N = self.leaves[0].shape[-1]
-        self.table = np.ascontiguousarray(
-            np.concatenate([x.reshape(-1, N) for x in self.leaves]).T)
+        self.table = np.ascontiguousarray(np.concatenate([x.reshape(-1, N) for x in self.leaves]))
 
     def _flatten(self, x):
         if isinstance(x, tuple):
@@ -245,7 +216,7 @@ class _Rows:
             self.leaves.append(x)
 
     def take(self, i):
-        g = np.ascontiguousarray(self.table[i].T)  # (F, T)
+        g = np.take(self.table, i, axis=1)  # (F, T): np.take is ~5x faster than [:, i] here
         it = iter(self.spec)
         pos = [0]
 
@@ -321,7 +292,8 @@ def geodesic_interpolant(G, t, X):
 
 def _hermite_control(G, X, ax, h, Om):
     """Cubic Bézier control points from knot poses and body velocities ``Om (..., N+1, dim)``:
-    ``a_i = x_i exp(h_i w_i / 3)``, ``b_i = x_{i+1} exp(-h_i w_{i+1} / 3)`` (C¹ by construction)."""
+    ``a_i = x_i exp(h_i w_i / 3)``, ``b_i = x_{i+1} exp(-h_i w_{i+1} / 3)`` (C¹ by
+    construction)."""
     n = h.size
     lo, hi = np.take(X, range(n), axis=ax), np.take(X, range(1, n + 1), axis=ax)
     hh = h[:, None]
@@ -724,9 +696,9 @@ def _march_cubic(G, t, X, ax, h, ends, start_acc):
             ang = np.linalg.norm(V[..., :3], axis=-1)
             if np.any(ang > np.pi / 2) or not np.all(np.isfinite(V)):
                 raise ShellsplineError(f"marching cubic spline blew up on interval {i} "
-                                       f"(t = {t[i]:g}..{t[i + 1]:g}): control points "
-                                       f"{np.degrees(np.max(ang)):.0f} degrees apart; use "
-                                       "method='newton'")
+                                       f"(t = {t[i]:g}..{t[i + 1]:g}): a control-polygon step "
+                                       f"of {np.degrees(np.max(ang)):.0f} degrees (limit 90); "
+                                       "use method='newton'")
         ctrl.append(np.stack([xi, a, b, x1], axis=ax))
         w = 3 * V2 / h[i]
         alpha = 6 / h[i] ** 2 * G.jac_right_inv(-V2, V2 - V1)

@@ -180,26 +180,25 @@ class SE3Kernel(_Kernel):
         return np.concatenate([q, v + b * wv + cc * _cross(w, wv)])
 
     def prepare(self, a, b):
-        """Screw interpolation (ScLERP): the rotation by slerp; in the frame of ``a`` the
-        translation ``d = R_a^T (p_b - p_a)`` moves as ``s d_par + sin(s t)/sin(t) Rot_a((s-1) t)
-        d_perp`` with ``t`` half the relative angle and ``a`` its axis (the closed form of
-        ``A(s w) s A(w)^{-1} d``)."""
+        """Screw interpolation (ScLERP): the rotation by slerp; the translation, in world
+        coordinates, ``p_a + s d_par + sin(s t)/sin(t) Rot_n((s-1) t) d_perp`` with ``t`` half
+        the relative angle, ``n`` the world axis of ``R_b R_a^T`` and ``d = p_b - p_a`` split
+        along/across ``n`` (the closed form of ``a exp(s log(a^{-1} b))``)."""
         qa = a[:4]
         sp = _slerp_prepare(qa, b[:4])
-        qr = _qmul(_qconj(qa), sp[1])  # relative rotation, scalar part >= 0
-        v = qr[:3]
+        v = _qmul(sp[1], _qconj(qa))[:3]  # world-frame relative rotation, scalar part >= 0
         n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
         ax = v / np.where(n > 1e-300, n, 1.0)
-        d = _qrot(_qconj(qa), b[4:] - a[4:])
+        d = b[4:] - a[4:]
         dpar = (ax[0] * d[0] + ax[1] * d[1] + ax[2] * d[2]) * ax
-        return sp, a[4:], qa, ax, dpar, d - dpar, _cross(ax, d)
+        return sp, a[4:], dpar, d - dpar, _cross(ax, d)
 
     def interp_prepared(self, prep, s):
-        sp, pa, qa, ax, dpar, dperp, axd = prep
+        sp, pa, dpar, dperp, axd = prep
         q, wb = _slerp(sp, s, weights=True)
         beta = (s - 1) * sp[2]
         u = s * dpar + wb * (np.cos(beta) * dperp + np.sin(beta) * axd)
-        return np.concatenate([q, pa + _qrot(qa, u)])
+        return np.concatenate([q, pa + u])
 
     def log(self, x):
         w, th, n, cw = _qlog(x[:4])

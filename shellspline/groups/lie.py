@@ -104,8 +104,9 @@ class LieGroup:
         g = np.asarray(g, dtype=np.float64)
         k = len(self.shape)
         if g.ndim < k or g.shape[g.ndim - k:] != tuple(self.shape):
-            raise ShellsplineError(f"{name} must have shape (..., {', '.join(map(str, self.shape))}) "
-                                   f"for {self.name}, got {g.shape}")
+            dims = ", ".join(map(str, self.shape))
+            raise ShellsplineError(f"{name} must have shape (..., {dims}) for {self.name}, got "
+                                   f"{g.shape}")
         if not np.all(np.isfinite(g)):
             raise ShellsplineError(f"{name} contains non-finite values")
         for R, what in self._rotations(g):

@@ -132,15 +132,23 @@ def _q_coeffs(th):
     return c1, c2, c3
 
 
-def _qmat(w, v):
-    """Barfoot's ``Q(w, v)``: the lower-left block of the left Jacobian of SE(3)."""
+def _qapply(w, v, a):
+    """``Q(w, v) a`` with Barfoot's ``Q`` (the lower-left block of the left Jacobian of SE(3)),
+    by cross products: ``W a = w x a``, ``P a = v x a``."""
     th = np.sqrt(np.einsum("...i,...i->...", w, w))
-    c1, c2, c3 = (c[..., None, None] for c in _q_coeffs(th))
-    W, P = so3.hat(w), so3.hat(v)
-    WP, PW = W @ P, P @ W
-    WPW = WP @ W
-    return (0.5 * P + c1 * (WP + PW + WPW) + c2 * (W @ WP + PW @ W - 3 * WPW)
-            + c3 * (WPW @ W + W @ WPW))
+    c1, c2, c3 = (c[..., None] for c in _q_coeffs(th))
+    _cross = so3._cross
+    Wa = _cross(w, a)
+    Pa = _cross(v, a)
+    WPa = _cross(w, Pa)
+    PWa = _cross(v, Wa)
+    WPWa = _cross(w, PWa)
+    WWPa = _cross(w, WPa)
+    PWWa = _cross(v, _cross(w, Wa))
+    WPWWa = _cross(w, PWWa)
+    WWPWa = _cross(w, WPWa)
+    return (0.5 * Pa + c1 * (WPa + PWa + WPWa) + c2 * (WWPa + PWWa - 3 * WPWa)
+            + c3 * (WPWWa + WWPWa))
 
 
 def jac_right(xi, x):
@@ -154,7 +162,7 @@ def jac_right(xi, x):
     w, v = -xi[..., :3], -xi[..., 3:]
     xw, xv = x[..., :3], x[..., 3:]
     Jw = so3.jac_right(-w, xw)  # J_l(w) xw
-    out_v = so3.jac_right(-w, xv) + np.einsum("...ij,...j->...i", _qmat(w, v), xw)
+    out_v = so3.jac_right(-w, xv) + _qapply(w, v, xw)
     return np.concatenate([Jw, out_v], axis=-1)
 
 
@@ -165,5 +173,5 @@ def jac_right_inv(xi, x):
     x = np.asarray(x, dtype=np.float64)
     w, v = -xi[..., :3], -xi[..., 3:]
     a = so3.jac_right_inv(-w, x[..., :3])  # J_l(w)^{-1} xw
-    b = x[..., 3:] - np.einsum("...ij,...j->...i", _qmat(w, v), a)
+    b = x[..., 3:] - _qapply(np.broadcast_to(w, a.shape), np.broadcast_to(v, a.shape), a)
     return np.concatenate([a, so3.jac_right_inv(-w, b)], axis=-1)

@@ -50,6 +50,15 @@ def vee(W):
                            W[..., 1, 0] - W[..., 0, 1]], axis=-1)
 
 
+def _cross(a, b):
+    """``cross(a, b)`` over the last axis (broadcasting), faster than ``np.cross``."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
 def _sq(w):
     return np.einsum("...i,...i->...", w, w)
 
@@ -181,8 +190,8 @@ def jac_right(w, x):
     x = np.asarray(x, dtype=np.float64)
     th = np.sqrt(_sq(w))
     _, b, c = _coeffs_exp(th)
-    wx = np.cross(w, x)
-    return x - b[..., None] * wx + c[..., None] * np.cross(w, wx)
+    wx = _cross(w, x)
+    return x - b[..., None] * wx + c[..., None] * _cross(w, wx)
 
 
 def jac_right_inv(w, x):
@@ -198,8 +207,8 @@ def jac_right_inv(w, x):
     ts = np.where(small, 1.0, th)
     d = np.where(small, 1 / 12 + th * th / 720 + th ** 4 / 30240,
                  1 / ts ** 2 - 1 / (2 * ts * np.tan(0.5 * ts)))
-    wx = np.cross(w, x)
-    return x + 0.5 * wx + d[..., None] * np.cross(w, wx)
+    wx = _cross(w, x)
+    return x + 0.5 * wx + d[..., None] * _cross(w, wx)
 
 
 def quat_from_matrix(R):
