@@ -479,6 +479,10 @@ def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             if ename == "vertex":
                 V = np.stack([cols[c].astype(np.float64) for c in "xyz"], axis=1)
             continue
+        if tokens is None and ename == "face" and len(props) == 1 and \
+                np.dtype(props[0][1][1]).itemsize == 1:
+            faces, pos = _ply_binary_lists(body, pos, count, np.dtype(order + props[0][1][2]))
+            continue
         lists = []
         for _ in range(count):                                    # record by record
             for pname, kind in props:
@@ -499,15 +503,39 @@ def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 else:
                     pos += 1 if tokens is not None else np.dtype(kind).itemsize
         if ename == "face":
-            faces = lists
+            faces = (np.array([len(f) for f in lists], dtype=np.int64),
+                     np.concatenate([np.asarray(f, dtype=np.int64) for f in lists])
+                     if lists else np.zeros(0, dtype=np.int64))
     if tokens is None and pos != len(body) or tokens is not None and pos != len(tokens):
         raise _Unreadable("the data does not match the header")
     if V is None:
         V = np.zeros((0, 3))
-    sizes = np.array([len(f) for f in faces or []], dtype=np.int64)
-    indices = (np.concatenate([np.asarray(f, dtype=np.int64) for f in faces])
-               if faces else np.zeros(0, dtype=np.int64))
+    sizes, indices = faces if faces is not None else (np.zeros(0, np.int64),
+                                                      np.zeros(0, np.int64))
     return V, _polygon_offsets(sizes), indices
+
+
+def _ply_binary_lists(body: bytes, pos: int, count: int, idt: np.dtype):
+    """Sizes and items of ``count`` binary list records ``uchar k, k x idt`` from ``pos``;
+    returns ``((sizes, indices), end)``: one pass over the counts, one gather of the items."""
+    isz = idt.itemsize
+    sizes = np.zeros(count, dtype=np.int64)
+    p = pos
+    for r in range(count):
+        if p >= len(body):
+            raise _Unreadable("element 'face' is truncated")
+        k = body[p]
+        sizes[r] = k
+        p += 1 + k * isz
+    if p > len(body):
+        raise _Unreadable("element 'face' is truncated")
+    starts = pos + np.concatenate([[0], np.cumsum(1 + sizes * isz)[:-1]]) + 1
+    first = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    corner = np.arange(int(sizes.sum()))
+    item = np.repeat(starts, sizes) + isz * (corner - np.repeat(first, sizes))
+    raw = np.frombuffer(body, dtype=np.uint8)
+    indices = raw[item[:, None] + np.arange(isz)].copy().view(idt).ravel().astype(np.int64)
+    return (sizes, indices), p
 
 
 def _read_off(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -239,6 +239,33 @@ def test_ply_header_that_lies(tmp_path):
     assert "unexpected length" not in msg.split("(", 1)[0]
 
 
+@pytest.mark.parametrize("extra", [False, True])
+def test_binary_ply_with_mixed_polygons(tmp_path, tube, extra):
+    """Binary PLY mixing quads, an n-gon and triangles (as Blender writes it; trimesh refuses
+    such files as 'unexpected length'), records packed one by one with ``struct``, with and
+    without an extra face property after the list."""
+    import struct
+
+    V, o, i = tube["V"][1], tube["offsets"], tube["indices"]
+    P = len(o) - 1
+    head = ("ply\nformat binary_little_endian 1.0\n"
+            f"element vertex {len(V)}\nproperty float x\nproperty float y\nproperty float z\n"
+            f"element face {P}\nproperty list uchar uint vertex_indices\n"
+            + ("property ushort material\n" if extra else "") + "end_header\n")
+    body = b"".join(struct.pack("<3f", *v) for v in V)
+    for p in range(P):
+        c = i[o[p]:o[p + 1]]
+        body += struct.pack(f"<B{len(c)}I", len(c), *c) + (struct.pack("<H", p) if extra else b"")
+    f = tmp_path / "blender.ply"
+    f.write_bytes(head.encode() + body)
+    V2, F2 = sio.read_mesh(f)
+    assert np.array_equal(V2, V.astype(np.float32).astype(np.float64))
+    _, o2, i2 = sio._read_polygons(f)
+    assert np.array_equal(o2, o) and np.array_equal(i2, i)
+    f.write_bytes(head.encode() + body[:-3])
+    raises_mesh_error(lambda: sio.read_mesh(f), "blender.ply", "does not match the header")
+
+
 def test_coordinates_that_overflow(tmp_path):
     V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]) * 1e200
     F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
