@@ -27,8 +27,9 @@ kinds: interp  C2 cubic spline through the keyframes (--bc natural|clamped|perio
        bezier  C1 piecewise-cubic Bezier through the keyframes, Catmull-Rom velocities (local)
        bspline cubic geodesic B-spline with the keyframes as control points (smooths; passes
                through the first and last keyframe only)
-groups: se3 (screw motions: the curve does not depend on where the body frame sits) or
-        so3xr3 (rotation and position interpolated separately)"""
+groups: so3xr3 (default: rotation and position interpolated separately; on the TUM camera
+        ground truth its errors equal or beat scipy's, see benchmarks/README.md) or se3
+        (screw motions: the curve does not depend on where the body frame sits)"""
 
 
 def add_parsers(sub) -> None:
@@ -47,8 +48,9 @@ def add_parsers(sub) -> None:
                    help="keyframes are every N-th input pose, first and last always (default 1)")
     p.add_argument("--kind", choices=["interp", "bezier", "bspline"], default="interp",
                    help="curve kind (default interp)")
-    p.add_argument("--group", choices=["se3", "so3xr3"], default="se3",
-                   help="metric on poses (default se3: screw motions)")
+    p.add_argument("--group", choices=["se3", "so3xr3"], default="so3xr3",
+                   help="metric on poses: so3xr3 (default; rotation and position separately) or "
+                        "se3 (screw motions)")
     p.add_argument("--bc", choices=["natural", "clamped", "periodic"], default="natural",
                    help="end conditions of --kind interp (default natural)")
     when = p.add_mutually_exclusive_group()
@@ -93,7 +95,7 @@ def _read_times(path):
     return t
 
 
-def build_curve(t, T, kind="interp", group="se3", bc="natural"):
+def build_curve(t, T, kind="interp", group="so3xr3", bc="natural"):
     """The curve ``shellspline path`` uses through keyframe poses ``T (n, 4, 4)`` at times
     ``t (n,)``; returns an object evaluated as ``curve(times) -> (m, 4, 4)`` with a ``solve``
     record for ``interp``."""
