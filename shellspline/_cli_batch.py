@@ -5,7 +5,7 @@
 
 Exit codes: 0 every sequence done or up to date (and the regression passed), 1 a sequence
 failed, has a quality warning, or the regression failed, 2 bad job file or usage, 130
-interrupted (completed sequences are kept; re-run to resume).
+interrupted by Ctrl-C/SIGINT, 143 by SIGTERM (completed sequences are kept; re-run to resume).
 """
 from __future__ import annotations
 
@@ -97,7 +97,7 @@ class _BatchBar:
 
 
 def _batch(args) -> int:
-    from .batch import EXIT_INTERRUPTED, load_job, run_batch
+    from .batch import load_job, run_batch
 
     if args.workers is not None and args.workers < 1:
         from ._errors import ShellsplineError
@@ -117,7 +117,7 @@ def _batch(args) -> int:
         print(summary.table(), file=sys.stderr)
     if args.write_expected and job.regression is not None:
         print(f"wrote expected values to {job.regression['expected_path']}", file=sys.stderr)
-    if summary.exit_code == EXIT_INTERRUPTED:
+    if summary.interrupted:
         print("shellspline: interrupted; completed sequences are kept (re-run the same command "
               "to resume)", file=sys.stderr)
     return summary.exit_code
@@ -131,7 +131,8 @@ def add_parsers(sub) -> None:
                     "written atomically to OUT/<name>/ with manifest.json; re-running skips "
                     "sequences whose manifest matches and redoes the rest. Writes "
                     "OUT/summary.json and OUT/batch.log. Exit codes: 0 all ok, 1 a sequence "
-                    "failed or the regression failed, 2 bad job file, 130 interrupted.")
+                    "failed or the regression failed, 2 bad job file, 130/143 interrupted "
+                    "(SIGINT/SIGTERM).")
     q.add_argument("job", help="job file (TOML); relative paths in it are relative to its "
                                "directory")
     q.add_argument("-o", "--output", help="output root (overrides [job] output)")

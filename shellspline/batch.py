@@ -42,7 +42,6 @@ import math
 import multiprocessing as mp
 import numbers
 import os
-import platform
 import re
 import secrets
 import shutil
@@ -188,7 +187,7 @@ class Job:
         """The same job writing to another output root."""
         output = Path(output).resolve()
         seqs = [dataclasses.replace(s, out=str(output / s.name)) for s in self.sequences
-                if s.directory is None or not _holds(Path(s.directory), output)]
+                if s.directory is None or s.keyframes or not _holds(Path(s.directory), output)]
         job = dataclasses.replace(self, output=output, sequences=seqs)
         _check_outputs_do_not_hold_inputs(job)
         return job
@@ -329,6 +328,11 @@ def _holds(d: Path, root: Path) -> bool:
     such as ``shots/*`` with ``output = "shots/_out"`` must not take the job's own output
     root for a sequence directory on the next run."""
     return d == root or d in root.parents
+
+
+def _keyframe_files(d: Path, pattern: str) -> list[Path]:
+    """The files of directory ``d`` matching ``pattern``, in natural sort order."""
+    return sorted((p for p in d.glob(pattern) if p.is_file()), key=_natural_key)
 
 
 def _natural_key(p: Path):
@@ -518,8 +522,11 @@ def _expand_entry(where, base, output, kind, e, own, defaults):
             rel = str(gp.relative_to(anchor))
         else:
             anchor, rel = base, pat
-        dirs = sorted((p.resolve() for p in anchor.glob(rel)
-                       if p.is_dir() and not _holds(p.resolve(), output)), key=_natural_key)
+        kfp = merged["keyframe_pattern"]
+        # the output root (or a folder holding it) is no sequence, unless it holds keyframes:
+        # then the job is refused (_check_outputs_do_not_hold_inputs)
+        dirs = sorted((p.resolve() for p in anchor.glob(rel) if p.is_dir() and not (
+            _holds(p.resolve(), output) and not _keyframe_files(p, kfp))), key=_natural_key)
         if not dirs:
             raise _err(f"{where} key 'glob'", f"'{pat}' matches no directory (relative to "
                                               f"{base})")
@@ -530,8 +537,7 @@ def _expand_entry(where, base, output, kind, e, own, defaults):
         out = []
         for d in dirs:
             sname = check_name(template.replace("{dir}", d.name))
-            kfp = merged["keyframe_pattern"]
-            files = sorted((p for p in d.glob(kfp) if p.is_file()), key=_natural_key)
+            files = _keyframe_files(d, kfp)
             ff = d / merged["frames_file"] if merged["frames_file"] else None
             pf = d / merged["pinned_file"] if merged["pinned_file"] else None
             fp = frames_pinned(str(ff) if ff is not None and ff.is_file() else None,
@@ -641,7 +647,17 @@ def _load_tolerances(where, rt):
 
 def _check_outputs_do_not_hold_inputs(job: Job) -> None:
     root = job.output
+    where = job.path or "job"
     for s in job.sequences:
+        folders = {Path(p).resolve().parent for p in s.keyframes}
+        if s.directory:
+            folders.add(Path(s.directory).resolve())
+        for d in sorted(folders):
+            if _holds(d, root):
+                raise ShellsplineError(f"{where}: output root '{root}' is "
+                                       f"{'the' if d == root else 'inside the'} keyframe "
+                                       f"folder '{d}' of sequence '{s.name}' (choose an "
+                                       "output outside the input folders)")
         inputs = list(s.keyframes) + [p for p in (s.frames_path, s.pinned_path, s.directory)
                                       if p]
         for p in inputs:
@@ -908,6 +924,8 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
     """
     import shellspline as ss
 
+    from .parallel import parent_alive
+
     t0 = time.perf_counter()
     final = Path(spec.out)
     outcome = {"name": spec.name, "status": "failed", "reason": "", "warning": "",
@@ -982,6 +1000,8 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
             "seconds": time.perf_counter() - t0, "outputs": _outputs_of(staging),
         }
         _write_json_atomic(staging / "manifest.json", manifest)
+        if not parent_alive():  # an orphaned worker: the batch that wanted this is gone
+            raise KeyboardInterrupt
         state = _publish(staging, final, my_key, keep)
         staging = None
         outcome.update(status="done", warning=warning, frames=int(res.K + 1),
@@ -1040,15 +1060,23 @@ def _stop_signals_blocked():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
-def _child_main(conn, spec, key, inner_workers, run_id, force):
+def _child_main(conn, spec, key, inner_workers, run_id, force, parent_pid, pdeathsig):
     """Entry point of a local worker process: run one sequence, send events and the outcome.
 
     Ctrl-C is the parent's business (a terminal sends SIGINT to every process of the job):
     the worker ignores SIGINT and unwinds on the parent's SIGTERM, removing its staging
-    directory.
+    directory. It receives SIGTERM too when the parent dies, whatever killed it
+    (:func:`shellspline.parallel.die_with_parent`), and closes its copy of the inherited
+    lock file, so an orphan neither keeps the output root locked nor publishes a sequence.
     """
+    from .parallel import die_with_parent
+
+    for fh in list(_HELD_LOCKS):  # forked: the parent's lock stays the parent's
+        fh.close()
+    _HELD_LOCKS.clear()
     signal.signal(signal.SIGTERM, _raise_interrupt)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent_pid, signal.SIGTERM, pdeathsig)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     try:
@@ -1096,9 +1124,13 @@ def _run_local(todo, workers, on_event, outcomes, run_id, force):
     """One forked (or spawned) process per sequence, at most ``workers`` at a time."""
     from multiprocessing.connection import wait
 
-    method = "fork" if "fork" in mp.get_all_start_methods() and platform.system() == "Linux" \
-        else "spawn"
-    ctx = mp.get_context(method)
+    import threading
+
+    from .parallel import start_method, stop_processes
+
+    ctx = mp.get_context(start_method())
+    # the Linux parent-death signal follows the forking thread: armed only from the main one
+    ids = (os.getpid(), threading.current_thread() is threading.main_thread())
     inner = _inner_workers(len(todo), workers)
     queue = list(zip(todo, inner))
     queue.reverse()
@@ -1110,7 +1142,7 @@ def _run_local(todo, workers, on_event, outcomes, run_id, force):
                 (spec, key), n_inner = queue.pop()
                 parent_conn, child_conn = ctx.Pipe(duplex=False)
                 proc = ctx.Process(target=_child_main, args=(child_conn, spec, key, n_inner,
-                                                                    run_id, force),
+                                                                    run_id, force, *ids),
                                    name=f"shellspline-batch-{spec.name}")
                 with _stop_signals_blocked():
                     proc.start()
@@ -1141,15 +1173,9 @@ def _run_local(todo, workers, on_event, outcomes, run_id, force):
                     on_event({"kind": "sequence_end", "name": spec.name, "outcome": o})
             on_event({"kind": "tick"})
     except KeyboardInterrupt:
-        for proc, spec in running.values():
-            if proc.is_alive():
-                proc.terminate()  # SIGTERM: the child unwinds and removes its staging dir
-        deadline = time.monotonic() + 10
-        for proc, spec in running.values():
-            proc.join(max(0.1, deadline - time.monotonic()))
-            if proc.is_alive():
-                proc.kill()
-                proc.join()
+        # SIGTERM: a child unwinds and removes its staging directory; one still busy after
+        # the grace time is killed (run_batch then removes what it left)
+        stop_processes([proc for proc, spec in running.values()])
         raise
 
 
@@ -1233,6 +1259,9 @@ class BatchSummary:
     regression : dict or None
         ``{"passed": bool, "checks": [{"sequence", "metric", "ok", "deviation", ...}]}``.
     interrupted : bool
+    interrupt_exit : int
+        The exit code of an interrupted run: 130 after Ctrl-C/SIGINT, 143 after SIGTERM
+        (``128 +`` the signal).
     seconds : float
     executor : str
     workers : int
@@ -1245,6 +1274,7 @@ class BatchSummary:
     sequences: list
     regression: dict | None = None
     interrupted: bool = False
+    interrupt_exit: int = EXIT_INTERRUPTED
     seconds: float = 0.0
     executor: str = "local"
     workers: int = 1
@@ -1257,9 +1287,10 @@ class BatchSummary:
     @property
     def exit_code(self) -> int:
         """0 all sequences done or up to date (and the regression passed); 1 a sequence
-        failed, an output has a quality warning or the regression failed; 130 interrupted."""
+        failed, an output has a quality warning or the regression failed; 130 interrupted
+        (143 by SIGTERM)."""
         if self.interrupted:
-            return EXIT_INTERRUPTED
+            return self.interrupt_exit
         bad = any(o["status"] == "failed" or o.get("warning") for o in self.sequences)
         if bad or self.errors or (self.regression is not None and
                                   not self.regression["passed"]):
@@ -1328,8 +1359,16 @@ def _cleanup_leftovers(root: Path) -> list[str]:
     return removed
 
 
+_HELD_LOCKS: list = []  # open lock files of this process (a forked worker closes its copies)
+
+
 class _Lock:
-    """An exclusive lock on the output root (so leftovers cannot belong to a live run)."""
+    """An exclusive lock on the output root (so leftovers cannot belong to a live run).
+
+    The lock is an ``flock`` on ``OUT/.batch.lock``; it lasts while any process holds the open
+    file, so forked workers close their inherited copy first (:func:`_child_main`): a worker
+    orphaned by a killed batch never keeps the root locked.
+    """
 
     def __init__(self, root: Path):
         self.path = root / LOCK_NAME
@@ -1337,6 +1376,7 @@ class _Lock:
 
     def __enter__(self):
         self.fh = open(self.path, "a+")
+        _HELD_LOCKS.append(self.fh)
         try:
             import fcntl
         except ImportError:  # pragma: no cover - not POSIX: no locking
@@ -1344,12 +1384,15 @@ class _Lock:
         try:
             fcntl.flock(self.fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
+            _HELD_LOCKS.remove(self.fh)
             self.fh.close()
             raise ShellsplineError(f"{self.path.parent}: another shellspline batch is running "
                                    f"on this output root (lock {self.path})") from None
         return self
 
     def __exit__(self, *exc):
+        if self.fh in _HELD_LOCKS:
+            _HELD_LOCKS.remove(self.fh)
         self.fh.close()  # closing releases the flock
 
 
@@ -1458,8 +1501,10 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
     except OSError as exc:
         raise ShellsplineError(f"output root '{root}': cannot write there: "
                                f"{exc.strerror or exc}") from None
+    from .parallel import interrupt_exit_code
+
     outcomes: dict[str, dict] = {}
-    interrupted = False
+    interrupted, interrupt_exit = False, EXIT_INTERRUPTED
     run_id = f"{_dt.datetime.now():%Y%m%dT%H%M%S}-{secrets.token_hex(4)}"
     with _Lock(root):
         handler = _setup_log(root)
@@ -1502,9 +1547,9 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
                     else:
                         _run_dask(todo, workers, scheduler, on_event, outcomes, run_id,
                                   force)
-            except KeyboardInterrupt:
-                interrupted = True
-                _log.warning("interrupted")
+            except KeyboardInterrupt as exc:
+                interrupted, interrupt_exit = True, interrupt_exit_code(exc)
+                _log.warning("interrupted (%s)", str(exc) or "SIGINT")
             _cleanup_leftovers(root)
             seqs = []
             for spec in job.sequences:
@@ -1515,8 +1560,8 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
                     "worker": ""}
                 seqs.append(o)
             summary = BatchSummary(job=job.name, output=root, sequences=seqs,
-                                   interrupted=interrupted, executor=executor,
-                                   workers=workers, scheduler=scheduler)
+                                   interrupted=interrupted, interrupt_exit=interrupt_exit,
+                                   executor=executor, workers=workers, scheduler=scheduler)
             if job.regression is not None and not interrupted:
                 metrics = {o["name"]: _read_metrics(Path(o["out"])) for o in seqs
                            if o["status"] in ("done", "skipped")}

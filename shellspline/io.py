@@ -1306,12 +1306,10 @@ def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
             else:
                 _write_ply_frame(p, V[k], block, m)
         return
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from .parallel import process_pool
 
-    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     chunks = np.array_split(np.arange(len(paths)), workers)
-    with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
+    with process_pool(workers) as ex:  # workers stopped at once on Ctrl-C/SIGTERM
         futures = [ex.submit(_write_frames_chunk, [paths[k] for k in c], V[c], block, fmt,
                              m) for c in chunks]
         try:

@@ -1,0 +1,230 @@
+"""Worker processes that never outlive their parent, and stop signals that unwind.
+
+One place for the process machinery of the pipeline, the frame writer and the batch executor:
+
+* :func:`start_method` — ``"fork"`` on Linux (workers inherit the parent's prepared solver and
+  arrays without copies), ``"spawn"`` elsewhere.
+* :func:`process_pool` — a :class:`~concurrent.futures.ProcessPoolExecutor` whose workers die
+  with the parent whatever kills it (SIGKILL included) and are terminated, not waited for,
+  when the block is left by an exception (Ctrl-C, SIGTERM, an error).
+* :func:`die_with_parent` — what every worker calls first: on Linux a parent-death signal
+  (``prctl(PR_SET_PDEATHSIG)``), everywhere a watchdog thread that polls ``os.getppid()``.
+* :class:`Interrupted` and :func:`stop_signals_unwind` — SIGTERM (and SIGINT) raised as an
+  exception in the main thread, so that temporary outputs are removed on the way out and the
+  process exits with ``128 + signal`` (130 for SIGINT, 143 for SIGTERM).
+"""
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import os
+import platform
+import signal
+import threading
+import time
+
+__all__ = ["Interrupted", "interrupt_exit_code", "stop_signals_unwind", "start_method",
+           "process_pool", "die_with_parent", "parent_alive"]
+
+#: how often a worker's watchdog looks for its parent (seconds): the delay between a parent's
+#: death and its workers' where the parent-death signal does not exist
+WATCHDOG_PERIOD_S = 0.2
+#: how long terminated workers get to exit before they are killed (seconds)
+TERMINATE_GRACE_S = 1.0
+
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_parent = {"pid": None}  # set in a worker by die_with_parent
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal (SIGINT, SIGTERM) received by the main thread, raised as an exception.
+
+    A subclass of :class:`KeyboardInterrupt`, so every ``except KeyboardInterrupt`` cleanup
+    path (temporary directories, batch staging, worker shutdown) handles it the same way.
+
+    Attributes
+    ----------
+    signum : int
+        The signal number.
+    exit_code : int
+        ``128 + signum``, the shell's convention (130 SIGINT, 143 SIGTERM).
+    """
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = int(signum)
+        self.exit_code = 128 + self.signum
+
+
+def interrupt_exit_code(exc: BaseException) -> int:
+    """The exit code of a process stopped by ``exc``: ``128 + signal`` for an
+    :class:`Interrupted`, 130 for a plain :class:`KeyboardInterrupt` (Ctrl-C)."""
+    return getattr(exc, "exit_code", 130)
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def stop_signals_unwind():
+    """Inside the block, SIGTERM and SIGINT raise :class:`Interrupted` in the main thread.
+
+    SIGINT keeps an inherited ``SIG_IGN`` (a background job of a non-interactive shell is meant
+    to ignore Ctrl-C); SIGTERM is always handled. The previous handlers are restored on exit.
+    Outside the main thread (where handlers cannot be set) the block runs unchanged.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {}
+    try:
+        for s in _STOP_SIGNALS:
+            if s == signal.SIGINT and signal.getsignal(s) == signal.SIG_IGN:
+                continue
+            old[s] = signal.signal(s, _raise_interrupted)
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def start_method() -> str:
+    """``"fork"`` on Linux (workers share the parent's arrays copy-on-write), else
+    ``"spawn"`` (fork is unsafe with macOS system libraries and absent on Windows)."""
+    if platform.system() == "Linux" and "fork" in mp.get_all_start_methods():
+        return "fork"
+    return "spawn"
+
+
+def _set_pdeathsig(sig: int) -> bool:
+    """``prctl(PR_SET_PDEATHSIG, sig)`` on Linux; False where it is not available."""
+    if platform.system() != "Linux":
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
+    except (OSError, AttributeError):  # pragma: no cover - no libc prctl
+        return False
+
+
+def _watchdog(parent_pid: int, sig: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(WATCHDOG_PERIOD_S)
+    try:
+        os.kill(os.getpid(), sig)
+        time.sleep(5.0)  # a handler that unwinds gets this long
+    finally:
+        os._exit(1)
+
+
+def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL, pdeathsig: bool = True
+                    ) -> None:
+    """Make this (worker) process receive ``sig`` when process ``parent_pid`` dies.
+
+    Two mechanisms: on Linux the kernel's parent-death signal (``prctl(PR_SET_PDEATHSIG)``;
+    it fires when the *thread* that forked this process exits, so pass ``pdeathsig=False``
+    unless that was the parent's main thread), and everywhere a daemon thread that polls
+    ``os.getppid()`` every :data:`WATCHDOG_PERIOD_S` seconds and sends ``sig`` to this process
+    (then exits it 5 s later if ``sig`` was handled). A parent that is already gone when this
+    runs is detected too.
+
+    Parameters
+    ----------
+    parent_pid : int
+        The parent's pid, taken in the parent (``os.getpid()``) before starting the worker.
+    sig : int
+        The signal to receive: ``SIGKILL`` for pool workers (nothing to clean up), ``SIGTERM``
+        for a worker whose handler removes its temporary output.
+    pdeathsig : bool
+        Also use the Linux parent-death signal.
+    """
+    _parent["pid"] = int(parent_pid)
+    if hasattr(signal, "pthread_sigmask"):  # a worker must never keep SIGTERM blocked
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, [sig, signal.SIGTERM])
+    if pdeathsig:
+        _set_pdeathsig(sig)
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os.kill(os.getpid(), sig)
+        os._exit(1)
+    threading.Thread(target=_watchdog, args=(int(parent_pid), int(sig)), daemon=True,
+                     name="shellspline-parent-watchdog").start()
+
+
+def parent_alive() -> bool:
+    """False in a worker whose parent has died (True in a process that is no worker)."""
+    return _parent["pid"] is None or os.getppid() == _parent["pid"]
+
+
+def _pool_worker_init(parent_pid, pdeathsig, initializer, initargs):
+    # Ctrl-C reaches every process of the terminal's group: stopping is the parent's business
+    # (it terminates the pool). SIGTERM kills a worker outright: nothing of it needs cleanup.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    die_with_parent(parent_pid, signal.SIGKILL, pdeathsig)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+def stop_processes(procs, grace: float = TERMINATE_GRACE_S) -> None:
+    """SIGTERM every live process of ``procs`` (:class:`multiprocessing.Process`), wait up to
+    ``grace`` seconds in all, then SIGKILL those still alive and reap them."""
+    procs = [p for p in procs if p.is_alive()]
+    for p in procs:
+        with contextlib.suppress(OSError, ValueError):
+            p.terminate()
+    deadline = time.monotonic() + grace
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+    for p in procs:
+        if p.is_alive():
+            with contextlib.suppress(OSError, ValueError):
+                p.kill()
+            p.join(5.0)
+
+
+@contextlib.contextmanager
+def process_pool(workers: int, initializer=None, initargs=(), method: str | None = None):
+    """A process pool whose workers die with this process and never delay a stop.
+
+    Parameters
+    ----------
+    workers : int
+        Number of worker processes (>= 1).
+    initializer, initargs
+        Called in each worker after it is set up (see
+        :class:`~concurrent.futures.ProcessPoolExecutor`).
+    method : {"fork", "spawn"}, optional
+        Start method; default :func:`start_method`.
+
+    Yields
+    ------
+    concurrent.futures.ProcessPoolExecutor
+
+    Notes
+    -----
+    Every worker ignores SIGINT (a terminal's Ctrl-C is handled by the parent), dies on
+    SIGTERM, and dies with the parent (:func:`die_with_parent`, SIGKILL). Leaving the block
+    normally waits for the pool; leaving it by an exception (Ctrl-C, :class:`Interrupted`, an
+    error) cancels pending tasks and terminates the workers at once (killing them after
+    :data:`TERMINATE_GRACE_S`), so a stop never waits for running tasks.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    method = method or start_method()
+    pdeathsig = threading.current_thread() is threading.main_thread()
+    ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method),
+                             initializer=_pool_worker_init,
+                             initargs=(os.getpid(), pdeathsig, initializer, tuple(initargs)))
+    try:
+        yield ex
+    except BaseException:
+        # the executor's own shutdown would wait for the running tasks: stop the workers
+        procs = list((getattr(ex, "_processes", None) or {}).values())
+        ex.shutdown(wait=False, cancel_futures=True)
+        stop_processes(procs)
+        raise
+    ex.shutdown(wait=True)

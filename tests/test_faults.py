@@ -1,0 +1,304 @@
+"""Faults: killed parents, stop signals, and a batch output among its inputs.
+
+Real subprocesses and real signals. Every child is started with SIGINT and SIGTERM at their
+default disposition and unblocked (``_default_signals``), so the tests do not depend on what
+the test runner inherited (a background job of a non-interactive shell ignores SIGINT).
+Worker processes are found through ``/proc`` (Linux); elsewhere these tests skip.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+import data_synth
+
+REPO = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/task").is_dir(),
+                                reason="finds worker processes through /proc (Linux)")
+
+#: the stop deadline the README promises for SIGINT/SIGTERM to the parent
+STOP_S = 2.0
+
+
+def _default_signals():
+    """preexec_fn: SIGINT/SIGTERM at SIG_DFL and unblocked, whatever the runner inherited."""
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT, signal.SIGTERM])
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def _popen(args, cwd, **kw):
+    return subprocess.Popen(args, cwd=cwd, env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_signals,
+                            **kw)
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(x) for x in
+                Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def _descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        for c in _children(todo.pop()):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie waiting for a reaper counts as gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+
+
+def _wait_for(cond, timeout=30.0, step=0.02) -> bool:
+    t = time.monotonic() + timeout
+    while time.monotonic() < t:
+        if cond():
+            return True
+        time.sleep(step)
+    return cond()
+
+
+def _cleanup(proc, pids):
+    for p in [proc.pid, *pids]:
+        try:
+            os.kill(p, signal.SIGKILL)
+        except OSError:
+            pass
+    try:
+        proc.communicate(timeout=10)
+    except (subprocess.TimeoutExpired, ValueError):
+        pass
+
+
+# ------------------------------------------------------------------------------------------
+# interpolate --workers 2: a pool of frame workers
+# ------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def slow_keyframes(tmp_path_factory):
+    """1000-vertex ellipsoid keyframes; at frames 0,100,200 their reconstruction runs in the
+    process pool for minutes, so a signal always finds the workers busy."""
+    d = tmp_path_factory.mktemp("slow")
+    data_synth.write_keyframes(data_synth.generate("ellipsoids", 1000), d)
+    return sorted(d.glob("pose_*.obj"))
+
+
+def _start_interpolate(keyframes, out: Path, **kw):
+    args = [sys.executable, "-m", "shellspline", "interpolate", *map(str, keyframes),
+            "--frames", "0,100,200", "-o", str(out), "--coarse", "none", "--workers", "2",
+            "-q"]
+    proc = _popen(args, out.parent, **kw)
+    assert _wait_for(lambda: len(_children(proc.pid)) >= 2 or proc.poll() is not None), \
+        "no pool workers appeared"
+    assert proc.poll() is None, proc.communicate()
+    workers = _descendants(proc.pid)
+    time.sleep(0.5)  # the workers are solving frames
+    return proc, workers
+
+
+def test_pool_workers_die_with_a_killed_parent(tmp_path, slow_keyframes):
+    """SIGKILL (an OOM killer, a CI timeout) leaves no worker behind, and the caller's pipes
+    close: reading the child's output to the end returns."""
+    out = tmp_path / "out"
+    proc, workers = _start_interpolate(slow_keyframes, out)
+    try:
+        assert len(workers) >= 2
+        proc.kill()
+        t0 = time.monotonic()
+        proc.communicate(timeout=10)  # EOF on stdout and stderr: no worker holds them
+        assert _wait_for(lambda: not any(map(_alive, workers)), timeout=2.0), \
+            [w for w in workers if _alive(w)]
+        assert time.monotonic() - t0 < 3.0
+    finally:
+        _cleanup(proc, workers)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_stop_signal_to_the_parent_only_stops_interpolate(tmp_path, slow_keyframes, sig):
+    """What ``kill PID``, systemd and CI runners send: exit 128+signal within 2 s, no output,
+    no temporary directory, no worker left."""
+    out = tmp_path / "out"
+    proc, workers = _start_interpolate(slow_keyframes, out)
+    try:
+        os.kill(proc.pid, sig)
+        t0 = time.monotonic()
+        _, err = proc.communicate(timeout=30)
+        took = time.monotonic() - t0
+        assert proc.returncode == 128 + sig, err
+        assert took < STOP_S, took
+        assert "interrupted" in err and err.count("\n") == 1, err
+        assert not any(map(_alive, workers))
+    finally:
+        _cleanup(proc, workers)
+    assert list(tmp_path.iterdir()) == []  # neither OUT nor a hidden temporary sibling
+
+
+def test_ctrl_c_to_the_process_group_stops_interpolate(tmp_path, slow_keyframes):
+    """A terminal's Ctrl-C reaches the parent and every worker at once."""
+    out = tmp_path / "out"
+    proc, workers = _start_interpolate(slow_keyframes, out, start_new_session=True)
+    try:
+        os.killpg(proc.pid, signal.SIGINT)
+        t0 = time.monotonic()
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 130, err
+        assert time.monotonic() - t0 < STOP_S
+        assert not any(map(_alive, workers))
+    finally:
+        _cleanup(proc, workers)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_pool_watchdog_alone_stops_orphaned_workers(tmp_path):
+    """Where the kernel's parent-death signal does not exist (simulated: prctl disabled), the
+    workers' watchdog thread notices the dead parent and ends them."""
+    script = tmp_path / "pool.py"
+    script.write_text(textwrap.dedent("""
+        import os, sys, time
+        import shellspline.parallel as par
+        par._set_pdeathsig = lambda sig: False  # as on a platform without prctl
+
+        def work(i):
+            print(os.getpid(), flush=True)
+            time.sleep(60)
+
+        with par.process_pool(2) as ex:
+            list(ex.map(work, range(2)))
+    """))
+    proc = _popen([sys.executable, str(script)], tmp_path)
+    workers = []
+    try:
+        for _ in range(2):
+            workers.append(int(proc.stdout.readline()))
+        proc.kill()
+        proc.communicate(timeout=10)
+        assert _wait_for(lambda: not any(map(_alive, workers)), timeout=2.0)
+    finally:
+        _cleanup(proc, workers)
+
+
+# ------------------------------------------------------------------------------------------
+# batch: one worker process per sequence
+# ------------------------------------------------------------------------------------------
+def _batch_job(tmp: Path, names, delay: float, workers: int = 2) -> Path:
+    seqs = "".join(f'\n[[sequences]]\nname = "{n}"\nsynth = "ellipsoids"\n' for n in names)
+    p = tmp / "job.toml"
+    p.write_text(f'[job]\nname = "t"\noutput = "out"\nworkers = {workers}\n\n'
+                 f'[defaults]\nvertices = 100\ndelay = {delay}\n{seqs}')
+    return p
+
+
+def _start_batch(tmp: Path, job: Path, n_workers: int):
+    proc = _popen([sys.executable, "-m", "shellspline", "batch", str(job), "-q"], tmp)
+    assert _wait_for(lambda: len(_children(proc.pid)) >= n_workers or
+                     proc.poll() is not None), "no batch workers appeared"
+    assert proc.poll() is None, proc.communicate()
+    workers = _descendants(proc.pid)
+    time.sleep(0.5)  # solving, or waiting out the delay before writing
+    return proc, workers
+
+
+def _lock_is_free(path: Path) -> bool:
+    import fcntl
+
+    with open(path, "a+") as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return False
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+        return True
+
+
+def test_batch_workers_die_with_a_killed_parent(tmp_path):
+    """After a SIGKILL of the batch, its workers end at once: they neither keep the job lock
+    (an immediate rerun is not refused) nor publish a sequence later."""
+    delay = 3.0
+    job = _batch_job(tmp_path, ["a", "b"], delay)
+    root = tmp_path / "out"
+    proc, workers = _start_batch(tmp_path, job, 2)
+    try:
+        proc.kill()
+        proc.communicate(timeout=10)
+        assert _wait_for(lambda: not any(map(_alive, workers)), timeout=2.0), \
+            [w for w in workers if _alive(w)]
+        assert _lock_is_free(root / ".batch.lock")
+        time.sleep(delay + 1.0)  # an orphan would have published by now
+        assert not (root / "a").exists() and not (root / "b").exists()
+    finally:
+        _cleanup(proc, workers)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_stop_signal_to_the_parent_only_stops_batch(tmp_path, sig):
+    delay = 30.0  # the sequences would take this long: only a working stop ends the test
+    job = _batch_job(tmp_path, ["a", "b"], delay)
+    root = tmp_path / "out"
+    proc, workers = _start_batch(tmp_path, job, 2)
+    try:
+        os.kill(proc.pid, sig)
+        t0 = time.monotonic()
+        _, err = proc.communicate(timeout=30)
+        took = time.monotonic() - t0
+        assert proc.returncode == 128 + sig, err
+        assert took < STOP_S, took
+        assert not any(map(_alive, workers))
+    finally:
+        _cleanup(proc, workers)
+    import json
+
+    s = json.loads((root / "summary.json").read_text())
+    assert s["interrupted"] is True and s["exit_code"] == 128 + sig
+    assert sorted(p.name for p in root.iterdir()) == [".batch.lock", "batch.log",
+                                                       "summary.json"]  # no staging left
+    assert _lock_is_free(root / ".batch.lock")
+
+
+@pytest.mark.parametrize("case", ["root_is_glob_dir", "root_inside_glob_dir",
+                                  "root_is_keyframe_folder", "cli_output_is_glob_dir"])
+def test_batch_output_among_the_inputs_is_refused(tmp_path, case):
+    """An output root that is, or lies inside, a folder holding a sequence's keyframes is a
+    one-line exit-2 error, and nothing is written there."""
+    shots = tmp_path / "shots"
+    dirs = data_synth.write_batch("ellipsoids", shots, 2, 100)
+    seq = ('[[sequences]]\nkeyframes = ["shots/ellipsoids_00/pose_00.obj", '
+           '"shots/ellipsoids_00/pose_01.obj"]\nname = "x"\nframes = [0, 4]\n'
+           if case == "root_is_keyframe_folder" else '[[sequences]]\nglob = "shots/*"\n')
+    output = {"root_is_glob_dir": "shots/ellipsoids_00",
+              "root_inside_glob_dir": "shots/ellipsoids_00/out",
+              "root_is_keyframe_folder": "shots/ellipsoids_00",
+              "cli_output_is_glob_dir": "elsewhere"}[case]
+    (tmp_path / "job.toml").write_text(f'[job]\noutput = "{output}"\n{seq}')
+    before = {d: sorted(p.name for p in d.iterdir()) for d in dirs}
+    extra = ["-o", str(dirs[0])] if case == "cli_output_is_glob_dir" else []
+    r = subprocess.run([sys.executable, "-m", "shellspline", "batch", "job.toml", "-q",
+                        *extra], cwd=tmp_path, env=_env(), capture_output=True, text=True,
+                       timeout=60, preexec_fn=_default_signals)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "keyframe folder" in r.stderr, r.stderr
+    assert {d: sorted(p.name for p in d.iterdir()) for d in dirs} == before
+    assert not (tmp_path / "elsewhere").exists()
