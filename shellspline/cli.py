@@ -101,8 +101,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         "baseline; geodesic: piecewise discrete geodesics (paper §3); "
                         "nonlinear: nonlinear shell spline (paper §5-6) started from lta, slow")
     q.add_argument("--max-time", type=float, default=None,
-                   help="time limit in seconds of the nonlinear spline optimisation "
-                        "(default 600; the result so far is written, marked unconverged)")
+                   help="wall-clock limit in seconds of the nonlinear stage, its set-up and "
+                        "first evaluation included (default 600; the last accepted iterate is "
+                        "written, marked 'time limit reached', exit 1)")
     q.add_argument("--ftol", type=float, default=None,
                    help="nonlinear: also stop when the energy fell by at most FTOL (relative) "
                         "over the last 3 iterations, e.g. 1e-6 (default: off, stop on the "
@@ -207,6 +208,9 @@ def _interpolate(args) -> int:
     solver_options = {}
     if args.max_time is not None and args.method != "nonlinear":
         raise ShellsplineError("--max-time applies to --method nonlinear only")
+    if args.max_time is not None and not 0 < args.max_time < float("inf"):
+        raise ShellsplineError(f"--max-time must be a positive number of seconds, got "
+                               f"{args.max_time}")
     if args.ftol is not None and args.method != "nonlinear":
         raise ShellsplineError("--ftol applies to --method nonlinear only")
     if args.ftol is not None and not 0 <= args.ftol < 1:

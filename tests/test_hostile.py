@@ -238,6 +238,7 @@ def test_warnings_reach_the_user_as_one_line_notes(ell, tmp_path, capsys, monkey
     ("--eta", "-1e-3", "eta"),
     ("--K", "-3", "K"),
     ("--coarse", "-5", "coarse"),
+    ("--max-time", "-5", "--max-time"),
 ])
 def test_negative_looking_option_values_reach_their_check(ell, tmp_path, capsys, option, value,
                                                           says):
@@ -262,8 +263,10 @@ def test_negative_looking_option_values_reach_their_check(ell, tmp_path, capsys,
     lambda V, F: ss.write_sequence("unused", V[:, :, :2], F),
     lambda V, F: ss.check_output_dir("unused", fmt="stl"),
     lambda V, F: ss.LTASpline([0, 3, 2], 6),
+    lambda V, F: ss.nonlinear_spline(V, [0, 6, 12], 12, ss.topology(F), max_time_s=-1.0),
 ], ids=["K-too-small", "method", "coarse", "eta", "frames-order", "workers", "decimate-count",
-        "decimate-fraction", "read_frames", "write-shape", "check-fmt", "LTASpline-frames"])
+        "decimate-fraction", "read_frames", "write-shape", "check-fmt", "LTASpline-frames",
+        "max_time_s"])
 def test_api_input_errors_are_shellspline_errors(ell, call):
     kf = ss.read_keyframes(_poses(ell))
     with pytest.raises(ss.ShellsplineError) as info:
@@ -300,6 +303,17 @@ def test_max_time_bounds_the_nonlinear_stage_from_its_start(tmp_path, capsys):
     assert "time limit" in err and "RuntimeWarning" not in err
     V, _, _ = ss.read_sequence(out)
     assert np.isfinite(V).all()
+
+
+def test_nonlinear_time_limit_before_the_first_evaluation_returns_the_start(ell):
+    kf = ss.read_keyframes(_poses(ell))
+    init = ss.linear_blend(kf.V, [0, 6, 12], 12)
+    with pytest.warns(RuntimeWarning, match="time limit"):
+        res = ss.nonlinear_spline(kf.V, [0, 6, 12], 12, ss.topology(kf.F), eta=0.1, init=init,
+                                  max_time_s=1e-9)
+    assert not res.success and "before the first evaluation" in res.message
+    assert res.energies == [] and np.isnan(res.energy) and res.nit == 0
+    assert np.allclose(res.V, init, rtol=0, atol=1e-12)
 
 
 # ------------------------------------------------------------------------------------------
