@@ -35,6 +35,7 @@ __all__ = ["SourceMesh", "solve_mesh", "triangulate_polygons", "WELD_TOLERANCE"]
 #: diagonal of keyframe 0 are welded (a grid cell: round-off of exported text is ~1e-16).
 WELD_TOLERANCE = 1e-10
 _SQRT3x4 = 4.0 * np.sqrt(3.0)
+_CHUNK = 100_000  # polygons x keyframes per vectorised block of the quad triangulation
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,7 +257,10 @@ def triangulate_polygons(Vs, offsets, indices, name: str = "mesh"):
             T = C[:, None, :]
         elif s == 4:
             cand = np.stack([C[:, [0, 1, 2, 0, 2, 3]], C[:, [1, 2, 3, 1, 3, 0]]], axis=1)
-            T = _best_candidate(Vs, C, cand.reshape(len(polys), 2, 2, 3))
+            cand = cand.reshape(len(polys), 2, 2, 3)
+            step = max(1, _CHUNK // Vs.shape[0])  # bounded memory: (J, step, 2, 2, 3) arrays
+            T = np.concatenate([_best_candidate(Vs, C[a:a + step], cand[a:a + step])
+                                for a in range(0, len(polys), step)])
         else:
             T = _earcut_polygons(Vs, C, polys, name)
         tris.append(T.reshape(-1, 3))
@@ -381,6 +385,8 @@ def _fin_faces(F: np.ndarray, n: int) -> np.ndarray:
     adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
     _, sheet = connected_components(adj, directed=False)
     size = np.bincount(sheet)
+    by_edge = np.argsort(inv, kind="stable")                      # halfedges grouped by edge
+    first = np.concatenate([[0], np.cumsum(counts)])
     for _ in range(m):  # each round sets aside at least one sheet, or stops
         live = ~fins[face]
         c = np.bincount(inv[live], minlength=counts.size)
@@ -389,7 +395,8 @@ def _fin_faces(F: np.ndarray, n: int) -> np.ndarray:
             break
         drop = set()
         for e in bad:
-            fs = face[live & (inv == e)]
+            fs = face[by_edge[first[e]:first[e + 1]]]
+            fs = fs[~fins[fs]]
             sh, nf = np.unique(sheet[fs], return_counts=True)
             rank = np.lexsort((sh, -size[sh]))
             kept = 0
