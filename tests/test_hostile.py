@@ -178,6 +178,21 @@ def test_full_disk_while_writing_names_the_file_in_out(ell, tmp_path, capsys, mo
     assert info.value.errno == errno.ENOSPC and str(tmp_path / "api") in str(info.value)
 
 
+def test_full_disk_while_updating_the_report_names_report_json(ell, tmp_path, capsys,
+                                                             monkeypatch):
+    import shellspline.cli as sscli
+
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(sscli.json, "dump", full_disk)
+    out = tmp_path / "out"
+    rc, err = _run(capsys, "interpolate", *_poses(ell), "-o", out, "-q", "--method", "linear")
+    line = _assert_one_line_error(err, out / "report.json")
+    assert rc == 2 and "no space left on device writing" in line
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".report.")]
+
+
 def test_output_over_an_input_is_refused_and_the_input_kept(ell, capsys):
     before = _digest(_poses(ell))
     rc, err = _run(capsys, "interpolate", *_poses(ell), "-o", _poses(ell)[0], "--overwrite",
