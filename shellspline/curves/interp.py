@@ -30,8 +30,9 @@ __all__ = ["PiecewiseBezier", "SplineSolve", "cubic_spline", "quadratic_spline",
 # Relative step of the acceleration's central difference of the exact velocity: truncation
 # ~h^2 |xi'''| / 6 ~ 1e-9, round-off ~eps / h ~ 1e-12 (tests/test_curves.py checks 1e-7).
 _ACC_STEP = 3e-5
-# Times evaluated per block by the kernel path (benchmarks/bench_curves.py: 2048-8192 are
-# 2x faster than one block of 100,000 on a 2-core machine; smaller blocks pay call overhead).
+# Times evaluated per block by the kernel path: 4096 measured ~1.9x faster than one block of
+# 100,000 (fresh large temporaries) and ~1.1x faster than 1024 (call overhead); see
+# benchmarks/README.md (bench_curves.py).
 _CHUNK = 4096
 
 
