@@ -11,7 +11,7 @@
 
 Poses bend the tube (the fin, the isolated vertex and the cap follow the same map).
 :func:`write_dcc_obj` writes such a mesh the way exporters do: ``mtllib/o/g/s/usemtl`` lines,
-``vt``/``vn`` blocks, ``f v/vt/vn`` and ``f v//vn`` corners, negative (relative) indices, an
+``vt``/``vn`` blocks, ``f v/vt/vn`` and ``f v/vt`` corners, negative (relative) indices, an
 ``l`` line, optionally a UTF-8 byte-order mark and CRLF line ends. :func:`write_polygon_mesh`
 writes ASCII PLY or OFF with polygons.
 """
@@ -156,9 +156,9 @@ def write_dcc_obj(path, V, offsets, indices, uv=None, *, bom: bool = False,
     for p in range(P):
         c = indices[offsets[p]:offsets[p + 1]] + 1
         if p == P - 1:                       # relative indices, as some exporters write
-            lines.append("f " + " ".join(str(i - n - 1) for i in c))
+            lines.append("f " + " ".join(f"{i - n - 1}/{i - n - 1}/-1" for i in c))
         elif p % 3 == 1:
-            lines.append("f " + " ".join(f"{i}//1" for i in c))
+            lines.append("f " + " ".join(f"{i}/{i}" for i in c))
         else:
             lines.append("f " + " ".join(f"{i}/{i}/1" for i in c))
         if p == P // 2:

@@ -206,15 +206,16 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     >>> V.shape, F.tolist()
     ((3, 3), [[0, 1, 2]])
     """
-    V, offsets, indices = _read_polygons(path)
+    V, offsets, indices, _ = _read_polygons(path)
     name = str(path)
     _check_indices(offsets, indices, V.shape[0], name)
     F, _ = triangulate_polygons(V[None], offsets, indices, name)
     return V, F
 
 
-def _read_polygons(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``V (n,3)``, polygon ``offsets (P+1,)`` and corner ``indices (N,)`` of a mesh file."""
+def _read_polygons(path):
+    """``V (n,3)``, polygon ``offsets (P+1,)``, corner ``indices (N,)`` of a mesh file and its
+    texture coordinates ``(uv (t,2), corner_uv (N,))`` or ``None`` (OBJ ``f v/vt`` only)."""
     name = str(path)
     p = Path(path)
     ext = p.suffix.lower()
@@ -227,9 +228,9 @@ def _read_polygons(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if p.is_dir():
             raise _Unreadable("is a directory")
         if ext == ".obj":
-            V, offsets, indices = _parse_obj(p.read_bytes(), name)
+            V, offsets, indices, uv = _parse_obj(p.read_bytes(), name)
         else:
-            V, offsets, indices = _read_with_trimesh(p, ext, name)
+            (V, offsets, indices), uv = _read_with_trimesh(p, ext, name), None
     except MeshError:
         raise
     except _Unreadable as exc:
@@ -238,7 +239,7 @@ def _read_polygons(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise MeshError(f"cannot read '{name}': {exc.strerror or exc}") from None
     except Exception as exc:  # trimesh raises many kinds; report one line, no traceback
         raise MeshError(f"cannot read '{name}': {_one_line(exc)}") from None
-    return V, offsets, indices
+    return V, offsets, indices, uv
 
 
 def _check_indices(offsets: np.ndarray, indices: np.ndarray, n: int, name: str) -> None:
@@ -267,9 +268,9 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vectorised OBJ reader: ``v`` and ``f`` lines, global vertex numbering; returns
-    ``V``, polygon offsets and corner indices."""
+def _parse_obj(data: bytes, name: str):
+    """Vectorised OBJ reader: ``v``, ``vt`` and ``f`` lines, global numbering; returns ``V``,
+    polygon offsets, corner indices and the texture coordinates (see :func:`_obj_texture`)."""
     if data[:3] == b"\xef\xbb\xbf":  # UTF-8 byte-order mark (Windows editors, exporters)
         data = data[3:]
     if b"\0" in data:
@@ -283,9 +284,36 @@ def _parse_obj(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
         lines = [ln.strip().replace(b"\t", b" ") for ln in lines]
     vlines = [ln for ln in lines if ln[:2] == b"v "]
     flines = [ln for ln in lines if ln[:2] == b"f "]
+    vtlines = [ln for ln in lines if ln[:3] == b"vt "] if b"vt " in data else []
     V = _obj_vertices(vlines)
-    offsets, indices = _obj_faces(flines, lines, name, slashes=b"/" in data)
-    return V, offsets, indices
+    offsets, indices, ttok = _obj_faces(flines, lines, name, slashes=b"/" in data,
+                                        texture=bool(vtlines))
+    uv = None if ttok is None else _obj_texture(vtlines, ttok, offsets, lines)
+    return V, offsets, indices, uv
+
+
+def _obj_texture(vtlines: list[bytes], ttok: list[bytes], offsets: np.ndarray,
+                 lines: list[bytes]):
+    """``(uv (t,2), corner_uv (N,))`` when every face corner names a valid texture
+    coordinate (``f v/vt ...``), else ``None`` (texture coordinates are then not carried)."""
+    if not all(ttok):
+        return None
+    try:
+        ti = np.array(list(map(int, ttok)), dtype=np.int64)
+        uv = np.array([[float(x) for x in (ln.split()[1:3] + [b"0"])[:2]] for ln in vtlines],
+                      dtype=np.float64).reshape(-1, 2)
+    except ValueError:
+        return None
+    if (ti < 0).any():  # relative: counted back from the last vt line before the face line
+        kinds = [ln[:3] for ln in lines if ln[:3] == b"vt " or ln[:2] == b"f "]
+        is_t = np.array([k == b"vt " for k in kinds])
+        before = np.repeat(np.cumsum(is_t)[~is_t], np.diff(offsets))
+        ti = np.where(ti < 0, ti + before, ti - 1)
+    else:
+        ti -= 1
+    if ti.size and (ti.min() < 0 or ti.max() >= uv.shape[0]):
+        return None
+    return uv, ti
 
 
 def _regular_tokens(rows: list[bytes], width: int) -> list[bytes] | None:
@@ -326,10 +354,12 @@ def _obj_vertices(vlines: list[bytes]) -> np.ndarray:
         raise  # pragma: no cover
 
 
-def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *,
-               slashes: bool) -> tuple[np.ndarray, np.ndarray]:
+def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *, slashes: bool,
+               texture: bool = False):
+    """Polygon offsets and vertex indices of the ``f`` lines, and (with ``texture``) every
+    corner's texture-index token (``b""`` where a corner has none) or ``None``."""
     if not flines:
-        return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), None
     tokens = _regular_tokens(flines, 4)
     if tokens is not None:  # triangles only: the fast path
         del tokens[::4]
@@ -343,7 +373,12 @@ def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *,
             raise _Unreadable(f"face {t} on line {_line_number(lines, t)} has {sizes[t]} "
                               "vertices (a face needs at least 3)")
         tokens = [t for t in tokens if t != b"f"]
-    if slashes:
+    ttok = None
+    if slashes and texture:
+        parts = [t.split(b"/", 2) for t in tokens]
+        tokens = [q[0] for q in parts]
+        ttok = [q[1] if len(q) > 1 else b"" for q in parts]
+    elif slashes:
         tokens = [t.split(b"/", 1)[0] for t in tokens]
     try:
         idx = np.array(list(map(int, tokens)), dtype=np.int64)
@@ -367,7 +402,7 @@ def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *,
         idx = np.where(neg, idx + v_before, idx - 1)
     else:
         idx -= 1
-    return offsets, idx
+    return offsets, idx, ttok
 
 
 def _line_number(lines: list[bytes], occurrence: int) -> int:
@@ -657,17 +692,17 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
     frames = _canonical_frames(frames, len(paths))
     Vs: list[np.ndarray] = []
     for j, p in enumerate(paths):
-        V, offsets, indices = _read_polygons(p)
+        V, offsets, indices, uv = _read_polygons(p)
         _check_not_empty(V, offsets[:-1], names[j])
         if j == 0:
-            off0, idx0 = offsets, indices
+            off0, idx0, uv0 = offsets, indices, uv
         else:
             if V.shape[0] != Vs[0].shape[0]:
                 raise MeshError(f"{names[j]} has {V.shape[0]} vertices but {names[0]} has "
                                 f"{Vs[0].shape[0]}")
             _check_same_polygons(offsets, indices, off0, idx0, names[j], names[0])
         Vs.append(V)
-    return _validated(np.stack(Vs), off0, idx0, frames, names, pinned)
+    return _validated(np.stack(Vs), off0, idx0, frames, names, pinned, uv0)
 
 
 def keyframes_from_arrays(V, F, frames=None, names=None, pinned=None) -> Keyframes:
@@ -786,9 +821,10 @@ MAX_COORDINATE = 1e75
 
 
 def _validated(Vs: np.ndarray, offsets: np.ndarray, indices: np.ndarray, frames,
-               names: list[str], pinned) -> Keyframes:
+               names: list[str], pinned, uv=None) -> Keyframes:
     """Checks shared by both constructors; ``Vs`` (J,n,3) float64, shapes already agree;
-    the polygons (``offsets``, ``indices``) are those of every keyframe."""
+    the polygons (``offsets``, ``indices``) are those of every keyframe; ``uv`` the first
+    keyframe's texture coordinates (carried to the output) or ``None``."""
     J, n = Vs.shape[:2]
     for j in range(J):
         finite = np.isfinite(Vs[j]).all(axis=1)
@@ -802,7 +838,7 @@ def _validated(Vs: np.ndarray, offsets: np.ndarray, indices: np.ndarray, frames,
                             f"{big:.3g}, above {MAX_COORDINATE:g} squared areas do not fit a "
                             "float64 (rescale the mesh)")
     _check_indices(offsets, indices, n, names[0])
-    V, F, source, tri_poly = solve_mesh(Vs, offsets, indices, names[0])
+    V, F, source, tri_poly = solve_mesh(Vs, offsets, indices, names[0], uv)
     for j in range(J):
         _check_degenerate(V[j], F, names[j], source, tri_poly)
     T = topology(F, V.shape[1], name=names[0])
@@ -1078,8 +1114,8 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
             raise ShellsplineError(f"with `source`, V must hold the input's {source.n_source} "
                                    f"vertices (SourceMesh.expand), got shape {V.shape}")
         F = source.triangles
-        if (np.diff(source.poly_offsets) != 3).any():
-            polygons = (source.poly_offsets, source.poly_indices)
+        if (np.diff(source.poly_offsets) != 3).any() or source.uv is not None:
+            polygons = (source.poly_offsets, source.poly_indices, source.uv, source.corner_uv)
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3 or (F.size and not np.issubdtype(F.dtype, np.integer)):
         raise ShellsplineError(f"F must be an (m,3) integer array, got shape {F.shape} and "
@@ -1296,7 +1332,8 @@ def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
         block = _obj_faces_block(F) if fmt == "obj" else _ply_faces_bytes(F)
         m = F.shape[0]
     else:  # the input's polygons (offsets, indices)
-        block = _obj_polygons_block(*polygons) if fmt == "obj" else _ply_polygons_bytes(*polygons)
+        block = (_obj_polygons_block(*polygons) if fmt == "obj"
+                 else _ply_polygons_bytes(*polygons[:2]))
         m = polygons[0].size - 1
     workers = min(workers, len(paths))
     if workers <= 1:
@@ -1334,10 +1371,17 @@ def _obj_faces_block(F: np.ndarray) -> bytes:
     return (("f %d %d %d\n" * F.shape[0]) % tuple((F + 1).ravel().tolist())).encode("ascii")
 
 
-def _obj_polygons_block(offsets: np.ndarray, indices: np.ndarray) -> bytes:
-    """The ``f a b c ...`` lines (1-based) of polygons, formatted once."""
-    fmt = "".join("f" + " %d" * int(s) + "\n" for s in np.diff(offsets))
-    return (fmt % tuple((indices + 1).tolist())).encode("ascii")
+def _obj_polygons_block(offsets: np.ndarray, indices: np.ndarray, uv=None,
+                        corner_uv=None) -> bytes:
+    """The ``f a b c ...`` lines (1-based) of polygons, formatted once; with texture
+    coordinates the ``vt`` lines first and ``f a/ta b/tb ...`` corners."""
+    if uv is None:
+        fmt = "".join("f" + " %d" * int(s) + "\n" for s in np.diff(offsets))
+        return (fmt % tuple((indices + 1).tolist())).encode("ascii")
+    vt = ("vt %.17g %.17g\n" * uv.shape[0]) % tuple(uv.ravel().tolist())
+    fmt = "".join("f" + " %d/%d" * int(s) + "\n" for s in np.diff(offsets))
+    corners = np.stack([indices + 1, corner_uv + 1], axis=1).ravel()
+    return (vt + fmt % tuple(corners.tolist())).encode("ascii")
 
 
 def _ply_polygons_bytes(offsets: np.ndarray, indices: np.ndarray) -> bytes:
@@ -1476,7 +1520,7 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
     Vs = []
     for k in ks:
         name = str(found[k])
-        V, offsets, indices = _read_polygons(found[k])
+        V, offsets, indices, _ = _read_polygons(found[k])
         if not Vs:
             off0, idx0, name0 = offsets, indices, name
             _check_indices(offsets, indices, V.shape[0], name)

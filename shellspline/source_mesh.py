@@ -68,6 +68,10 @@ class SourceMesh:
         Input polygons set aside as fins.
     n_welded : int
         Source vertices merged into another one.
+    uv : (t,2) float64 numpy array or None
+        Texture coordinates of the input (OBJ ``vt``), written back with the polygons.
+    corner_uv : (N,) int64 numpy array or None
+        Texture coordinate of every polygon corner (aligned with ``poly_indices``).
     """
 
     n_source: int
@@ -81,6 +85,8 @@ class SourceMesh:
     exact_V: np.ndarray
     fin_polygons: np.ndarray
     n_welded: int
+    uv: np.ndarray | None = None
+    corner_uv: np.ndarray | None = None
 
     @property
     def n_solve(self) -> int:
@@ -99,7 +105,8 @@ class SourceMesh:
                 "non_triangle_polygons": int((sizes != 3).sum()),
                 "welded_vertices": int(self.n_welded),
                 "set_aside_vertices": int(self.set_aside.size),
-                "fin_polygons": int(self.fin_polygons.size)}
+                "fin_polygons": int(self.fin_polygons.size),
+                "texture_coordinates": 0 if self.uv is None else int(self.uv.shape[0])}
 
     def solve_vertices(self, idx, what: str = "pinned") -> np.ndarray:
         """Solve-mesh indices of source vertices ``idx`` (sorted, unique).
@@ -411,7 +418,7 @@ def _fin_faces(F: np.ndarray, n: int) -> np.ndarray:
     return fins
 
 
-def solve_mesh(Vs, offsets, indices, name: str = "mesh"):
+def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
     """Split an input mesh into the solve mesh and its :class:`SourceMesh` map.
 
     Parameters
@@ -424,6 +431,8 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh"):
         Polygon corners, in ``[0, n)``.
     name : str
         Used in error messages.
+    uv : tuple ``(uv (t,2), corner_uv (N,))`` or None
+        Texture coordinates to carry back to the output (they make ``source`` not ``None``).
 
     Returns
     -------
@@ -432,8 +441,8 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh"):
     F : (m,3) int64 numpy array
         Solve-mesh triangles.
     source : SourceMesh or None
-        ``None`` when the input is already a triangle mesh with nothing welded or set aside
-        (then ``V`` and ``F`` are the inputs).
+        ``None`` when the input is already a triangle mesh without texture coordinates and
+        with nothing welded or set aside (then ``V`` and ``F`` are the inputs).
     tri_polygon : (m,) int64 numpy array
         Input polygon of every solve triangle (for messages).
     """
@@ -449,7 +458,7 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh"):
     used = np.zeros(n, dtype=bool)
     used[F[~fins].ravel()] = True
     welded = rep != np.arange(n)
-    if (sizes == 3).all() and not welded.any() and not fins.any() and used.all():
+    if (sizes == 3).all() and not welded.any() and not fins.any() and used.all() and uv is None:
         return Vs, tris, None, tri_poly
     keep_v = np.flatnonzero(used & ~welded)     # representatives used by kept faces
     solve_of = np.full(n, -1, dtype=np.int64)
@@ -470,5 +479,6 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh"):
     src = SourceMesh(n_source=n, poly_offsets=offsets, poly_indices=indices, triangles=tris,
                      to_solve=to_solve, set_aside=set_aside, anchors=anchors, exact=exact,
                      exact_V=np.ascontiguousarray(Vs[:, exact]),
-                     fin_polygons=np.unique(tri_poly[fins]), n_welded=int(welded.sum()))
+                     fin_polygons=np.unique(tri_poly[fins]), n_welded=int(welded.sum()),
+                     uv=None if uv is None else uv[0], corner_uv=None if uv is None else uv[1])
     return np.ascontiguousarray(Vs[:, keep_v]), Fs, src, tri_poly[~fins]

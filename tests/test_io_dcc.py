@@ -86,9 +86,12 @@ def test_dcc_obj_read_like_the_generator(tmp_path, tube):
     the polygons and coordinates read are exactly the generator's."""
     paths = write_set(tmp_path, tube, bom=True, crlf=True)
     for j, p in enumerate(paths):
-        V, off, idx = sio._read_polygons(p)
+        V, off, idx, (uv, corner_uv) = sio._read_polygons(p)
         assert np.array_equal(V, tube["V"][j])
         assert np.array_equal(off, tube["offsets"]) and np.array_equal(idx, tube["indices"])
+        # every corner names the texture coordinate written for its vertex (%.6f in the file)
+        assert np.array_equal(corner_uv, tube["indices"])
+        assert np.abs(uv - tube["uv"]).max() <= 5e-7
 
 
 @pytest.mark.parametrize("fmt", ["obj", "ply", "off"])
@@ -127,6 +130,26 @@ def test_dcc_keyframes(tmp_path, tube, fmt):
     ncomp, _ = connected_components(coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])),
                                                shape=(kf.n, kf.n)), directed=False)
     assert ncomp == 2
+
+
+def test_texture_coordinates_kept_only_when_every_corner_has_one(tmp_path):
+    """A triangle OBJ with per-corner texture indices (seams in UV space, shared vertices, as
+    Blender writes OBJ): not welded, but the texture coordinates are carried (so ``source``
+    is set); one corner without a texture index: nothing carried, ``source`` stays None."""
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    head = "".join("v %r %r %r\n" % tuple(v) for v in V.tolist())
+    head += "vt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\nvt 0.5 0.5\n"
+    p = tmp_path / "uv.obj"
+    p.write_text(head + "f 1/1 2/2 3/3\nf 2/5 4/4 3/-3\n")
+    q = tmp_path / "uv2.obj"
+    q.write_text(head.replace("v 1.0 1.0 0.0", "v 1.0 1.0 0.5") + "f 1/1 2/2 3/3\nf 2/5 4/4 3/-3\n")
+    kf = sio.read_keyframes([p, q])
+    assert kf.n == 4 and kf.source.n_welded == 0 and kf.source.set_aside.size == 0
+    assert kf.source.corner_uv.tolist() == [0, 1, 2, 4, 3, 2]
+    assert kf.source.uv[4].tolist() == [0.5, 0.5]
+    p.write_text(head + "f 1/1 2/2 3/3\nf 2 4/4 3/3\n")
+    q.write_text(head + "f 1/1 2/2 3/3\nf 2 4/4 3/3\n")
+    assert sio.read_keyframes([p, q]).source is None
 
 
 def test_clean_triangle_mesh_has_no_source(tmp_path):
@@ -260,7 +283,7 @@ def test_binary_ply_with_mixed_polygons(tmp_path, tube, extra):
     f.write_bytes(head.encode() + body)
     V2, F2 = sio.read_mesh(f)
     assert np.array_equal(V2, V.astype(np.float32).astype(np.float64))
-    _, o2, i2 = sio._read_polygons(f)
+    _, o2, i2, _ = sio._read_polygons(f)
     assert np.array_equal(o2, o) and np.array_equal(i2, i)
     f.write_bytes(head.encode() + body[:-3])
     raises_mesh_error(lambda: sio.read_mesh(f), "blender.ply", "does not match the header")
@@ -340,7 +363,7 @@ def test_write_back_polygons_obj_and_ply(tmp_path, tube):
     assert [[c - 1 for c in f] for f in faces] == polygon_list(tube)
     assert np.array_equal(V5, seq[5])
     outp = sio.write_sequence(tmp_path / "p", seq, None, fmt="ply", source=kf.source)
-    Vr, offr, idxr = sio._read_polygons(outp / "frame_0010.ply")
+    Vr, offr, idxr, _ = sio._read_polygons(outp / "frame_0010.ply")
     assert np.array_equal(Vr, tube["V"][1])
     assert np.array_equal(offr, tube["offsets"]) and np.array_equal(idxr, tube["indices"])
     # read_sequence triangulates the polygons once for the whole sequence
@@ -381,4 +404,9 @@ def test_cli_end_to_end_on_seamed_quad_obj(tmp_path, tube):
     rep = json.loads((out / "report.json").read_text())
     assert rep["source_mesh"] == {"source_vertices": 164, "polygons": 134,
                                   "non_triangle_polygons": 133, "welded_vertices": 9,
-                                  "set_aside_vertices": 2, "fin_polygons": 1}
+                                  "set_aside_vertices": 2, "fin_polygons": 1,
+                                  "texture_coordinates": 164}
+    # texture coordinates carried: the same vt values, every corner naming the input's vt
+    _, _, _, (uv_in, cuv_in) = sio._read_polygons(paths[0])
+    _, _, _, (uv_out, cuv_out) = sio._read_polygons(frames[7])
+    assert np.array_equal(uv_out, uv_in) and np.array_equal(cuv_out, cuv_in)
