@@ -58,10 +58,8 @@ def geodesic(G, a, b, s):
     0.25
     """
     G = group(G)
-    P = np.stack(np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float)),
-                 axis=np.ndim(a) - len(G.shape) if np.ndim(a) >= np.ndim(b) else
-                 np.ndim(b) - len(G.shape))
-    return bezier(G, P, s)
+    a, b = np.broadcast_arrays(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+    return bezier(G, np.stack([a, b], axis=a.ndim - len(G.shape)), s)
 
 
 def de_casteljau(G, P, s, velocity=False):
@@ -157,8 +155,14 @@ def bezier_velocity(G, P, s):
     -------
     g : (..., T, *G.shape) ndarray
     xi : (..., T, G.dim) ndarray
-        Derivative with respect to ``s`` (divide by ``r - s`` for a curve on ``[r, s]``). At
+        Derivative with respect to ``s`` (divide by ``s - r`` for a curve on ``[r, s]``). At
         ``s = 0`` it is the seed's end velocity ``n V_0^1`` (proposition 4.2.8).
+
+    Notes
+    -----
+    For accelerations (and space-frame vectors) use the curve as a one-segment
+    :class:`~shellspline.curves.PiecewiseBezier`:
+    ``PiecewiseBezier(G, [r, s], np.expand_dims(P, -len(G.shape) - 2)).acceleration(t)``.
     """
     G = group(G)
     s, scalar = _times(s)
