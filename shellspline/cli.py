@@ -27,6 +27,21 @@ DEBUG_ENV = "SHELLSPLINE_DEBUG"
 internal error."""
 
 
+_notes_seen: set[str] = set()
+
+
+def _note(text: str, stream=None) -> None:
+    """One ``note:`` line, once per run: a solver's warning and the pipeline's message about
+    the same event ("nonlinear_spline: ..." and "nonlinear spline: ...") print once."""
+    key = " ".join(re.sub(r"[\W_]+", " ", str(text)).lower().split())
+    if key in _notes_seen:
+        return
+    _notes_seen.add(key)
+    out = stream or sys.stderr
+    out.write(f"  note: {text}\n")
+    out.flush()
+
+
 class _Bar:
     """A small stderr progress display fed by pipeline progress events."""
 
@@ -61,7 +76,7 @@ class _Bar:
             self.stream.write(f"  {ev['stage']:<12s} {ev['seconds']:8.3f} s\n")
             self.stream.flush()
         elif kind == "message":
-            self.stream.write(f"  note: {ev['text']}\n")
+            _note(ev["text"], self.stream)
 
     def _draw(self, stage, done, total, text=None):
         if not self.tty:
@@ -398,9 +413,7 @@ def _warnings_as_notes(stream=None):
         text = " ".join(str(message).split())
         if "encountered in" in text:  # numpy floating-point warning: say where
             text += f" (numerical warning at {Path(filename).name}:{lineno})"
-        out = stream or sys.stderr
-        out.write(f"  note: {text}\n")
-        out.flush()
+        _note(text, stream)
 
     with warnings.catch_warnings():
         warnings.simplefilter("once")
@@ -411,7 +424,8 @@ def _warnings_as_notes(stream=None):
 def main(argv=None) -> int:
     """Entry point of the ``shellspline`` console script; returns the exit code."""
     parser = _build_parser()
-    args = parser.parse_args(_protect_negative_values(argv))
+    args = parser.parse_args(_protect_negative_values(argv, parser))
+    _notes_seen.clear()
     if args.version:
         from . import __version__
 
