@@ -55,9 +55,11 @@ def add_parsers(sub) -> None:
                    help="end conditions of --kind interp (default natural)")
     when = p.add_mutually_exclusive_group()
     when.add_argument("--rate", type=float, metavar="HZ",
-                      help="output poses at this rate from the first to the last keyframe time")
+                      help="output poses at this rate from the first to the last keyframe time "
+                           "(KITTI: poses per index step)")
     when.add_argument("--times", metavar="FILE",
-                      help="output poses at these times (one per line, '#' comments)")
+                      help="output poses at these times, one per line ('#' comments), in the "
+                           "input's unit (seconds; EuRoC: nanoseconds; KITTI: pose index)")
     p.add_argument("--plot", metavar="PNG",
                    help="plot positions, rotation angles and angular rate (needs matplotlib: "
                         "pip install 'shellspline[viz]')")
@@ -71,7 +73,9 @@ def keyframe_indices(n: int, every: int) -> np.ndarray:
     return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
 
 
-def _read_times(path):
+def _read_times(path, nanoseconds=False):
+    """Times from a text file, one per line (``#`` comments); with ``nanoseconds`` integers
+    kept exact (EuRoC timestamps exceed float64's 16 digits)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such times file")
@@ -80,16 +84,18 @@ def _read_times(path):
         s = raw.strip()
         if not s or s.startswith("#"):
             continue
+        tok = s.split()[0].rstrip(",")
         try:
-            v = float(s.split()[0].rstrip(","))
+            v = int(tok) if nanoseconds else float(tok)
         except ValueError:
-            raise ShellsplineError(f"{path}:{k}: not a time: {s.split()[0]!r}") from None
+            what = "an integer nanosecond timestamp" if nanoseconds else "a time"
+            raise ShellsplineError(f"{path}:{k}: not {what}: {tok!r}") from None
         if not np.isfinite(v):
             raise ShellsplineError(f"{path}:{k}: non-finite time")
         vals.append(v)
     if not vals:
         raise ShellsplineError(f"{path}: no times in the file")
-    t = np.array(vals)
+    t = np.array(vals, dtype=np.int64 if nanoseconds else np.float64)
     if np.any(np.diff(t) < 0):
         raise ShellsplineError(f"{path}: times must not decrease")
     return t
@@ -136,7 +142,10 @@ def _path(args) -> int:
         m = int(np.floor((tk[-1] - tk[0]) * args.rate + 1e-9)) + 1
         tq = tk[0] + np.arange(m) / args.rate
     elif args.times is not None:
-        tq = _read_times(args.times)
+        if track.format == "euroc":  # the file's unit: integer nanoseconds
+            tq = (_read_times(args.times, nanoseconds=True) - track.origin_ns) * 1e-9
+        else:
+            tq = _read_times(args.times)
         lo, hi = tk[0], tk[-1]
         if tq[0] < lo - 1e-9 or tq[-1] > hi + 1e-9:
             raise ShellsplineError(f"{args.times}: times must lie in [{lo:.9g}, {hi:.9g}] (the "

@@ -58,6 +58,23 @@ def test_bezier_endpoints_and_end_velocities(G):
     np.testing.assert_allclose(xi[1], n * G.between(P[n - 1], P[n]), atol=1e-12)
 
 
+@pytest.mark.parametrize("G", [SO3, SE3], ids=str)
+@pytest.mark.parametrize("n", [2, 3, 5])
+def test_bezier_end_accelerations(G, n):
+    # seed proposition 4.2.9 in the body frame: d xi/ds(0) = n(n-1) J_r(V0)^{-1} (V1 - V0) and
+    # d xi/ds(1) = n(n-1) J_r(-V_{n-1})^{-1} (V_{n-1} - V_{n-2}), J_r(V) = int_0^1 exp(-u ad V)
+    # (the printed "inverse of int exp(u ad V0)" is this with the opposite sign of ad)
+    rng = np.random.default_rng(n)
+    P = _random_walk(G, rng, n + 1, 0.6)
+    C = PiecewiseBezier(G, [0.0, 1.0], P[None])
+    V = G.between(P[:-1], P[1:])
+    a0 = n * (n - 1) * G.jac_right_inv(V[0], V[1] - V[0])
+    a1 = n * (n - 1) * G.jac_right_inv(-V[-1], V[-1] - V[-2])
+    np.testing.assert_allclose(C.acceleration(0.0), a0, atol=1e-6 * np.abs(a0).max())
+    np.testing.assert_allclose(C.acceleration(1.0 - 1e-13), a1, atol=1e-6 * np.abs(a1).max())
+    assert np.abs(n * (n - 1) * G.jac_right_inv(-V[0], V[1] - V[0]) - a0).max() > 1e-2
+
+
 @pytest.mark.parametrize("G", GROUPS, ids=str)
 def test_bezier_velocity_is_the_derivative(G):
     rng = np.random.default_rng(12)

@@ -125,6 +125,20 @@ def test_path_rate_times_format_kinds_groups(tmp_path):
     np.testing.assert_allclose(b2.T[[0, -1]], T[[0, -1]], atol=1e-9)  # clamped B-spline ends
 
 
+def test_path_times_file_in_euroc_nanoseconds(tmp_path):
+    t, T = _track(12)
+    origin = 1_403_636_579_758_555_392
+    src = tmp_path / "in.csv"
+    write_poses(src, t - t[0], T, "euroc", origin_ns=origin)
+    ns = origin + np.round((t[[2, 5]] - t[0]) * 1e9).astype(np.int64) + 1000
+    times = tmp_path / "times.txt"
+    times.write_text("\n".join(str(n) for n in ns) + "\n")
+    out = tmp_path / "out.csv"
+    assert main(["path", str(src), "-o", str(out), "--times", str(times), "-q"]) == 0
+    rows = out.read_text().splitlines()[1:]
+    assert [int(r.split(",")[0]) for r in rows] == ns.tolist()
+
+
 def test_path_periodic_and_clamped(tmp_path):
     ang = np.linspace(0, 2 * np.pi, 13)
     T = se3.from_rt(so3.exp(ang[:, None] * [0, 0, 1.0]),
