@@ -34,6 +34,7 @@ TERMINATE_GRACE_S = 1.0
 
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_KILL = getattr(signal, "SIGKILL", signal.SIGTERM)  # Windows: TerminateProcess either way
 _parent = {"pid": None}  # set in a worker by die_with_parent
 
 
@@ -121,8 +122,7 @@ def _watchdog(parent_pid: int, sig: int) -> None:
         os._exit(1)
 
 
-def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL, pdeathsig: bool = True
-                    ) -> None:
+def die_with_parent(parent_pid: int, sig: int = _KILL, pdeathsig: bool = True) -> None:
     """Make this (worker) process receive ``sig`` when process ``parent_pid`` dies.
 
     Two mechanisms: on Linux the kernel's parent-death signal (``prctl(PR_SET_PDEATHSIG)``;
@@ -164,7 +164,7 @@ def _pool_worker_init(parent_pid, pdeathsig, initializer, initargs):
     # (it terminates the pool). SIGTERM kills a worker outright: nothing of it needs cleanup.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    die_with_parent(parent_pid, signal.SIGKILL, pdeathsig)
+    die_with_parent(parent_pid, _KILL, pdeathsig)
     if initializer is not None:
         initializer(*initargs)
 

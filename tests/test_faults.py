@@ -302,3 +302,28 @@ def test_batch_output_among_the_inputs_is_refused(tmp_path, case):
     assert r.stderr.count("\n") == 1 and "keyframe folder" in r.stderr, r.stderr
     assert {d: sorted(p.name for p in d.iterdir()) for d in dirs} == before
     assert not (tmp_path / "elsewhere").exists()
+
+
+# ------------------------------------------------------------------------------------------
+# Stop signals inside one process
+# ------------------------------------------------------------------------------------------
+def test_stop_signals_unwind_raise_with_the_shell_exit_code_and_keep_an_ignored_sigint():
+    from shellspline.parallel import Interrupted, interrupt_exit_code, stop_signals_unwind
+
+    old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)  # a background job of a script
+    old_term = signal.getsignal(signal.SIGTERM)
+    try:
+        with pytest.raises(Interrupted) as info:
+            with stop_signals_unwind():
+                assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+                os.kill(os.getpid(), signal.SIGINT)  # ignored: nothing happens
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5)  # the handler interrupts this
+        assert info.value.signum == signal.SIGTERM and info.value.exit_code == 143
+        assert isinstance(info.value, KeyboardInterrupt)  # every Ctrl-C cleanup applies
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # handlers restored
+        assert signal.getsignal(signal.SIGTERM) == old_term
+        assert interrupt_exit_code(KeyboardInterrupt()) == 130
+        assert interrupt_exit_code(Interrupted(signal.SIGINT)) == 130
+    finally:
+        signal.signal(signal.SIGINT, old_int)
