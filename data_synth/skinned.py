@@ -92,6 +92,11 @@ def skeleton_bones(motion, P, R):
         ends.append(P[:, p] + R[:, p] @ off)
         driver.append(p)
         subtree.append(1)
+    if not starts:
+        from shellspline._errors import ShellsplineError
+
+        raise ShellsplineError(f"skeleton_bones: the skeleton ({', '.join(motion.names)}) has "
+                               "no bone to build a body around")
     A = np.stack(starts, axis=1)
     Bend = np.stack(ends, axis=1)
     length = np.linalg.norm(Bend[0] - A[0], axis=1)
@@ -161,6 +166,8 @@ def _relax(V, F, A, B, r, k, iterations: int = 6):
     deg = np.asarray(adj.sum(axis=1)).ravel()
     V = V.copy()
     for _ in range(iterations):
+        V_old = V.copy()
+        was_inverted = _inverted(V, F, A, B, r, k)
         phi, g = _union_value_grad(V, A, B, r, k)
         nrm = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-300)
         step = adj @ V / deg[:, None] - V
@@ -168,6 +175,11 @@ def _relax(V, F, A, B, r, k, iterations: int = 6):
         for _ in range(2):  # Newton steps onto phi = 0
             phi, g = _union_value_grad(V, A, B, r, k)
             V -= (phi / np.maximum(np.einsum("ni,ni->n", g, g), 1e-300))[:, None] * g
+        for _ in range(10):  # undo the moves around a triangle this step turned inside out
+            bad = np.unique(F[_inverted(V, F, A, B, r, k) & ~was_inverted])
+            if bad.size == 0:
+                break
+            V[bad] = V_old[bad]
     return V
 
 
@@ -385,9 +397,21 @@ def skinned_body(motion, *, n_vertices: int = 5000, radius: float = 0.03,
         V, F = dec.V[0], dec.F
     else:
         V, F = Vf, Ff
-    V = _relax(V, F, Ac, Bc, rc, k)
+    Vr = _relax(V, F, Ac, Bc, rc, k)
+    if _inverted(Vr, F, Ac, Bc, rc, k).sum() <= _inverted(V, F, Ac, Bc, rc, k).sum():
+        V = Vr  # (kept unrelaxed if relaxing left more triangles facing inwards)
     W = _skin_weights(V, A0, B0, driver, motion.n_joints, max_influences, radius * H)
     return {"V": V, "F": F, "W": W, "bind_frame": int(bind_frame), "P": P, "R": R}
+
+
+def _normals(V, F):
+    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+
+
+def _inverted(V, F, A, B, r, k):
+    """Faces (m,) bool whose normal points into the capsule union (against its gradient)."""
+    _, g = _union_value_grad(V[F].mean(axis=1), A, B, r, k)
+    return np.einsum("mi,mi->m", _normals(V, F), g) <= 0
 
 
 def _skin_weights(V, A0, B0, driver, J, max_influences, s):

@@ -18,6 +18,10 @@ def _euler_characteristic(n, F):
     return n - len(E) + len(F)
 
 
+def _normals(V, F):
+    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+
+
 def _signed_volume(V, F):
     return np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() / 6.0
 
@@ -52,6 +56,12 @@ def test_body_is_one_closed_oriented_manifold(walk_body):
     assert kf.V.shape == (6, 2500, 3)
     assert _euler_characteristic(V.shape[0], F) == 2  # a closed genus-0 surface
     assert _signed_volume(V, F) > 0  # outward normals
+    # a smooth skin: no sharp fold, no sliver (marching tetrahedra alone gives both)
+    T = shellspline.topology(F, V.shape[0])
+    assert np.abs(shellspline.dihedral_angles(V[None], T)).max() < 2.0
+    e2 = (np.linalg.norm(V[F] - V[np.roll(F, 1, axis=1)], axis=2) ** 2).sum(axis=1)
+    quality = 2 * np.sqrt(3) * np.linalg.norm(_normals(V, F), axis=1) / e2  # 1: equilateral
+    assert quality.min() > 0.1
     # every vertex is reachable from vertex 0 (one connected component)
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
@@ -147,3 +157,13 @@ def test_bad_window_raises():
         skinned_sequence(p, start=500)
     with pytest.raises(shellspline.ShellsplineError, match="step must be a positive"):
         skinned_sequence(p, step=0)
+
+
+def test_skeleton_without_bones_raises(tmp_path):
+    from shellspline.bvh import Motion, write_bvh
+
+    m = Motion(("root",), [-1], np.zeros((1, 3)), (("Xposition", "Yposition", "Zposition"),),
+               0.1, np.zeros((3, 3)))
+    p = write_bvh(m, tmp_path / "one.bvh")
+    with pytest.raises(shellspline.ShellsplineError, match="has no bone"):
+        skinned_sequence(p)
