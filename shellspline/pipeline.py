@@ -5,11 +5,9 @@ linear blending for ``method="linear"`` (the naive baseline). See ``ARCHITECTURE
 """
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 import platform
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -303,14 +301,15 @@ def _decode_worker(task):
 def _parallel_decode(P, Vc, frames, K, bc, workers):
     """Prolongation of every frame; frames split over ``workers`` forked processes (they share
     the parent's factorization; without fork, or with one worker, it runs here)."""
-    if workers <= 1 or "fork" not in mp.get_all_start_methods() or platform.system() != "Linux" \
-            or P.n_vertices * (K + 1) < SERIAL_DECODE_WORK:
+    from .parallel import process_pool, start_method
+
+    if workers <= 1 or start_method() != "fork" or P.n_vertices * (K + 1) < SERIAL_DECODE_WORK:
         return P.decode(Vc, frames, K, time_weights="linear", bc=bc)
     _WORKER["prolong"] = P
     try:
         out = np.zeros((K + 1, P.n_vertices, 3))
         chunks = _chunks(np.arange(K + 1), workers)
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as ex:
+        with process_pool(workers, method="fork") as ex:
             for ks, Vk in ex.map(_decode_worker, [(Vc, frames, K, bc, c) for c in chunks]):
                 out[ks] = Vk
         return out
@@ -362,9 +361,9 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
     # preconditioner and warm starts stay good (frames cost about the same, so one run per
     # worker balances the load)
     chunks = _chunks(ks, workers)
-    method = "fork" if "fork" in mp.get_all_start_methods() and platform.system() == "Linux" \
-        else "spawn"
-    ctx = mp.get_context(method)
+    from .parallel import process_pool, start_method
+
+    method = start_method()
     if method == "fork":
         # build the assembly pattern once here; the forked workers inherit it, and the frame
         # data (targets, weights, initial guesses): tasks then carry only frame indices, so
@@ -377,8 +376,8 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
         _WORKER["frame_data"] = (Z, W_of, Vinit, warm)
     done = 0
     try:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                                 initargs=(T.F, T.n_vertices, pinned, gn_options)) as ex:
+        with process_pool(workers, _worker_init, (T.F, T.n_vertices, pinned, gn_options),
+                          method) as ex:
             futs = [ex.submit(_worker_solve, ("inherited", c) if method == "fork" else
                               (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
                                Vinit[np.maximum(c - 1, 0)], warm))
