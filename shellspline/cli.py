@@ -4,7 +4,7 @@ Uses only the public API. Exit codes: 0 success, 1 finished but some frame did n
 the quality check failed or a time limit was reached, 2 bad input or usage (a
 :class:`~shellspline.ShellsplineError`) or an I/O error on the user's paths (missing file,
 permission, full disk), 3 internal error (a bug: any other exception; ``SHELLSPLINE_DEBUG=1``
-prints its traceback), 130 interrupted.
+prints its traceback), 130/143 interrupted by SIGINT/SIGTERM.
 """
 from __future__ import annotations
 
@@ -102,7 +102,12 @@ def _build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF)",
                        description="Interpolate keyframes of one triangle mesh (same "
                                    "connectivity) and write OUT/frame_0000.obj ... plus "
-                                   "OUT/report.json.")
+                                   "OUT/report.json.",
+                       epilog="exit codes: 0 success; 1 written, but a frame did not converge, "
+                              "the quality check failed or --max-time was reached; 2 bad "
+                              "input or usage, or an I/O error on your paths; 3 internal "
+                              f"error (a bug; {DEBUG_ENV}=1 prints the traceback); 130/143 "
+                              "interrupted by SIGINT/SIGTERM")
     q.add_argument("keyframes", nargs="+", help="keyframe mesh files, in time order")
     q.add_argument("-o", "--out", required=True, help="output directory (created atomically)")
     g = q.add_mutually_exclusive_group()
