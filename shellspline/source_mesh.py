@@ -12,7 +12,11 @@ one triangle mesh for the solve, and a :class:`SourceMesh` maps its results back
 * **Seams**: vertices that are coincident in **every** keyframe (to round-off: the same cell of
   a grid of ``1e-10 x`` the bounding-box diagonal) are welded into one solve vertex, so a mesh
   split at UV or normal seams cannot tear.
-* **Fins**: where an edge has more than two faces, the faces are grouped into *sheets*
+* **Orientation**: where two faces traverse a shared edge the same way, the minority
+  orientation of each connected component is reversed for the solve (the output keeps the
+  polygons as written); a non-orientable component is refused.
+* **Fins**: a face repeating an earlier face's vertices is set aside; where an edge has more
+  than two faces, the faces are grouped into *sheets*
   (faces connected through edges with exactly two faces); on each such edge the sheets are
   kept largest first while the edge keeps at most two faces, and the others are set aside.
 * **Set-aside vertices** are not solved. One that a fin face uses (a fin's tip) is attached to
@@ -68,6 +72,9 @@ class SourceMesh:
         Input polygons set aside as fins.
     n_welded : int
         Source vertices merged into another one.
+    n_reoriented : int
+        Input polygons whose orientation the solve mesh reverses (the minority of their
+        connected component); the output keeps them as written.
     uv : (t,2) float64 numpy array or None
         Texture coordinates of the input (OBJ ``vt``), written back with the polygons.
     corner_uv : (N,) int64 numpy array or None
@@ -85,6 +92,7 @@ class SourceMesh:
     exact_V: np.ndarray
     fin_polygons: np.ndarray
     n_welded: int
+    n_reoriented: int = 0
     uv: np.ndarray | None = None
     corner_uv: np.ndarray | None = None
 
@@ -106,6 +114,7 @@ class SourceMesh:
                 "welded_vertices": int(self.n_welded),
                 "set_aside_vertices": int(self.set_aside.size),
                 "fin_polygons": int(self.fin_polygons.size),
+                "reoriented_polygons": int(self.n_reoriented),
                 "texture_coordinates": 0 if self.uv is None else int(self.uv.shape[0])}
 
     def solve_vertices(self, idx, what: str = "pinned") -> np.ndarray:
@@ -378,7 +387,19 @@ def _fin_faces(F: np.ndarray, n: int) -> np.ndarray:
     from scipy.sparse.csgraph import connected_components
 
     m = F.shape[0]
+    # a face repeating an earlier one (same three vertices, either orientation) is a fin
+    S = np.sort(F, axis=1)
+    if n < 1 << 21:  # one int64 key per face
+        order = np.argsort((S[:, 0] << 42) | (S[:, 1] << 21) | S[:, 2], kind="stable")
+    else:
+        order = np.lexsort((S[:, 2], S[:, 1], S[:, 0]))
+    Ss = S[order]
     fins = np.zeros(m, dtype=bool)
+    fins[order[1:][(Ss[1:] == Ss[:-1]).all(axis=1)]] = True
+    if fins.any():
+        rest = np.flatnonzero(~fins)
+        fins[rest[_fin_faces(F[rest], n)]] = True
+        return fins
     src, dst = F[:, [1, 2, 0]].ravel(), F[:, [2, 0, 1]].ravel()
     key = np.minimum(src, dst) * np.int64(n) + np.maximum(src, dst)
     face = np.repeat(np.arange(m), 3)
@@ -418,6 +439,48 @@ def _fin_faces(F: np.ndarray, n: int) -> np.ndarray:
     return fins
 
 
+def _reoriented(F: np.ndarray, n: int) -> np.ndarray:
+    """Faces to reverse so that every edge with two faces is traversed both ways: in each
+    connected component (through such edges) the minority orientation is reversed. A
+    non-orientable component (a Moebius strip) is left alone, for topology() to report."""
+    m = F.shape[0]
+    flip = np.zeros(m, dtype=bool)
+    src, dst = F[:, [1, 2, 0]].ravel(), F[:, [2, 0, 1]].ravel()
+    key = np.minimum(src, dst) * np.int64(n) + np.maximum(src, dst)
+    order = np.argsort(key, kind="stable")
+    pair = key[order][1:] == key[order][:-1]
+    i, j = order[:-1][pair], order[1:][pair]
+    same = src[i] == src[j]                     # same direction: the two faces disagree
+    if not same.any():
+        return flip
+    fa, fb = i // 3, j // 3
+    a, b, d = np.r_[fa, fb], np.r_[fb, fa], np.r_[same, same]
+    by = np.argsort(a, kind="stable")
+    nbr, disagree = b[by].tolist(), d[by].tolist()
+    ptr = np.searchsorted(a[by], np.arange(m + 1)).tolist()
+    parity = [-1] * m
+    for root in range(m):
+        if parity[root] >= 0:
+            continue
+        parity[root] = 0
+        stack, comp = [root], [root]
+        while stack:
+            f = stack.pop()
+            for e in range(ptr[f], ptr[f + 1]):
+                g, want = nbr[e], parity[f] ^ disagree[e]
+                if parity[g] < 0:
+                    parity[g] = want
+                    stack.append(g)
+                    comp.append(g)
+                elif parity[g] != want:
+                    return np.zeros(m, dtype=bool)  # not orientable: left to topology()
+        ones = sum(parity[f] for f in comp)
+        if 2 * ones > len(comp):
+            for f in comp:
+                parity[f] ^= 1
+    return np.array(parity, dtype=bool)
+
+
 def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
     """Split an input mesh into the solve mesh and its :class:`SourceMesh` map.
 
@@ -455,11 +518,15 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
     rep = _weld_map(Vs)
     F = rep[tris]
     fins = _fin_faces(F, n)
+    flip = np.zeros(F.shape[0], dtype=bool)
+    flip[~fins] = _reoriented(F[~fins], n)
     used = np.zeros(n, dtype=bool)
     used[F[~fins].ravel()] = True
     welded = rep != np.arange(n)
-    if (sizes == 3).all() and not welded.any() and not fins.any() and used.all() and uv is None:
+    if (sizes == 3).all() and not welded.any() and not fins.any() and used.all() and \
+            uv is None and not flip.any():
         return Vs, tris, None, tri_poly
+    F = np.where(flip[:, None], F[:, [0, 2, 1]], F)
     keep_v = np.flatnonzero(used & ~welded)     # representatives used by kept faces
     solve_of = np.full(n, -1, dtype=np.int64)
     solve_of[keep_v] = np.arange(keep_v.size)
@@ -480,5 +547,6 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
                      to_solve=to_solve, set_aside=set_aside, anchors=anchors, exact=exact,
                      exact_V=np.ascontiguousarray(Vs[:, exact]),
                      fin_polygons=np.unique(tri_poly[fins]), n_welded=int(welded.sum()),
+                     n_reoriented=int(np.unique(tri_poly[flip]).size),
                      uv=None if uv is None else uv[0], corner_uv=None if uv is None else uv[1])
     return np.ascontiguousarray(Vs[:, keep_v]), Fs, src, tri_poly[~fins]

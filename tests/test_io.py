@@ -225,16 +225,29 @@ def test_non_manifold_edge(tmp_path):
     kf = sio.read_keyframes(paths)  # the third face is set aside as a fin (refused before)
     assert kf.F.tolist() == [[0, 1, 2], [1, 0, 3]] and kf.n == 4
     assert kf.source.fin_polygons.tolist() == [2] and kf.source.set_aside.tolist() == [4]
-    # a face given three times: after setting one aside, two traverse each edge alike
-    F = np.array([[0, 1, 2], [0, 1, 2], [0, 1, 2]])
+    # a face given again (either orientation) is set aside as a fin
+    F = np.array([[0, 1, 2], [1, 0, 3], [2, 1, 0], [0, 1, 2]])
     paths = [write_obj(tmp_path / f"nn{j}.obj", V * (j + 1), F) for j in range(2)]
-    raises_mesh_error(lambda: sio.read_keyframes(paths), "nn0.obj", "not consistently oriented")
+    kf = sio.read_keyframes(paths)
+    assert kf.F.tolist() == [[0, 1, 2], [1, 0, 3]] and kf.source.fin_polygons.tolist() == [2, 3]
 
 
 def test_inconsistent_orientation(tmp_path):
     V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0]])
-    F = np.array([[0, 1, 2], [0, 1, 3]])  # both traverse 0 -> 1
-    raises_mesh_error(lambda: sio.keyframes_from_arrays([V, 2 * V], F), "keyframe 0",
+    F = np.array([[0, 1, 2], [0, 1, 3]])  # both traverse 0 -> 1: fixable, face 1 reversed
+    kf = sio.keyframes_from_arrays([V, 2 * V], F)
+    assert kf.F.tolist() == [[0, 1, 2], [0, 3, 1]] and kf.source.n_reoriented == 1
+    # a Moebius strip cannot be oriented: still refused
+    t = np.linspace(0, 2 * np.pi, 9)[:-1]
+    ring = [np.c_[(1 + w * np.cos(t / 2)) * np.cos(t), (1 + w * np.cos(t / 2)) * np.sin(t),
+                  w * np.sin(t / 2)] for w in (-0.3, 0.3)]
+    Vm = np.vstack(ring)                                    # vertex i (w=-), 8 + i (w=+)
+    Fm = []
+    for i in range(8):
+        a, b = i, 8 + i
+        c, d = ((i + 1, 9 + i) if i < 7 else (8, 0))        # the half twist swaps the sides
+        Fm += [[a, c, b], [b, c, d]]
+    raises_mesh_error(lambda: sio.keyframes_from_arrays([Vm, 2 * Vm], Fm), "keyframe 0",
                       "consistently oriented")
 
 

@@ -152,6 +152,24 @@ def test_texture_coordinates_kept_only_when_every_corner_has_one(tmp_path):
     assert sio.read_keyframes([p, q]).source is None
 
 
+def test_flipped_faces_are_reoriented_for_the_solve(tmp_path):
+    """An icosphere with a third of its faces reversed (as after a careless edit in a DCC
+    tool): the solve mesh gets the majority orientation back, face for face; the written
+    output keeps the polygons as they were given."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=2)
+    F = np.array(m.faces)
+    flip = np.random.default_rng(5).random(len(F)) < 0.33
+    Fin = np.where(flip[:, None], F[:, [0, 2, 1]], F)
+    kf = sio.keyframes_from_arrays([m.vertices, m.vertices * [1.3, 1, 1]], Fin)
+    assert np.array_equal(kf.F, F) and kf.source.n_reoriented == flip.sum()
+    out = sio.write_sequence(tmp_path / "o", kf.source.expand(kf.V, [0, 1]), None,
+                             source=kf.source)
+    _, faces = obj_polygons(out / "frame_0000.obj")
+    assert np.array_equal(np.array(faces) - 1, Fin)
+
+
 def test_clean_triangle_mesh_has_no_source(tmp_path):
     import trimesh
 
@@ -405,7 +423,7 @@ def test_cli_end_to_end_on_seamed_quad_obj(tmp_path, tube):
     assert rep["source_mesh"] == {"source_vertices": 164, "polygons": 134,
                                   "non_triangle_polygons": 133, "welded_vertices": 9,
                                   "set_aside_vertices": 2, "fin_polygons": 1,
-                                  "texture_coordinates": 164}
+                                  "reoriented_polygons": 0, "texture_coordinates": 164}
     # texture coordinates carried: the same vt values, every corner naming the input's vt
     _, _, _, (uv_in, cuv_in) = sio._read_polygons(paths[0])
     _, _, _, (uv_out, cuv_out) = sio._read_polygons(frames[7])
