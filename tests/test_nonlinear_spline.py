@@ -413,3 +413,36 @@ def test_cg_is_not_solved_beyond_what_meets_gtol(tiny, monkeypatch, hessian, gto
     assert calls[-1][0] == pytest.approx(floors[-1], rel=1e-12)
     assert calls[-1][0] > 2 * runs[0.0][1][-1][0]
     assert sum(res.cg_iterations) < sum(runs[0.0][0].cg_iterations)
+
+
+@pytest.mark.parametrize("globalization", ["trust-region", "line-search"])
+def test_a_solver_that_cannot_decrease_f_returns_its_start_unchanged(tiny, monkeypatch,
+                                                                     globalization):
+    """Issue 13 item 4: the nonlinear spline starts from a given sequence (the LΘA result)
+    and must never return something worse. Here every inner solve proposes an ascent step
+    (as on a start whose folded elements make the model useless), so no trial decreases F:
+    the result is the start itself (up to the rigid placement, which it already has), with
+    its own energy, and an honest 'not converged' status."""
+    import importlib
+
+    ns = importlib.import_module("shellspline.nonlinear_spline")
+    Vkey, T = tiny
+    frames, K = [0, 3, 6], 6
+    init = _blend(Vkey, np.array(frames), K, False)
+    init[1:3] *= 1.05                          # a start that is not the minimiser
+
+    def ascent(matvec, precond, b, Q, f, rtol, max_iter, *args, **kw):
+        d = -np.asarray(b, dtype=float)         # b = -g: the step +g increases F
+        out = (d, 1, "converged")
+        return out if len(args) == 0 else (*out, 1.0, float(np.linalg.norm(d)))
+
+    monkeypatch.setattr(ns, "_steihaug" if globalization == "trust-region" else "_pcg",
+                        ascent)
+    with pytest.warns(RuntimeWarning, match="not converged"):
+        res = nonlinear_spline(Vkey, frames, K, T, eta=0.1, init=init,
+                               globalization=globalization, max_iter=5)
+    assert not res.success and res.message.startswith("not converged")
+    assert np.all(np.diff(res.energies) <= 0) and res.energy <= res.energies[0]
+    if globalization == "trust-region":   # every trial rejected: nothing accepted at all
+        assert res.energy == res.energies[0] and len(res.energies) == 1
+        assert np.abs(res.V - init).max() <= 1e-12 * np.abs(init).max()
