@@ -8,7 +8,9 @@ One place for the process machinery of the pipeline, the frame writer and the ba
   with the parent whatever kills it (SIGKILL included) and are terminated, not waited for,
   when the block is left by an exception (Ctrl-C, SIGTERM, an error).
 * :func:`die_with_parent` — what every worker calls first: on Linux a parent-death signal
-  (``prctl(PR_SET_PDEATHSIG)``), everywhere a watchdog thread that polls ``os.getppid()``.
+  (``prctl(PR_SET_PDEATHSIG)``), everywhere a watchdog thread that polls ``os.getppid()``;
+  :func:`parent_alive` tells a worker whether its parent still wants its result.
+* :func:`stop_processes` — SIGTERM, a short grace, then SIGKILL (the batch's own workers).
 * :class:`Interrupted` and :func:`stop_signals_unwind` — SIGTERM (and SIGINT) raised as an
   exception in the main thread, so that temporary outputs are removed on the way out and the
   process exits with ``128 + signal`` (130 for SIGINT, 143 for SIGTERM).
@@ -24,7 +26,7 @@ import threading
 import time
 
 __all__ = ["Interrupted", "interrupt_exit_code", "stop_signals_unwind", "start_method",
-           "process_pool", "die_with_parent", "parent_alive"]
+           "process_pool", "stop_processes", "die_with_parent", "parent_alive"]
 
 #: how often a worker's watchdog looks for its parent (seconds): the delay between a parent's
 #: death and its workers' where the parent-death signal does not exist
