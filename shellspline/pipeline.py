@@ -826,6 +826,11 @@ def _nonlinear_stage(Vkey, T, pinned, Vinit, frames, K, bc, mu, lam, eta, solver
                      text=f"it {it:3d}  F {e:.7g}  |g|/|g0| {red:.1e}")
 
     with prog.stage(stage, total=1000):
+        # iteration 0 is reported after the first evaluation, one geodesic midpoint solve per
+        # energy term: minutes on the coarse horse (K = 40), so say what is happening
+        n_terms = K if bc == "periodic" else K - 1
+        prog.advance(stage, 0, 1000, text=f"evaluating the start path ({n_terms} geodesic "
+                                          "midpoints)")
         nl = nonlinear_spline(Vkey, frames, K, T, bc=bc, mu=mu, lam=lam, eta=eta,
                               pinned=pinned, init=Vinit, max_iter=max_iter, callback=report,
                               **opts)
