@@ -261,11 +261,14 @@ def _write_atomically(path, write, seqs=(), suffixes=None, what: str = "output")
         write(tmp)
         os.chmod(tmp, 0o644)
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         try:
             tmp.unlink()
         except FileNotFoundError:
             pass
+        if isinstance(exc, OSError) and exc.errno is not None:  # the user's path, not tmp
+            text = exc.strerror or str(exc)
+            raise OSError(exc.errno, f"{text[:1].lower()}{text[1:]} writing '{path}'") from None
         raise
     return target
 

@@ -193,6 +193,24 @@ def test_full_disk_while_updating_the_report_names_report_json(ell, tmp_path, ca
     assert not [p.name for p in out.iterdir() if p.name.startswith(".report.")]
 
 
+def test_full_disk_while_rendering_names_the_output_file(ell, tmp_path, capsys, monkeypatch):
+    seq = tmp_path / "seq"
+    assert main(["interpolate", *_poses(ell), "-o", str(seq), "-q", "--method", "linear"]) == 0
+    real = Path.write_bytes
+
+    def full_disk(self, data):
+        if ".tmp-" in self.name:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+        return real(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
+    glb = tmp_path / "anim.glb"
+    rc, err = _run(capsys, "render", seq, "--glb", glb, "-q")
+    line = _assert_one_line_error(err, glb)
+    assert rc == 2 and "no space left on device writing" in line and ".tmp-" not in line
+    assert not glb.exists() and not [p for p in tmp_path.iterdir() if ".tmp-" in p.name]
+
+
 def test_output_over_an_input_is_refused_and_the_input_kept(ell, capsys):
     before = _digest(_poses(ell))
     rc, err = _run(capsys, "interpolate", *_poses(ell), "-o", _poses(ell)[0], "--overwrite",
