@@ -421,7 +421,7 @@ def _warnings_as_notes(stream=None):
         _note(text, stream)
 
     with warnings.catch_warnings():
-        warnings.simplefilter("once")
+        warnings.simplefilter("always")  # repeats are dropped by _note, once per run
         warnings.showwarning = show
         yield
 

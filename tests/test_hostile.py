@@ -264,6 +264,9 @@ def test_warnings_reach_the_user_as_one_line_notes(ell, tmp_path, capsys, monkey
     # Python's own format: "file:line: RuntimeWarning: message" and then the source line
     assert "RuntimeWarning:" not in err and "warnings.warn(" not in err
     assert "np.float64(1.0) / np.float64(0.0)" not in err
+    # once per run, not once per process
+    rc, err = _run(capsys, "interpolate", *_poses(ell), "-o", tmp_path / "again", "-q")
+    assert sum("first line second line" in line for line in err.splitlines()) == 1, err
 
 
 @pytest.mark.parametrize("option,value,says", [
