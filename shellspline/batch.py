@@ -864,6 +864,8 @@ def _keyframes_of(spec: SequenceSpec):
         pinned = np.asarray(spec.pinned, dtype=np.int64)
     elif spec.pinned_path is not None:
         pinned = ss.read_indices(spec.pinned_path)
+    if pinned is not None and kf.source is not None:  # pins number the files' vertices
+        pinned = kf.source.solve_vertices(pinned, str(spec.pinned_path or spec.name))
     if spec.params.get("fix_boundary"):
         bv = kf.topology.boundary_vertices
         if bv.size == 0:
@@ -975,11 +977,14 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
         final.parent.mkdir(parents=True, exist_ok=True)
         staging = final.parent / f".{final.name}.stage-{secrets.token_hex(6)}"
         protect = list(spec.keyframes) + [q for q in (spec.frames_path, spec.pinned_path) if q]
-        ss.write_sequence(staging, res.V, res.F, report, fmt=spec.formats[0],
-                          protect=protect, workers=inner_workers)
+        # the input's polygons and vertex numbering written back (real exports)
+        V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K,
+                                                                   p["bc"])
+        ss.write_sequence(staging, V_out, res.F, report, fmt=spec.formats[0],
+                          protect=protect, workers=inner_workers, source=res.source)
         for fmt in spec.formats[1:]:
-            ss.write_sequence(staging / fmt, res.V, res.F, report, fmt=fmt, protect=protect,
-                              workers=inner_workers)
+            ss.write_sequence(staging / fmt, V_out, res.F, report, fmt=fmt, protect=protect,
+                              workers=inner_workers, source=res.source)
         _write_json_atomic(staging / "metrics.json",
                            {**metrics, "keyframe_frames": [int(f) for f in res.frames]})
         if emit is not None:

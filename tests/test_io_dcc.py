@@ -428,3 +428,26 @@ def test_cli_end_to_end_on_seamed_quad_obj(tmp_path, tube):
     _, _, _, (uv_in, cuv_in) = sio._read_polygons(paths[0])
     _, _, _, (uv_out, cuv_out) = sio._read_polygons(frames[7])
     assert np.array_equal(uv_out, uv_in) and np.array_equal(cuv_out, cuv_in)
+
+
+def test_batch_writes_back_the_input_and_maps_pins(tmp_path, tube):
+    """A batch job on the seamed quad OBJ: the input's polygons and vertex count written back,
+    and a pin given by the files' numbering (a seam copy) reaches its solve vertex."""
+    import shellspline as ss
+
+    d = tmp_path / "seqs" / "tube"
+    d.mkdir(parents=True)
+    paths = write_set(d, tube, bom=True, crlf=True)
+    copy = int(tube["seam"][3, 1])
+    (tmp_path / "job.toml").write_text(
+        '[job]\noutput = "out"\nworkers = 1\n[[sequences]]\nname = "tube"\n'
+        f'keyframes = {[str(p) for p in paths]!r}\nframes = [0, 10, 20]\nmethod = "linear"\n'
+        f'pinned = [{copy}]\n'.replace("'", '"'))
+    summary = ss.run_batch(ss.load_job(tmp_path / "job.toml"))
+    assert summary.exit_code == 0
+    frame = sorted((tmp_path / "out" / "tube").glob("frame_*.obj"))[5]
+    V, faces = obj_polygons(frame)
+    assert [[c - 1 for c in f] for f in faces] == polygon_list(tube)
+    assert V.shape == tube["V"][0].shape
+    seam = tube["seam"]
+    assert np.array_equal(V[seam[:, 0]], V[seam[:, 1]])
