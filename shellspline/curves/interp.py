@@ -314,8 +314,8 @@ def hermite_spline(G, t, X, velocities=None):
     velocities : (..., N + 1, G.dim) array_like, optional
         Body velocities at the poses. Default: the average of the two neighbouring chord
         velocities ``log(x_i^{-1} x_{i+1}) / h_i`` weighted like a non-uniform finite difference
-        (one-sided at the ends): the Catmull–Rom choice. Local: a pose moves the curve only on
-        the two intervals beside it.
+        (one-sided at the ends): the Catmull–Rom choice. Local: moving a pose changes the curve
+        only on the (at most four) intervals within two poses of it.
 
     Returns
     -------
