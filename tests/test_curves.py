@@ -240,6 +240,14 @@ def test_hermite_catmull_rom_is_only_c1():
     kn = t[1:-1]
     np.testing.assert_allclose(S.velocity(kn - 1e-12), S.velocity(kn), atol=1e-9)
     assert np.abs(S.acceleration(kn - 1e-10) - S.acceleration(kn)).max() > 1e-2
+    # local: moving pose 4 changes the curve on [t_2, t_6] only
+    X2 = X.copy()
+    X2[4] = SE3.compose(X[4], SE3.exp([0.1, 0, 0, 0, 0.2, 0]))
+    S2 = hermite_spline(SE3, t, X2)
+    out = np.r_[np.linspace(t[0], t[2], 9), np.linspace(t[6], t[-1], 9)]
+    inside = np.linspace(t[2], t[6], 9)[1:-1]
+    np.testing.assert_allclose(S2(out), S(out), atol=1e-14)
+    assert SE3.distance(S2(inside), S(inside)).min() > 1e-6
 
 
 @pytest.mark.parametrize("G", [SO3, SE3, SO3xR3], ids=str)
