@@ -156,6 +156,10 @@ def test_so3dr3_pack_unpack():
     np.testing.assert_array_equal(pb, p)
     with pytest.raises(ShellsplineError, match="pack"):
         G.pack(R[:, :1], p)
+    # the largest joint rotation, not the first one
+    xi = np.r_[0.1, 0, 0, 0, 2.5, 0, 7.0, 7.0, 7.0]
+    assert G.rotation_angle(xi) == pytest.approx(2.5)
+    assert SE3.rotation_angle(np.r_[0, 0.3, 0.4, 9, 9, 9]) == pytest.approx(0.5)
 
 
 @pytest.mark.parametrize("G", [SO3, SE3, SO3xR3], ids=str)

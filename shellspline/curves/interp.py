@@ -264,13 +264,7 @@ def _check_poses(G, t, X, name="X"):
 def _too_far(G, D, name):
     """Raise when consecutive poses are pi or more apart in rotation (no unique geodesic)."""
     w = G.log(D)
-    # rotation parts of the tangent vector
-    if G.name in ("SO3",):
-        ang = np.linalg.norm(w, axis=-1)
-    elif G.name in ("SE3", "SO3xR3"):
-        ang = np.linalg.norm(w[..., :3], axis=-1)
-    else:
-        ang = np.linalg.norm(w[..., :3 * G.d].reshape(w.shape[:-1] + (G.d, 3)), axis=-1).max(-1)
+    ang = G.rotation_angle(w)
     bad = ang > np.pi - 1e-6
     if np.any(bad):
         i = int(np.argwhere(bad)[0][-1])
@@ -693,8 +687,8 @@ def _march_cubic(G, t, X, ax, h, ends, start_acc):
         a = G.compose(xi, G.exp(V0))
         b = G.compose(a, G.exp(V1))
         V2 = G.between(b, x1)
-        for name, V in (("V1", V1), ("V2", V2)):
-            ang = np.linalg.norm(V[..., :3], axis=-1)
+        for V in (V1, V2):
+            ang = G.rotation_angle(V)
             if np.any(ang > np.pi / 2) or not np.all(np.isfinite(V)):
                 raise ShellsplineError(f"marching cubic spline blew up on interval {i} "
                                        f"(t = {t[i]:g}..{t[i + 1]:g}): a control-polygon step "
@@ -741,8 +735,7 @@ def quadratic_spline(G, t, X, start_velocity=None):
         V0 = h[i] * w / 2
         c = G.compose(xi, G.exp(V0))
         V1 = G.between(c, x1)
-        ang = np.linalg.norm(np.concatenate([V0[..., :3], V1[..., :3]], -1).reshape(
-            V0.shape[:-1] + (2, 3)), axis=-1)
+        ang = np.maximum(G.rotation_angle(V0), G.rotation_angle(V1))
         if np.any(ang > np.pi / 2):
             raise ShellsplineError(f"marching quadratic spline blew up on interval {i} "
                                    f"(t = {t[i]:g}..{t[i + 1]:g}): a control point "

@@ -71,6 +71,15 @@ class LieGroup:
         or None (evaluators then use the matrix operations)."""
         return None
 
+    def rotation_angle(self, xi):
+        """The largest rotation angle (radians) in tangent vectors ``xi (..., dim)``: ``(...)``.
+        Geodesic constructions need it below pi between consecutive points."""
+        xi = np.asarray(xi, dtype=np.float64)
+        w = xi[..., :3 * self.n_rotations].reshape(xi.shape[:-1] + (self.n_rotations, 3))
+        return np.sqrt(np.einsum("...i,...i->...", w, w)).max(axis=-1)
+
+    n_rotations = 1
+
     def identity(self, lead=()):
         """Identity elements of shape ``lead + shape``."""
         return self.exp(np.zeros(tuple(lead) + (self.dim,)))
@@ -263,6 +272,7 @@ class SO3dR3(LieGroup):
         self.name = f"SO3^{d}xR3"
         self.shape = (9 * d + 3,)
         self.dim = 3 * d + 3
+        self.n_rotations = d
 
     def pack(self, R, p):
         """Elements ``(..., 9 d + 3)`` from rotations ``(..., d, 3, 3)`` and positions
