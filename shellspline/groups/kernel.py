@@ -3,9 +3,10 @@
 A kernel stores elements as ``(k, ...)`` arrays whose first axis holds the components (unit
 quaternions for rotations: ``k = 4`` for SO(3), ``7`` for SE(3) and SO(3) x R^3, ``4 d + 3``
 for SO(3)^d x R^3) and tangent vectors as ``(dim, ...)``. Every operation is a short sequence
-of elementwise numpy operations on contiguous rows, which is 5-10x faster than batched 3x3 or
-4x4 matrix products on many small matrices. The curve evaluators use it when the group has one
-(``G.kernel() is not None``); results equal the matrix formulas to rounding.
+of elementwise numpy operations on contiguous rows; batched 3x3 / 4x4 matrix products on many
+small matrices are much slower (a cubic SO(3) spline at 100,000 times: 0.64 s with matrices,
+0.11 s with this kernel, same machine and load). The curve evaluators use it when the group has
+one (``G.kernel() is not None``); results equal the matrix formulas to rounding.
 
 Quaternion logarithms take the representative with non-negative scalar part, so ``log`` of a
 relative rotation returns the angle in ``[0, pi]`` (the geodesic), as :func:`so3.log` does.
@@ -47,7 +48,8 @@ def _qrot(q, p):
 
 
 def _qexp(w):
-    """Quaternions of rotation vectors ``(3, ...)``; also ``sin(t)`` and ``cos(t)``."""
+    """Quaternions of rotation vectors ``(3, ...)``; also the angle ``t``, ``sin(t/2)`` and
+    ``cos(t/2)``."""
     th = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     h = 0.5 * th
     s, c = np.sin(h), np.cos(h)
