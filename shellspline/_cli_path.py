@@ -19,7 +19,7 @@ EXIT_OK, EXIT_WARN = 0, 1
 
 _EPILOG = """examples:
   shellspline path groundtruth.txt -o smooth.txt --keep-every 10
-  shellspline path poses.csv -o out.csv --rate 200 --group so3xr3 --plot path.png
+  shellspline path poses.csv -o out.csv --rate 200 --group se3 --plot path.png
   shellspline path kitti_00.txt -o resampled.txt --kind bspline --times times.txt
 
 kinds: interp  C2 cubic spline through the keyframes (--bc natural|clamped|periodic;
@@ -131,6 +131,11 @@ def _path(args) -> int:
         raise ShellsplineError(f"--keep-every must be >= 1, got {args.keep_every}")
     if args.rate is not None and not args.rate > 0:
         raise ShellsplineError(f"--rate must be > 0, got {args.rate}")
+    if args.plot:  # fail before any work when the picture cannot be drawn
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise ShellsplineError("--plot needs matplotlib: pip install 'shellspline[viz]'")
     track = read_poses(args.poses)
     n = track.t.size
     if n < 2:
@@ -177,13 +182,11 @@ def _path(args) -> int:
 
 
 def _plot(png, curve, tq, Tq, tk, Tk, group):
-    try:
-        import matplotlib
+    import matplotlib
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - depends on the environment
-        raise ImportError("--plot needs matplotlib: pip install 'shellspline[viz]'") from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     from .groups import so3
 
     R0t = Tq[0, :3, :3].T

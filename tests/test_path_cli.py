@@ -215,3 +215,18 @@ def test_camera_ground_truth_spline_beats_linear_between_keyframes(tmp_path):
     dp = np.linalg.norm(ours[rest, :3, 3] - T[rest, :3, 3], axis=1)
     dl = np.linalg.norm(lin[rest, :3, 3] - T[rest, :3, 3], axis=1)
     assert np.sqrt(np.mean(dp ** 2)) < 0.7 * np.sqrt(np.mean(dl ** 2))
+
+
+def test_path_plot_without_matplotlib_fails_before_writing(tmp_path, monkeypatch, capsys):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    t, T = _track(8)
+    src = tmp_path / "in.txt"
+    write_poses(src, t, T, "tum")
+    out = tmp_path / "o.txt"
+    assert main(["path", str(src), "-o", str(out), "--plot", str(tmp_path / "p.png")]) == 2
+    assert "pip install 'shellspline[viz]'" in capsys.readouterr().err
+    assert not out.exists()
