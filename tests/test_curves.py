@@ -262,6 +262,8 @@ def test_spline_velocities_are_derivatives_in_body_and_space_frames(G):
     np.testing.assert_allclose(S.velocity(tq, "space"), G.adjoint(S(tq), sp), atol=1e-7)
     acc = (S.velocity(tq + 1e-5) - S.velocity(tq - 1e-5)) / 2e-5
     np.testing.assert_allclose(S.acceleration(tq), acc, atol=1e-5)
+    acc = (S.velocity(tq + 1e-5, "space") - S.velocity(tq - 1e-5, "space")) / 2e-5
+    np.testing.assert_allclose(S.acceleration(tq, "space"), acc, atol=1e-5)
 
 
 @pytest.mark.parametrize("G", [SO3, SE3, SO3xR3], ids=str)
