@@ -300,6 +300,17 @@ def test_many_curves_at_once_equal_one_at_a_time():
     assert S.velocity(tq).shape == (2, 3, 33, 6)
 
 
+def test_newton_takes_over_from_a_slow_chord_iteration_and_converges_quadratically():
+    rng = np.random.default_rng(0)
+    X = SO3.exp(np.cumsum(rng.normal(size=(8, 3)) * 1.2, axis=0))  # ~2 rad per interval
+    X[-1] = X[0]
+    S = cubic_spline(SO3, np.arange(8.0), X, "periodic")
+    assert S.solve.status == "converged" and "then Newton" in S.solve.message
+    r = S.solve.residuals
+    assert r[-1] < 1e-12 and r[-2] < 1e-6 and r[-1] < 10 * r[-2] ** 1.5  # quadratic tail
+    np.testing.assert_allclose(S.acceleration(0.0), S.acceleration(7.0), atol=1e-6)
+
+
 def test_newton_fallback_and_iteration_limit_are_reported():
     rng = np.random.default_rng(26)
     t = _times(rng, 12)

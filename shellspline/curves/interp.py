@@ -471,6 +471,7 @@ def _newton(system, Om, tol, max_iter, periodic):
         return Om, SplineSolve("converged", it, res, f"C² residual {res[-1]:.2e} (chord "
                                                      f"iteration, {it} steps)")
     Om, rec = _newton_fd(F, Om, r, res, scale, tol, max_iter - it, periodic)
+    rec.message += f" (chord iteration, {it} steps, then Newton, {rec.iterations} steps)"
     rec.iterations += it
     return Om, rec
 
@@ -524,9 +525,9 @@ def _newton_fd(F, Om, r, res, scale, tol, max_iter, periodic):
     else:
         done = max_iter
     if res[-1] <= tol * scale:
-        return Om, SplineSolve("converged", done, res, f"C² residual {res[-1]:.2e} (Newton)")
-    return Om, SplineSolve("limit", done, res, f"C² residual {res[-1]:.2e} after the iteration "
-                                               "limit; the curve is C¹ but not C²")
+        return Om, SplineSolve("converged", done, res, f"C² residual {res[-1]:.2e}")
+    return Om, SplineSolve("limit", done, res, f"C² residual {res[-1]:.2e} at the iteration "
+                                               "limit: the curve is C¹ but not C²")
 
 
 def _solve_blocks(blocks, rhs, periodic, solve_banded):
