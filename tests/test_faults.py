@@ -212,8 +212,8 @@ def _batch_job(tmp: Path, names, delay: float, workers: int = 2) -> Path:
     return p
 
 
-def _start_batch(tmp: Path, job: Path, n_workers: int):
-    proc = _popen([sys.executable, "-m", "shellspline", "batch", str(job), "-q"], tmp)
+def _start_batch(tmp: Path, job: Path, n_workers: int, **kw):
+    proc = _popen([sys.executable, "-m", "shellspline", "batch", str(job), "-q"], tmp, **kw)
     assert _wait_for(lambda: len(_children(proc.pid)) >= n_workers or
                      proc.poll() is not None), "no batch workers appeared"
     assert proc.poll() is None, proc.communicate()
@@ -253,14 +253,21 @@ def test_batch_workers_die_with_a_killed_parent(tmp_path):
         _cleanup(proc, workers)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_stop_signal_to_the_parent_only_stops_batch(tmp_path, sig):
+@pytest.mark.parametrize("sig,group", [(signal.SIGINT, False), (signal.SIGTERM, False),
+                                       (signal.SIGINT, True)],
+                         ids=["SIGINT", "SIGTERM", "ctrl_c_to_the_group"])
+def test_stop_signals_stop_batch(tmp_path, sig, group):
+    """SIGINT or SIGTERM to the parent alone, or Ctrl-C to the whole group: exit 128+signal
+    within 2 s, workers gone, no staging directory left, lock released."""
     delay = 30.0  # the sequences would take this long: only a working stop ends the test
     job = _batch_job(tmp_path, ["a", "b"], delay)
     root = tmp_path / "out"
-    proc, workers = _start_batch(tmp_path, job, 2)
+    proc, workers = _start_batch(tmp_path, job, 2, start_new_session=group)
     try:
-        os.kill(proc.pid, sig)
+        if group:
+            os.killpg(proc.pid, sig)
+        else:
+            os.kill(proc.pid, sig)
         t0 = time.monotonic()
         _, err = proc.communicate(timeout=30)
         took = time.monotonic() - t0
