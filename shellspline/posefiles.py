@@ -120,13 +120,10 @@ def _numbers(path, k, fields, n, what):
     if len(fields) < n:
         _fail(path, k, f"expected {n} numbers ({what}), got {len(fields)}")
     try:
-        vals = [float(x) for x in fields[:n]]
+        return [float(x) for x in fields[:n]]
     except ValueError:
         bad = next(x for x in fields[:n] if not _is_float(x))
         _fail(path, k, f"not a number: {bad!r} (expected {what})")
-    if not all(np.isfinite(vals)):
-        _fail(path, k, f"non-finite number (expected {what})")
-    return vals
 
 
 def _is_float(x):
@@ -137,12 +134,15 @@ def _is_float(x):
         return False
 
 
-def _quat(path, k, q):
-    q = np.asarray(q, dtype=np.float64)
-    nq = np.linalg.norm(q)
-    if abs(nq - 1) > 1e-3:
-        _fail(path, k, f"quaternion norm {nq:.6g} is not 1 (within 1e-3)")
-    return q / nq
+def _quats(path, lines, q):
+    """Unit quaternions ``(n, 4)`` from file values, normalised; one-line error at the first
+    that is not within 1e-3 of unit norm."""
+    nq = np.linalg.norm(q, axis=1)
+    bad = np.abs(nq - 1) > 1e-3
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        _fail(path, lines[i], f"quaternion norm {nq[i]:.6g} is not 1 (within 1e-3)")
+    return q / nq[:, None]
 
 
 def _check_times(path, t, lines):
@@ -151,6 +151,10 @@ def _check_times(path, t, lines):
         i = int(np.argmax(d <= 0))
         _fail(path, lines[i + 1], f"times must increase strictly, got {t[i + 1]!r} after "
                                   f"{t[i]!r}")
+
+
+_LAYOUT = {"tum": (8, "t tx ty tz qx qy qz qw"), "kitti": (12, "a 3x4 matrix row by row"),
+           "csv": (8, "t tx ty tz qx qy qz qw"), "euroc": (8, "timestamp px py pz qw qx qy qz")}
 
 
 def read_poses(path, format=None) -> PoseTrack:
@@ -181,51 +185,58 @@ def read_poses(path, format=None) -> PoseTrack:
     if fmt not in FORMATS:
         raise ShellsplineError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
     text = path.read_text(encoding="utf-8")
-    origin = 0
     if fmt == "json":
         t, T, lines = _read_json(path, text)
+        _check_times(path, t, lines)
+        return PoseTrack(t, T, fmt)
+    n, what = _LAYOUT[fmt]
+    rows, lines, tns = [], [], []
+    for k, s in _data_lines(text):
+        if fmt in ("tum", "kitti"):
+            f = s.split()
+        else:
+            f = [x.strip() for x in s.split(",")]
+            if fmt == "csv" and f[0].lower() == "t":
+                continue  # header
+            if fmt == "euroc":
+                if not f[0].lstrip("-").isdigit():
+                    _fail(path, k, f"EuRoC timestamps are integer nanoseconds, got {f[0]!r}")
+                tns.append(int(f[0]))
+        rows.append(_numbers(path, k, f, n, what))
+        lines.append(k)
+    if not rows:
+        _fail(path, 0, "no poses in the file")
+    V = np.array(rows, dtype=np.float64)
+    finite = np.all(np.isfinite(V), axis=1)
+    if not np.all(finite):
+        _fail(path, lines[int(np.argmin(finite))], f"non-finite number (expected {what})")
+    origin = 0
+    if fmt == "kitti":
+        M = V.reshape(-1, 3, 4)
+        t = np.arange(len(rows), dtype=np.float64)
+        R, p = _rotations(path, lines, M[:, :, :3]), M[:, :, 3]
     else:
-        rows, lines, tns = [], [], []
-        for k, s in _data_lines(text):
-            if fmt == "tum":
-                v = _numbers(path, k, s.split(), 8, "t tx ty tz qx qy qz qw")
-                rows.append((v[0], so3.matrix_from_quat(_quat(path, k, v[4:8])), v[1:4]))
-            elif fmt == "kitti":
-                v = np.array(_numbers(path, k, s.split(), 12, "a 3x4 matrix row by row"))
-                M = v.reshape(3, 4)
-                rows.append((float(len(rows)), _rotation(path, k, M[:, :3]), M[:, 3]))
-            else:
-                f = [x.strip() for x in s.split(",")]
-                if fmt == "csv" and f[0].lower() == "t":
-                    continue  # header
-                if fmt == "euroc":
-                    if not f[0].lstrip("-").isdigit():
-                        _fail(path, k, f"EuRoC timestamps are integer nanoseconds, got {f[0]!r}")
-                    tns.append(int(f[0]))
-                    v = _numbers(path, k, f, 8, "timestamp px py pz qw qx qy qz")
-                    q = _quat(path, k, [v[5], v[6], v[7], v[4]])
-                    rows.append((0.0, so3.matrix_from_quat(q), v[1:4]))
-                else:
-                    v = _numbers(path, k, f, 8, "t tx ty tz qx qy qz qw")
-                    rows.append((v[0], so3.matrix_from_quat(_quat(path, k, v[4:8])), v[1:4]))
-            lines.append(k)
-        if not rows:
-            _fail(path, 0, "no poses in the file")
         if fmt == "euroc":
             origin = tns[0]
             t = (np.array(tns, dtype=np.int64) - origin).astype(np.float64) * 1e-9
+            q = V[:, [5, 6, 7, 4]]
         else:
-            t = np.array([r[0] for r in rows])
-        T = se3.from_rt(np.array([r[1] for r in rows]), np.array([r[2] for r in rows]))
+            t, q = V[:, 0], V[:, 4:8]
+        R, p = so3.matrix_from_quat(_quats(path, lines, q)), V[:, 1:4]
     _check_times(path, t, lines)
-    return PoseTrack(t, T, fmt, origin)
+    return PoseTrack(t, se3.from_rt(R, p), fmt, origin)
 
 
-def _rotation(path, k, M):
-    err = np.abs(M @ M.T - np.eye(3)).max()
-    if err > 1e-3 or np.linalg.det(M) < 0:
-        _fail(path, k, f"the 3x3 block is not a rotation (|R R^T - I| = {err:.2g}, det = "
-                       f"{np.linalg.det(M):.3g})")
+def _rotations(path, lines, M):
+    """Rotation blocks ``(n, 3, 3)`` projected onto SO(3) (SVD); one-line error at the first
+    that is more than 1e-3 from orthonormal or reflects."""
+    err = np.abs(M @ np.swapaxes(M, -1, -2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(M)
+    bad = (err > 1e-3) | (det < 0)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        _fail(path, lines[i], f"the 3x3 block is not a rotation (|R R^T - I| = {err[i]:.2g}, "
+                              f"det = {det[i]:.3g})")
     U, _, Vt = np.linalg.svd(M)
     return U @ Vt
 
@@ -249,9 +260,8 @@ def _read_json(path, text):
                        f"{t.shape}, {p.shape}, {q.shape}")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
         _fail(path, 0, "non-finite numbers")
-    for i in range(n):
-        _quat(path, f"pose {i}", q[i])
-    return t, se3.from_rt(so3.matrix_from_quat(q), p), [f"pose {i}" for i in range(n)]
+    lines = [f"pose {i}" for i in range(n)]
+    return t, se3.from_rt(so3.matrix_from_quat(_quats(path, lines, q)), p), lines
 
 
 def write_text_atomic(path, text: str) -> None:
