@@ -99,8 +99,9 @@ def _cleanup(proc, pids):
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def slow_keyframes(tmp_path_factory):
-    """1000-vertex ellipsoid keyframes; at frames 0,100,200 their reconstruction runs in the
-    process pool for minutes, so a signal always finds the workers busy."""
+    """1000-vertex ellipsoid keyframes; at frames 0,500,1000 their reconstruction runs in the
+    process pool for tens of seconds (8 s for frames 0,100,200 on the loaded 2-core VM), so a
+    signal always finds the workers busy."""
     d = tmp_path_factory.mktemp("slow")
     data_synth.write_keyframes(data_synth.generate("ellipsoids", 1000), d)
     return sorted(d.glob("pose_*.obj"))
@@ -108,7 +109,7 @@ def slow_keyframes(tmp_path_factory):
 
 def _start_interpolate(keyframes, out: Path, **kw):
     args = [sys.executable, "-m", "shellspline", "interpolate", *map(str, keyframes),
-            "--frames", "0,100,200", "-o", str(out), "--coarse", "none", "--workers", "2",
+            "--frames", "0,500,1000", "-o", str(out), "--coarse", "none", "--workers", "2",
             "-q"]
     proc = _popen(args, out.parent, **kw)
     assert _wait_for(lambda: len(_children(proc.pid)) >= 2 or proc.poll() is not None), \
