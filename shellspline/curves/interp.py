@@ -443,9 +443,10 @@ def _flat_jacobian(h, ends, n_unknown, periodic):
 
 def _newton(system, Om, tol, max_iter, periodic):
     """Solve the C² conditions: a chord iteration with the flat-space Jacobian (exact when
-    the rotations commute; contracts like the squared rotation per interval otherwise), then
-    full Newton with a coloured finite-difference banded Jacobian if the chord iteration
-    contracts by less than 1/2 per step."""
+    the rotations commute; it contracts the faster, the smaller the rotation per interval),
+    then full Newton with a coloured finite-difference banded Jacobian if the chord iteration
+    contracts by less than 1/2 per step. (Anderson acceleration of the chord iteration was
+    measured and dropped: 10 -> 8-9 steps on the benchmark, slower on large rotations.)"""
     def F(Om_):
         if periodic:
             return system.residual(np.concatenate([Om_, Om_[..., :1, :]], axis=-2))
