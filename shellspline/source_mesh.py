@@ -16,14 +16,32 @@ one triangle mesh for the solve, and a :class:`SourceMesh` maps its results back
   orientation of each connected component is reversed for the solve (the output keeps the
   polygons as written); a non-orientable component is refused.
 * **Fins**: a face repeating an earlier face's vertices is set aside; where an edge has more
-  than two faces, the faces are grouped into *sheets*
-  (faces connected through edges with exactly two faces); on each such edge the sheets are
-  kept largest first while the edge keeps at most two faces, and the others are set aside.
+  than two faces, the faces are grouped into *sheets* (faces connected through edges with
+  exactly two faces); on each such edge the sheets are kept largest first while the edge
+  keeps at most two faces, and the others are set aside.
 * **Set-aside vertices** are not solved. One that a fin face uses (a fin's tip) is attached to
   the solve face of its nearest solve vertex (in keyframe 0) and moves with that face's
   frame, its coordinates in the frame blended linearly between keyframes; an isolated vertex
   (no face uses it, so nothing ties it to the surface) follows the per-vertex linear blend of
   its keyframe positions (:meth:`SourceMesh.expand`).
+* **Texture coordinates** (OBJ ``vt``, when every corner names one) are carried to the output.
+
+Examples
+--------
+Two quads whose shared edge is split at a seam (vertices 4 and 5 repeat 1 and 2), in two
+poses:
+
+>>> import numpy as np
+>>> V = np.array([[0., 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [1, 0, 0], [1, 1, 0],
+...               [2, 0, 0], [2, 1, 0]])
+>>> Vs = np.stack([V, V * [1, 1, 2]])
+>>> V2, F, src, _ = solve_mesh(Vs, np.array([0, 4, 8]), np.array([0, 1, 2, 3, 4, 6, 7, 5]))
+>>> V2.shape[1], F.shape[0], src.n_welded, src.to_solve.tolist()
+(6, 4, 2, [0, 1, 2, 3, 1, 2, 4, 5])
+>>> seq = np.stack([V2[0], (V2[0] + V2[1]) / 2, V2[1]])      # a solve-mesh sequence
+>>> out = src.expand(seq, frames=[0, 2])                      # back to the 8 input vertices
+>>> out.shape, bool((out[:, 4] == out[:, 1]).all()), bool((out[2] == Vs[1]).all())
+((3, 8, 3), True, True)
 """
 from __future__ import annotations
 
