@@ -171,6 +171,19 @@ def _build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _source_line(summary: dict) -> str:
+    """One line on what reading a real export changed (only the non-zero counts)."""
+    words = [("non_triangle_polygons", "polygons triangulated"),
+             ("welded_vertices", "seam vertices welded"),
+             ("reoriented_polygons", "faces reoriented"),
+             ("fin_polygons", "fin faces set aside"),
+             ("set_aside_vertices", "vertices set aside"),
+             ("texture_coordinates", "texture coordinates kept")]
+    parts = [f"{summary[k]} {w}" for k, w in words if summary.get(k)]
+    return (f"{summary['source_vertices']} vertices, {summary['polygons']} faces; "
+            + (", ".join(parts) or "unchanged") + "; written back as given")
+
+
 def _interpolate(args) -> int:
     import numpy as np
 
@@ -249,6 +262,8 @@ def _interpolate(args) -> int:
     if not args.quiet:
         print(f"shellspline {ss.__version__}: {len(args.keyframes)} keyframes, "
               f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)
+        if kf.source is not None:
+            print(f"  input: {_source_line(kf.source.summary())}", file=sys.stderr)
     res = ss.interpolate(kf, K=args.K, method=args.method, bc=args.bc, eta=args.eta, mu=args.mu,
                          lam=args.lam, reference=reference, pinned=pinned,
                          workers=args.workers, gn_options=gn_options,

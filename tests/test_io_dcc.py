@@ -462,3 +462,18 @@ def test_docstring_examples_run():
     for mod in (sm, sio):
         result = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
         assert result.attempted > 0 and result.failed == 0, mod.__name__
+
+
+def test_cli_says_what_reading_changed(tmp_path, tube, capsys):
+    from shellspline.cli import main
+
+    paths = write_set(tmp_path, tube)
+    rc = main(["interpolate", *map(str, paths), "--frames", "0,10,20", "-o",
+               str(tmp_path / "o"), "--method", "linear"])
+    err = capsys.readouterr().err
+    assert rc == 0
+    line = next(ln for ln in err.splitlines() if ln.strip().startswith("input:"))
+    for says in ("164 vertices, 134 faces", "133 polygons triangulated",
+                 "9 seam vertices welded", "1 fin faces set aside", "2 vertices set aside",
+                 "164 texture coordinates kept"):
+        assert says in line, (says, line)
