@@ -194,21 +194,26 @@ class SourceMesh:
                 frames.min() < 0 or frames.max() > K:
             raise MeshError(f"frames {frames.tolist()} and K={K} do not fit a sequence of "
                             f"{V.shape[0]} frames with {self.exact_V.shape[0]} keyframes")
-        from .timeline import keyframe_bracket
+        from scipy.interpolate import make_interp_spline
 
         periodic = str(bc).lower() == "periodic"
         out = np.zeros((V.shape[0], self.n_source, 3))
         kept = self.to_solve >= 0
         out[:, kept] = V[:, self.to_solve[kept]]
         if self.set_aside.size:
-            j0, j1, t = keyframe_bracket(frames, int(K), periodic)
             X = self.exact_V[:, np.searchsorted(self.exact, self.set_aside)]   # (J,s,3)
             fin = self.anchors[:, 0] >= 0
             local = X.copy()                                     # isolated: world coordinates
             if fin.any():
                 origin, R = _face_frames(V, self.anchors[fin])   # (K+1,f,3), (K+1,f,3,3)
                 local[:, fin] = np.einsum("jsba,jsb->jsa", R[frames], X[:, fin] - origin[frames])
-            loc = (1.0 - t)[:, None, None] * local[j0] + t[:, None, None] * local[j1]
+            # piecewise linear in time through the keyframes; periodic: back to keyframe 0 at
+            # frame K; frames after the last keyframe hold it
+            t, Y = frames.astype(np.float64), local
+            if periodic:
+                t, Y = np.append(t, float(K)), np.concatenate([local, local[:1]])
+            k = np.clip(np.arange(K + 1, dtype=np.float64), t[0], t[-1])
+            loc = make_interp_spline(t, Y, k=1, axis=0)(k)
             if fin.any():
                 loc[:, fin] = origin + np.einsum("ksab,ksb->ksa", R, loc[:, fin])
             out[:, self.set_aside] = loc
