@@ -477,3 +477,20 @@ def test_cli_says_what_reading_changed(tmp_path, tube, capsys):
                  "9 seam vertices welded", "1 fin faces set aside", "2 vertices set aside",
                  "164 texture coordinates kept"):
         assert says in line, (says, line)
+
+
+@pytest.mark.parametrize("fmt", ["obj", "ply", "off"])
+def test_data_synth_command_line_writes_the_dcc_set(tmp_path, tube, fmt, capsys):
+    from data_synth.__main__ import main as synth_main
+
+    assert synth_main(["dcc_tube", str(tmp_path / "d"), "--format", fmt]) == 0
+    paths = sorted((tmp_path / "d").glob(f"pose_*.{fmt}"))
+    assert len(paths) == 3
+    if fmt == "obj":
+        raw = paths[0].read_bytes()
+        assert raw.startswith(b"\xef\xbb\xbf") and b"\r\n" in raw
+    kf = sio.read_keyframes(paths, frames=tmp_path / "d" / "frames.txt")
+    assert kf.frames.tolist() == [0, 10, 20] and kf.source.n_source == tube["V"].shape[1]
+    assert np.array_equal(kf.V[:, kf.source.to_solve[0]], tube["V"][:, 0])
+    with pytest.raises(SystemExit):
+        synth_main(["dcc_tube", str(tmp_path / "e"), "--vertices", "100"])
