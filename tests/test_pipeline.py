@@ -111,16 +111,16 @@ def test_workers_give_the_same_sequence(ellipsoids, monkeypatch):
 def test_small_work_starts_no_process_pool(ellipsoids, monkeypatch):
     """Below SERIAL_RECONSTRUCT_WORK / SERIAL_DECODE_WORK vertex-frames ``workers=2`` runs in
     process (a pool costs more than the work); above, the pool is used."""
+    import shellspline.parallel as par
     import shellspline.pipeline as pl
 
     started = []
 
-    class Pool:
-        def __init__(self, *a, **k):
-            started.append(k.get("max_workers"))
-            raise RuntimeError("pool started")
+    def pool(workers, *a, **k):
+        started.append(workers)
+        raise RuntimeError("pool started")
 
-    monkeypatch.setattr(pl, "ProcessPoolExecutor", Pool)
+    monkeypatch.setattr(par, "process_pool", pool)
     d = ellipsoids
     assert d["V"].shape[1] * 12 < pl.SERIAL_RECONSTRUCT_WORK
     r = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=2)
