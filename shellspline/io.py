@@ -1064,8 +1064,9 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         resolves to one of them or contains one.
     workers : int
         Number of processes that format and write frames (``1``: in this process).
-        Formatting OBJ text is CPU bound, so more workers help on long sequences; uses the
-        ``fork`` start method where available.
+        Formatting OBJ text is CPU bound, so more workers help on long sequences. The
+        workers (:func:`shellspline.parallel.process_pool`) die with this process and are
+        stopped at once on Ctrl-C or SIGTERM (the temporary directory is then removed).
     fps : float
         Frames per second of the GLB animation (``fmt="glb"`` only).
     source : SourceMesh, optional
