@@ -389,9 +389,11 @@ def _weld_map(Vs: np.ndarray) -> np.ndarray:
         return rep
     cell = WELD_TOLERANCE * diag
     Q0 = np.round((Vs[0] - lo) / cell).astype(np.int64)
-    _, inv0, counts0 = np.unique(Q0, axis=0, return_inverse=True, return_counts=True)
-    inv0 = inv0.ravel()
-    cand = np.flatnonzero(counts0[inv0] > 1)
+    # candidates: one hashed key per vertex (a collision only adds a candidate; the grouping
+    # below compares the full keys of every keyframe)
+    h = Q0[:, 0] * np.int64(1000003) ^ Q0[:, 1] * np.int64(998244353) ^ Q0[:, 2]
+    _, inv0, counts0 = np.unique(h, return_inverse=True, return_counts=True)
+    cand = np.flatnonzero(counts0[inv0.ravel()] > 1)
     if cand.size == 0:
         return rep
     Q = np.round((Vs[:, cand] - lo) / cell).astype(np.int64)        # (J,c,3)
