@@ -8,7 +8,7 @@ One place for the process machinery of the pipeline, the frame writer and the ba
   with the parent whatever kills it (SIGKILL included) and are terminated, not waited for,
   when the block is left by an exception (Ctrl-C, SIGTERM, an error).
 * :func:`die_with_parent` — what every worker calls first: on Linux a parent-death signal
-  (``prctl(PR_SET_PDEATHSIG)``), everywhere a watchdog thread that polls ``os.getppid()``;
+  (``prctl(PR_SET_PDEATHSIG)``), elsewhere a watchdog thread that polls ``os.getppid()``;
   :func:`parent_alive` tells a worker whether its parent still wants its result.
 * :func:`stop_processes` — SIGTERM, a short grace, then SIGKILL (the batch's own workers).
 * :class:`Interrupted` and :func:`stop_signals_unwind` — SIGTERM (and SIGINT) raised as an
@@ -127,12 +127,13 @@ def _watchdog(parent_pid: int, sig: int) -> None:
 def die_with_parent(parent_pid: int, sig: int = _KILL, pdeathsig: bool = True) -> None:
     """Make this (worker) process receive ``sig`` when process ``parent_pid`` dies.
 
-    Two mechanisms: on Linux the kernel's parent-death signal (``prctl(PR_SET_PDEATHSIG)``;
-    it fires when the *thread* that forked this process exits, so pass ``pdeathsig=False``
-    unless that was the parent's main thread), and everywhere a daemon thread that polls
+    On Linux the kernel's parent-death signal (``prctl(PR_SET_PDEATHSIG)``; it fires when
+    the *thread* that forked this process exits, so pass ``pdeathsig=False`` unless that was
+    the parent's main thread). Where it is not available or not armed, a daemon thread polls
     ``os.getppid()`` every :data:`WATCHDOG_PERIOD_S` seconds and sends ``sig`` to this process
-    (then exits it 5 s later if ``sig`` was handled). A parent that is already gone when this
-    runs is detected too.
+    (then exits it 5 s later if ``sig`` was handled); not both, so that a worker that forks
+    (a batch worker starting its own pool) has no extra thread. A parent that is already gone
+    when this runs is detected too.
 
     Parameters
     ----------
@@ -142,18 +143,18 @@ def die_with_parent(parent_pid: int, sig: int = _KILL, pdeathsig: bool = True) -
         The signal to receive: ``SIGKILL`` for pool workers (nothing to clean up), ``SIGTERM``
         for a worker whose handler removes its temporary output.
     pdeathsig : bool
-        Also use the Linux parent-death signal.
+        Use the Linux parent-death signal where it exists.
     """
     _parent["pid"] = int(parent_pid)
     if hasattr(signal, "pthread_sigmask"):  # a worker must never keep SIGTERM blocked
         signal.pthread_sigmask(signal.SIG_UNBLOCK, [sig, signal.SIGTERM])
-    if pdeathsig:
-        _set_pdeathsig(sig)
+    armed = pdeathsig and _set_pdeathsig(sig)
     if os.getppid() != parent_pid:  # the parent died before the signal was armed
         os.kill(os.getpid(), sig)
         os._exit(1)
-    threading.Thread(target=_watchdog, args=(int(parent_pid), int(sig)), daemon=True,
-                     name="shellspline-parent-watchdog").start()
+    if not armed:
+        threading.Thread(target=_watchdog, args=(int(parent_pid), int(sig)), daemon=True,
+                         name="shellspline-parent-watchdog").start()
 
 
 def parent_alive() -> bool:

@@ -174,21 +174,32 @@ def test_ctrl_c_to_the_process_group_stops_interpolate(tmp_path, slow_keyframes)
     assert list(tmp_path.iterdir()) == []
 
 
-def test_pool_watchdog_alone_stops_orphaned_workers(tmp_path):
-    """Where the kernel's parent-death signal does not exist (simulated: prctl disabled), the
-    workers' watchdog thread notices the dead parent and ends them."""
+@pytest.mark.parametrize("how", ["no_prctl", "pool_in_a_thread"])
+def test_pool_watchdog_alone_stops_orphaned_workers(tmp_path, how):
+    """Where the kernel's parent-death signal does not exist (simulated: prctl disabled), or
+    is not armed because the pool was started from another thread than the main one (the
+    signal would follow that thread), the workers' watchdog notices the dead parent."""
     script = tmp_path / "pool.py"
-    script.write_text(textwrap.dedent("""
-        import os, sys, time
+    script.write_text(textwrap.dedent(f"""
+        import os, sys, threading, time
         import shellspline.parallel as par
-        par._set_pdeathsig = lambda sig: False  # as on a platform without prctl
+        if {how == "no_prctl"}:
+            par._set_pdeathsig = lambda sig: False  # as on a platform without prctl
 
         def work(i):
             print(os.getpid(), flush=True)
             time.sleep(60)
 
-        with par.process_pool(2) as ex:
-            list(ex.map(work, range(2)))
+        def run():
+            with par.process_pool(2) as ex:
+                list(ex.map(work, range(2)))
+
+        if {how == "pool_in_a_thread"}:
+            t = threading.Thread(target=run)
+            t.start()
+            t.join()
+        else:
+            run()
     """))
     proc = _popen([sys.executable, str(script)], tmp_path)
     workers = []
