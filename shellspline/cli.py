@@ -122,8 +122,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         "nonlinear: nonlinear shell spline (paper §5-6) started from lta, slow")
     q.add_argument("--max-time", type=float, default=None,
                    help="wall-clock limit in seconds of the nonlinear stage, its set-up and "
-                        "first evaluation included (default 600; the last accepted iterate is "
-                        "written, marked 'time limit reached', exit 1)")
+                        "first evaluation included, or of the geodesic Newton iterations "
+                        "(default 600; the last accepted iterate is written, marked 'time "
+                        "limit reached', exit 1)")
     q.add_argument("--ftol", type=float, default=None,
                    help="nonlinear: also stop when the energy fell by at most FTOL (relative) "
                         "over the last 3 iterations, e.g. 1e-6 (default: off, stop on the "
@@ -239,8 +240,8 @@ def _interpolate(args) -> int:
                                "it is)")
     gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
     solver_options = {}
-    if args.max_time is not None and args.method != "nonlinear":
-        raise ShellsplineError("--max-time applies to --method nonlinear only")
+    if args.max_time is not None and args.method not in ("nonlinear", "geodesic"):
+        raise ShellsplineError("--max-time applies to --method nonlinear and geodesic only")
     if args.max_time is not None and not 0 < args.max_time < float("inf"):
         raise ShellsplineError(f"--max-time must be a positive number of seconds, got "
                                f"{args.max_time}")
@@ -248,7 +249,7 @@ def _interpolate(args) -> int:
         raise ShellsplineError("--ftol applies to --method nonlinear only")
     if args.ftol is not None and not 0 <= args.ftol < 1:
         raise ShellsplineError(f"--ftol must be in [0, 1), got {args.ftol}")
-    if args.method == "nonlinear":
+    if args.method in ("nonlinear", "geodesic"):
         solver_options["max_time_s"] = 600.0 if args.max_time is None else args.max_time
         if args.ftol is not None:
             solver_options["ftol"] = args.ftol

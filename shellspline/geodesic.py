@@ -21,6 +21,7 @@ two pinned vertices) are projected out in the same way.
 """
 from __future__ import annotations
 
+import time
 import warnings
 from dataclasses import dataclass, field
 
@@ -280,7 +281,7 @@ class PathSolver:
 
     # -- Newton --------------------------------------------------------------------------
     def solve(self, A, B, X0, *, tol: float = 1e-9, max_iter: int = 50,
-              check=None) -> GeodesicResult:
+              check=None, deadline: float | None = None) -> GeodesicResult:
         """Minimise the path energy over the inner shells, starting from ``X0``.
 
         Parameters
@@ -295,6 +296,9 @@ class PathSolver:
         check : callable, optional
             Called before every Newton iteration; may raise to abandon the solve (the
             nonlinear spline's time limit).
+        deadline : float, optional
+            A ``time.perf_counter()`` value: no Newton iteration starts after it; the path
+            reached so far is returned, unconverged, message ``"time limit reached"``.
 
         Returns
         -------
@@ -326,6 +330,9 @@ class PathSolver:
                 success, message = True, "converged (gradient at round-off level)"
                 break
             if nit == max_iter:
+                break
+            if deadline is not None and time.perf_counter() > deadline:
+                message = "time limit reached"
                 break
             modes = self._modes(X)
             data = self.hessian_data(A, X, B)
@@ -499,7 +506,8 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                            lam: float = 1.0, eta: float = 1e-3, pinned=None,
                            bc: str = "natural", energy=None, tol: float = 1e-9,
                            max_iter: int = 50, backend: str = "auto",
-                           callback=None) -> GeodesicInterpolationResult:
+                           callback=None,
+                           max_time_s: float | None = None) -> GeodesicInterpolationResult:
     """Piecewise discrete geodesic interpolation of keyframes (the paper's baseline, §3).
 
     Consecutive keyframes ``j, j+1`` are joined by a discrete geodesic with
@@ -525,12 +533,19 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     tol, max_iter, backend : see :func:`discrete_geodesic`.
     callback : callable, optional
         ``callback(segment_index, GeodesicResult)`` after each segment.
+    max_time_s : float, optional
+        Wall-clock limit in seconds for all segments together: no Newton iteration starts
+        after it, a segment stopped by it keeps the path reached so far, later segments keep
+        their linear blend, and all of them are reported unconverged. Default: none (each
+        segment stops after ``max_iter`` Newton iterations; on the 1000-vertex coarse horse
+        one 20-step segment takes ~10 s per iteration and does not converge in 50).
 
     Returns
     -------
     GeodesicInterpolationResult
         Warns (``RuntimeWarning``) when a segment did not converge.
     """
+    t0 = time.perf_counter()
     Vkey = np.asarray(Vkey, dtype=np.float64)
     if Vkey.ndim != 3 or Vkey.shape[2] != 3:
         raise ShellsplineError(f"`Vkey` must have shape (J,n,3), got {Vkey.shape}")
@@ -540,6 +555,13 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     if len(frames) != len(Vkey):
         raise ShellsplineError(f"`frames` must have one entry per keyframe ({len(Vkey)}), "
                                f"got {len(frames)}")
+    if max_time_s is not None and not (isinstance(max_time_s, (int, float, np.integer,
+                                                                 np.floating))
+                                       and not isinstance(max_time_s, (bool, np.bool_))
+                                       and 0 < float(max_time_s) < np.inf):
+        raise ShellsplineError(f"`max_time_s` must be a positive number of seconds, got "
+                               f"{max_time_s!r}")
+    deadline = None if max_time_s is None else t0 + float(max_time_s)
     W = _make_energy(T, energy, mu, lam, eta)
     if Vkey.shape[1] != W.n_vertices:
         raise ShellsplineError(f"`Vkey` must have n = {W.n_vertices} vertices, got "
@@ -557,7 +579,15 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
             if steps not in solvers:
                 solvers[steps] = PathSolver(W, steps - 1, pinned=pinned, backend=backend)
             X0 = _lerp(Vkey[ja], Vkey[jb], steps)
-            res = solvers[steps].solve(Vkey[ja], Vkey[jb], X0, tol=tol, max_iter=max_iter)
+            if deadline is not None and time.perf_counter() > deadline:
+                E0 = solvers[steps].path_energy(Vkey[ja], X0, Vkey[jb])
+                res = GeodesicResult(V=np.concatenate([Vkey[ja][None], X0, Vkey[jb][None]]),
+                                     energy=steps * E0, success=False, nit=0,
+                                     message="time limit reached before the segment started "
+                                             "(linear blend)")
+            else:
+                res = solvers[steps].solve(Vkey[ja], Vkey[jb], X0, tol=tol,
+                                           max_iter=max_iter, deadline=deadline)
             V[fa + 1:fb] = res.V[1:-1]
         else:
             res = GeodesicResult(V=np.stack([Vkey[ja], Vkey[jb]]),
@@ -574,8 +604,8 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     else:
         V[frames[-1]:] = Vkey[-1]
     message = "all segments converged" if ok else \
-        "segments not converged: " + ", ".join(str(i) for i, r in enumerate(results)
-                                               if not r.success)
+        "segments not converged: " + ", ".join(f"{i} ({r.message})"
+                                               for i, r in enumerate(results) if not r.success)
     if not ok:
         warnings.warn(f"geodesic_interpolation: {message}", RuntimeWarning, stacklevel=2)
     return GeodesicInterpolationResult(V=V, frames=frames, success=bool(ok), nit=nit,

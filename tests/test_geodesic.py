@@ -200,3 +200,39 @@ def test_soft_midpoint_converges_quadratically_below_the_energy_resolution():
     assert r.grad_norms[-1] <= gscale and r.nit <= 6
     g = r.grad_norms
     assert g[-2] <= 1e-8 and g[-1] <= 1e-3 * g[-2]  # quadratic, not a round-off plateau
+
+
+def test_time_limit_keeps_the_path_so_far_and_reports_it_unconverged(ellipsoids, monkeypatch):
+    """Issue 13 item 2: the geodesic ran for minutes on the horse with no bound. With
+    ``max_time_s`` no Newton iteration starts after the limit: the segment it interrupts keeps
+    the path reached so far (lower energy than its linear blend, keyframes exact), later
+    segments keep their blend, and every one of them is reported unconverged."""
+    import importlib
+
+    geo = importlib.import_module("shellspline.geodesic")
+    d = ellipsoids
+    T = topology(d["F"])
+    V = d["V"]
+    clock = {"t": 0.0}
+
+    def fake_clock():          # one "second" per reading: the limit falls inside segment 0
+        clock["t"] += 1.0
+        return clock["t"]
+
+    monkeypatch.setattr(geo.time, "perf_counter", fake_clock)
+    with pytest.warns(RuntimeWarning, match="time limit"):
+        res = geodesic_interpolation(V, [0, 3, 6], 6, T, eta=0.1, max_time_s=2)
+    assert not res.success and "time limit" in res.message
+    s0, s1 = res.segments
+    assert not s0.success and s0.message == "time limit reached" and 1 <= s0.nit < 50
+    blend0 = np.concatenate([V[:1], geo._lerp(V[0], V[1], 3), V[1:2]])
+    W = DiscreteShells(T, 1.0, 1.0, 0.1)
+    blend_energy = 3 * sum(W.energy(blend0[k], blend0[k + 1]) for k in range(3))
+    assert s0.energy < blend_energy
+    assert not s1.success and s1.nit == 0 and "linear blend" in s1.message
+    assert np.array_equal(res.V[4:6], geo._lerp(V[1], V[2], 3))
+    for j, f in enumerate([0, 3, 6]):
+        assert np.array_equal(res.V[f], V[j])
+    for bad in (0, -1.0, True, float("inf"), "10"):
+        with pytest.raises(ValueError, match="max_time_s"):
+            geodesic_interpolation(V, [0, 3, 6], 6, T, max_time_s=bad)
