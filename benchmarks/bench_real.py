@@ -277,12 +277,12 @@ def horse_table(runs) -> str:
     rows = []
     for r in runs:
         gn = r["gn"] or {}
-        rows.append([r["run"], r["seconds"],
+        rows.append([r["run"], r["K"], r["seconds"],
                      f"{gn['converged']}/{gn['stalled']}/{gn['frames']}" if gn else "-",
                      f"{gn['it_median']:g}/{gn['it_max']}" if gn else "-",
                      r["flipped"], r["collapsed"], r["folded"], r["pop"],
                      r["keyframes_exact"]])
-    return format_table(["horse K=40", "s", "GN conv/stall/n", "it med/max", "flip", "coll",
+    return format_table(["horse", "K", "s", "GN conv/stall/n", "it med/max", "flip", "coll",
                          "fold", "pop", "keys exact"], rows)
 
 
