@@ -199,3 +199,16 @@ def test_motion_validates_shapes():
                0.1, np.zeros((2, 4)))
     with pytest.raises(ShellsplineError, match="parent must come before"):
         Motion(("a", "b"), [1, -1], np.zeros((2, 3)), ((), ()), 0.1, np.zeros((1, 0)))
+
+
+def test_zero_frames_and_rotation_only_root(tmp_path):
+    text = ("HIERARCHY\nROOT r\n{\n OFFSET 1 2 3\n CHANNELS 3 Yrotation Xrotation Zrotation\n"
+            " JOINT c\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 0\nFrame Time: 0.04\n")
+    m = read_bvh(_write(tmp_path, text))
+    assert m.n_frames == 0 and m.values.shape == (0, 3) and m.channels[1] == ()
+    P, R = forward_kinematics(m)
+    assert P.shape == (0, 2, 3) and R.shape == (0, 2, 3, 3)
+    one = read_bvh(_write(tmp_path, text.replace("Frames: 0", "Frames: 1") + "0 90 0\n", "b.bvh"))
+    P, R = forward_kinematics(one)
+    # no position channels: the root sits at its OFFSET; Xrotation 90 turns +y into +z
+    np.testing.assert_allclose(P[0], [[1, 2, 3], [1, 2, 4]], atol=1e-12)
