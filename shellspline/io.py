@@ -300,8 +300,13 @@ def _obj_texture(vtlines: list[bytes], ttok: list[bytes], offsets: np.ndarray,
         return None
     try:
         ti = np.array(list(map(int, ttok)), dtype=np.int64)
-        uv = np.array([[float(x) for x in (ln.split()[1:3] + [b"0"])[:2]] for ln in vtlines],
-                      dtype=np.float64).reshape(-1, 2)
+        tokens = _regular_tokens(vtlines, 3)  # "vt u v" everywhere: the fast path
+        if tokens is not None:
+            del tokens[::3]
+            uv = np.array(list(map(float, tokens)), dtype=np.float64).reshape(-1, 2)
+        else:
+            uv = np.array([[float(x) for x in (ln.split()[1:3] + [b"0"])[:2]]
+                           for ln in vtlines], dtype=np.float64).reshape(-1, 2)
     except ValueError:
         return None
     if (ti < 0).any():  # relative: counted back from the last vt line before the face line
@@ -321,7 +326,7 @@ def _regular_tokens(rows: list[bytes], width: int) -> list[bytes] | None:
     tokens = b" ".join(rows).split()
     if len(tokens) != width * len(rows):
         return None
-    key = rows[0][:1] if rows else b""
+    key = rows[0].split(None, 1)[0] if rows else b""
     # a row with a wrong token count shifts the keyword out of every later slot
     if tokens[::width].count(key) != len(rows):
         return None

@@ -138,7 +138,7 @@ def test_texture_coordinates_kept_only_when_every_corner_has_one(tmp_path):
     is set); one corner without a texture index: nothing carried, ``source`` stays None."""
     V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
     head = "".join("v %r %r %r\n" % tuple(v) for v in V.tolist())
-    head += "vt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\nvt 0.5 0.5\n"
+    head += "vt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\nvt 0.5 0.5 0.0\n"  # an optional w: read (u, v)
     p = tmp_path / "uv.obj"
     p.write_text(head + "f 1/1 2/2 3/3\nf 2/5 4/4 3/-3\n")
     q = tmp_path / "uv2.obj"
