@@ -71,5 +71,8 @@ def test_gt_case_small_clip(bench):
             assert at_keys == [0, 0, 0]
         assert m["err"] > 0
     assert set(rec["where"]) == {"lta"}
+    # lta@cubic: the same shapes, moved rigidly: identical shape error
+    assert rec["methods"]["lta@cubic"]["shape"] == pytest.approx(rec["methods"]["lta"]["shape"],
+                                                                rel=1e-9)
     # linear blending of a rotating chain is worse than the cubic through 3 keyframes
     assert rec["methods"]["cubic"]["err"] < rec["methods"]["linear"]["err"]
