@@ -212,3 +212,30 @@ def test_zero_frames_and_rotation_only_root(tmp_path):
     P, R = forward_kinematics(one)
     # no position channels: the root sits at its OFFSET; Xrotation 90 turns +y into +z
     np.testing.assert_allclose(P[0], [[1, 2, 3], [1, 2, 4]], atol=1e-12)
+
+
+def test_real_clip_rewritten_in_another_layout_has_the_same_kinematics(tmp_path):
+    """The 6-channel ZXY walk rewritten CMU-style (one 6-channel root, 3-channel ZYX joints,
+    End Sites kept) through write_bvh/read_bvh: the same joint positions and rotations."""
+    m = read_bvh(shared_data("motion", "dataset-1_walk_normal_001.bvh")).frames(0, 20)
+    P, R = forward_kinematics(m)
+    keep = np.arange(1, m.n_joints)  # drop the ground-reference joint_Root: Hips is the root
+    R_loc, t_loc = m.local_transforms()
+    # non-root translations are constant over time (bone vectors) in this data set
+    assert np.ptp(t_loc[:, 2:], axis=0).max() < 1e-9
+    cols = [np.concatenate([P[:, 1], Rotation.from_matrix(R[:, 1]).as_euler(
+        "ZYX", degrees=True)], axis=1)]
+    for j in keep[1:]:
+        loc = np.einsum("fba,fbc->fac", R[:, m.parents[j]], R[:, j])
+        cols.append(Rotation.from_matrix(loc).as_euler("ZYX", degrees=True))
+    chans = (("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"),) \
+        + (("Zrotation", "Yrotation", "Xrotation"),) * (len(keep) - 1)
+    ends = tuple((p - 1, o) for p, o in m.end_sites)
+    cmu = Motion(m.names[1:], m.parents[1:] - 1, t_loc[0, 1:], chans, 1 / 120,
+                 np.concatenate(cols, axis=1), ends)
+    back = read_bvh(write_bvh(cmu, tmp_path / "cmu.bvh"))
+    assert back.fps == pytest.approx(120.0)
+    assert [len(c) for c in back.channels] == [6] + [3] * (len(keep) - 1)
+    P2, R2 = forward_kinematics(back)
+    np.testing.assert_allclose(P2, P[:, keep], atol=1e-9 * np.abs(P).max())
+    np.testing.assert_allclose(R2, R[:, keep], atol=1e-10)
