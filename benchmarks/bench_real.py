@@ -44,7 +44,7 @@ Run
 ::
 
     PYTHONPATH=. python3 benchmarks/bench_real.py --quick      # smaller windows, coarse horse
-    PYTHONPATH=. python3 benchmarks/bench_real.py              # full (~10-15 minutes)
+    PYTHONPATH=. python3 benchmarks/bench_real.py              # full (~8-15 minutes)
     PYTHONPATH=. python3 benchmarks/bench_real.py --no-horse --clips walk_normal
 
 The tables go to stdout, everything to ``benchmarks/results/bench_real.json`` (``--json``).
