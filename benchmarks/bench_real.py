@@ -82,7 +82,10 @@ def gn_summary(report: dict) -> dict:
     """Gauss–Newton frames converged / stalled and iterations (median, max) of a report."""
     recs = report.get("frames") or []
     nit = [r["nit"] for r in recs]
-    return {"frames": len(recs),
+    statuses = {}
+    for r in recs:
+        statuses[r.get("status", "?")] = statuses.get(r.get("status", "?"), 0) + 1
+    return {"frames": len(recs), "statuses": statuses,
             "converged": int(sum(bool(r["success"]) for r in recs)),
             "stalled": int(sum(r.get("status") == "stalled" for r in recs)),
             "it_median": float(np.median(nit)) if nit else None,
