@@ -18,11 +18,13 @@ from .topology import Topology
 __all__ = [
     "edge_lengths",
     "face_areas",
+    "face_normals",
     "dihedral_angles",
     "lta_descriptors",
     "lta_jacobian",
     "lta_weights",
     "unwrap_angles",
+    "consistent_angles",
     "wrap_angle",
 ]
 
@@ -59,6 +61,29 @@ def _face_normals_unnormalized(V, F):
     # np.take along the vertex axis: ~2x faster than V[..., idx, :] on batched poses
     v0, v1, v2 = (np.take(V, F[:, i], axis=-2) for i in range(3))
     return _cross(v1 - v0, v2 - v0)
+
+
+def face_normals(V, F, *, unit: bool = False) -> np.ndarray:
+    """Face normals ``(v1 − v0) × (v2 − v0)`` (length twice the area) or unit normals.
+
+    Parameters
+    ----------
+    V : (..., n, 3) float64 array
+        One pose or a batch of poses.
+    F : (m,3) int array or Topology
+    unit : bool
+        Normalise to unit length (a degenerate face gets the zero vector).
+
+    Returns
+    -------
+    N : (..., m, 3) float64 array
+    """
+    F = F.F if isinstance(F, Topology) else np.asarray(F)
+    N = _face_normals_unnormalized(np.asarray(V, dtype=np.float64), F)
+    if unit:
+        nn = np.sqrt(np.einsum("...i,...i->...", N, N))[..., None]
+        N = np.divide(N, nn, out=np.zeros_like(N), where=nn > 0)
+    return N
 
 
 def face_areas(V, T: Topology) -> np.ndarray:
@@ -160,6 +185,57 @@ def unwrap_angles(Theta) -> np.ndarray:
     for j in range(1, Theta.shape[0]):  # loop over keyframes only (J is small)
         Theta[j] = Theta[j - 1] + wrap_angle(Theta[j] - Theta[j - 1])
     return Theta
+
+
+#: Two keyframe angles on opposite sides of ±π, both within this many radians of it, are
+#: one fold that passed a little through itself (real keyframes have such edges: skin
+#: folding at a joint until its triangles touch): the angle path between them crosses ±π.
+FOLD_BAND = 0.5
+
+
+def consistent_angles(Theta, periodic: bool = False) -> np.ndarray:
+    """Dihedral angles of keyframes on paths that do not pass through ±π.
+
+    A signed dihedral angle of ±π means the edge's two triangles lie on top of each other;
+    passing through it means they pass through each other. Between two keyframes whose angles
+    lie in ``(−π, π]`` the physical path is therefore the *direct* one, even when it is longer
+    than π (an edge that turns from 37° concave to 177° convex unfolds through flat), not the
+    shorter one through ±π that an angle unwrap takes. The one exception is a pair that sits
+    on opposite sides of ±π, both within :data:`FOLD_BAND` of it: that is one fold the
+    keyframes themselves hold a little past the touching point, and the path crosses ±π.
+
+    Parameters
+    ----------
+    Theta : (J, i) float64 array
+        Keyframe angles in ``(−π, π]`` (from :func:`dihedral_angles`).
+    periodic : bool
+        Also apply the rule between the last and the first keyframe, and return a row
+        ``J`` for the first keyframe at the end of the loop.
+
+    Returns
+    -------
+    (J, i) or (J+1, i) float64 array
+        Angles along the chosen paths: each row differs from its predecessor by the chosen
+        change (``θ_b − θ_a``, or the change through ±π), so rows may leave ``(−π, π]``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> consistent_angles(np.array([[-0.64], [3.09]]))[:, 0].round(2).tolist()
+    [-0.64, 3.09]
+    >>> consistent_angles(np.array([[3.09], [-3.10]]))[:, 0].round(2).tolist()
+    [3.09, 3.18]
+    """
+    Theta = np.asarray(Theta, dtype=np.float64)
+    rows = np.concatenate([Theta, Theta[:1]]) if periodic else Theta
+    out = rows.copy()
+    near = np.abs(rows) > np.pi - FOLD_BAND
+    for j in range(1, rows.shape[0]):  # loop over keyframes only (J is small)
+        d = rows[j] - rows[j - 1]
+        cross = near[j] & near[j - 1] & (np.abs(d) > np.pi)
+        d = np.where(cross, wrap_angle(d), d)
+        out[j] = out[j - 1] + d
+    return out
 
 
 class _JacobianPattern:

@@ -11,7 +11,7 @@ import numpy as np
 from .descriptors import edge_lengths
 from .topology import Topology
 
-__all__ = ["half_axes", "keyframe_kinks", "edge_strain", "speed", "lta_energies",
+__all__ = ["half_axes", "keyframe_kinks", "edge_strain", "speed", "lta_energies", "sequence_defects",
            "shell_energies"]
 
 
@@ -179,3 +179,130 @@ def shell_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam:
         m = solver.solve(V[a], V[b], V[k][None], tol=tol).V[1]
         out[k] = W.energy(V[k], m)
     return out
+
+
+#: A face is *collapsed* in a frame when its area is below this fraction of its smallest
+#: keyframe area (issue 13: the horse's LΘA output had 36 such faces, linear blending none).
+COLLAPSE_RATIO = 1e-3
+
+
+def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
+                     chunk: int = 8) -> dict:
+    """Defects of a sequence that its keyframes do not have themselves.
+
+    Three kinds of element defect and one of motion, each counted per frame:
+
+    - **flipped faces**: step ``k−1 → k`` reverses a face's normal (``n_k · n_{k−1} < 0``)
+      although the face's normals at the two keyframes around the step do not point against
+      each other (a face whose keyframes are flipped must flip somewhere in between);
+    - **collapsed faces**: a face's area in an in-between frame is below
+      :data:`COLLAPSE_RATIO` of its smallest keyframe area;
+    - **folded edges**: step ``k−1 → k`` takes an interior edge's signed dihedral angle
+      through ±π (its two triangles pass through each other), unless the keyframes around the
+      step are such that the shorter change between their angles passes through ±π itself
+      (real keyframes have such edges: skin folding at a joint until the triangles touch and
+      pass a few degrees through each other);
+    - **pop**: the largest vertex displacement of a step over the typical one around it,
+      ``max_i |V[k+1,i] − V[k,i]|`` divided by the median of the same quantity over the up to
+      four neighbouring steps (``k−2..k+2`` without ``k``). A smooth sequence stays near 1; a
+      velocity kink between keyframe gaps of different speed gives at most about 2; a frame
+      that jumps gives much more.
+
+    Parameters
+    ----------
+    V : (K+1, n, 3) float64 array
+    T : Topology
+    frames : (J,) int array
+        Keyframe frames (the keyframes are ``V[frames]``).
+    bc : {"natural", "periodic", "hermite"}
+        ``"periodic"``: the steps after the last keyframe lead back to keyframe 0.
+    chunk : int
+        Frames per batch (bounds memory on large meshes).
+
+    Returns
+    -------
+    dict
+        ``flipped_faces``, ``collapsed_faces``, ``folded_edges`` (ints, summed over frames),
+        ``pop`` (float), ``pop_frame`` (the step ``k → k+1`` with the largest pop, as ``k+1``),
+        ``per_frame`` (``flipped``, ``collapsed``, ``folded``: (K+1,) lists, frame ``k``
+        holding the count of step ``k−1 → k`` or of frame ``k``; ``pop``: (K+1,) list,
+        frame ``k+1`` holding step ``k → k+1``'s ratio, 0 at frame 0) and ``worst_frames``
+        (up to five frames with the most defects, worst first).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from shellspline.topology import topology
+    >>> F = np.array([[0, 1, 2], [1, 0, 3]])
+    >>> V0 = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0]])
+    >>> Vs = np.stack([V0 + 0.1 * k * np.array([0, 0, 1.0]) for k in range(5)])
+    >>> d = sequence_defects(Vs, topology(F), [0, 4])
+    >>> d["flipped_faces"], d["collapsed_faces"], d["folded_edges"], round(d["pop"], 6)
+    (0, 0, 0, 1.0)
+    """
+    from .descriptors import dihedral_angles, face_normals
+    from .timeline import keyframe_bracket, keyframe_gap
+
+    V = np.asarray(V, dtype=np.float64)
+    frames = np.asarray(frames, dtype=np.int64)
+    K = V.shape[0] - 1
+    periodic = str(bc).lower() == "periodic"
+    F = T.F
+    Nkey = face_normals(V[frames], F)                                   # (J, m, 3)
+    akey = 0.5 * np.sqrt(np.einsum("jmi,jmi->jm", Nkey, Nkey)).min(axis=0)
+    Tkey = dihedral_angles(V[frames], T)                                # (J, i)
+    flipped = np.zeros(K + 1, dtype=np.int64)
+    collapsed = np.zeros(K + 1, dtype=np.int64)
+    folded = np.zeros(K + 1, dtype=np.int64)
+    steps = np.zeros(K)
+    is_key = np.zeros(K + 1, dtype=bool)
+    is_key[frames] = True
+    is_key[K] |= periodic
+    g0, g1 = keyframe_gap(frames, K, periodic)                          # per step
+    key_flip = np.einsum("jmi,jmi->jm", Nkey[g0], Nkey[g1]) < 0 if K else None
+    key_fold = np.abs(Tkey[g1] - Tkey[g0]) > np.pi      # the keyframes' own short path
+    prevN = prevT = prevV = None
+    for i in range(0, K + 1, chunk):
+        Vc = V[i:i + chunk]
+        N = face_normals(Vc, F)
+        Th = dihedral_angles(Vc, T)
+        a = 0.5 * np.sqrt(np.einsum("kmi,kmi->km", N, N))
+        collapsed[i:i + len(Vc)] = (a < COLLAPSE_RATIO * akey).sum(axis=1)
+        if prevN is not None:
+            N, Th, Vc = (np.concatenate([p[None], c]) for p, c in
+                         ((prevN, N), (prevT, Th), (prevV, Vc)))
+            s0 = i - 1
+        else:
+            s0 = i
+        if len(Vc) > 1:
+            ks = np.arange(s0, s0 + len(Vc) - 1)                      # steps ks -> ks+1
+            flip = np.einsum("kmi,kmi->km", N[1:], N[:-1]) < 0
+            flipped[ks + 1] = (flip & ~key_flip[ks]).sum(axis=1)
+            through = np.abs(Th[1:] - Th[:-1]) > np.pi                  # short path via ±π
+            folded[ks + 1] = (through & ~key_fold[ks]).sum(axis=1)
+            d = Vc[1:] - Vc[:-1]
+            steps[ks] = np.sqrt(np.einsum("kni,kni->kn", d, d).max(axis=1))
+        prevN, prevT, prevV = N[-1], Th[-1], Vc[-1]
+    collapsed[is_key] = 0
+    pop = np.zeros(K + 1)
+    if K >= 2:
+        floor = 1e-12 * max(float(steps.max()), np.finfo(float).tiny)
+        for k in range(K):  # K scalars: the neighbourhood medians
+            nb = np.concatenate([steps[max(k - 2, 0):k], steps[k + 1:k + 3]])
+            pop[k + 1] = steps[k] / max(float(np.median(nb)), floor) if steps[k] > floor \
+                else 1.0
+    elif K == 1:
+        pop[1] = 1.0
+    score = flipped + collapsed + folded + (pop > 1.5)
+    order = [int(k) for k in np.argsort(-score, kind="stable")[:5] if score[k] > 0]
+    kpop = int(np.argmax(pop))
+    return {
+        "flipped_faces": int(flipped.sum()),
+        "collapsed_faces": int(collapsed.sum()),
+        "folded_edges": int(folded.sum()),
+        "pop": float(pop.max()) if K else 1.0,
+        "pop_frame": kpop,
+        "per_frame": {"flipped": flipped.tolist(), "collapsed": collapsed.tolist(),
+                      "folded": folded.tolist(), "pop": pop.tolist()},
+        "worst_frames": order,
+    }

@@ -15,10 +15,11 @@ import numpy as np
 from . import __version__
 from ._errors import ShellsplineError
 from ._progress import Progress
-from .descriptors import lta_descriptors, lta_weights, unwrap_angles
+from .descriptors import consistent_angles, lta_descriptors, lta_weights, unwrap_angles
 from .io import Keyframes, keyframes_from_arrays, read_keyframes
 from .lta_spline import lta_energy_per_frame, lta_spline
 from .reconstruct import GaussNewton, rigid_placement
+from .timeline import keyframe_bracket
 from .topology import Topology, topology
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
@@ -150,24 +151,6 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
     return frames, K
 
 
-def _bracketing(frames, K, periodic):
-    """For each frame k: indices (j0, j1) of the keyframes around it and blend parameter."""
-    k = np.arange(K + 1)
-    fr = frames.astype(np.float64)
-    J = len(frames)
-    if periodic:
-        fr_ext = np.concatenate([fr, [K]])
-        j_ext = np.concatenate([np.arange(J), [0]])
-        pos = np.clip(np.searchsorted(fr_ext, k, side="right") - 1, 0, J - 1)
-        j0, j1 = j_ext[pos], j_ext[pos + 1]
-        t = (k - fr_ext[pos]) / (fr_ext[pos + 1] - fr_ext[pos])
-    else:
-        pos = np.clip(np.searchsorted(fr, k, side="right") - 1, 0, max(J - 2, 0))
-        j0, j1 = pos, np.minimum(pos + 1, J - 1)
-        t = np.clip((k - fr[pos]) / np.maximum(fr[j1] - fr[j0], 1.0), 0.0, 1.0)
-    return j0, j1, t
-
-
 def linear_blend(Vkey, frames, K, bc: str = "natural"):
     """Per-vertex linear blending of keyframes: the naive baseline.
 
@@ -186,7 +169,7 @@ def linear_blend(Vkey, frames, K, bc: str = "natural"):
     the last keyframe.
     """
     Vkey = np.asarray(Vkey, dtype=np.float64)
-    j0, j1, t = _bracketing(np.asarray(frames), K, bc == "periodic")
+    j0, j1, t = keyframe_bracket(np.asarray(frames), K, bc == "periodic")
     A, B = Vkey[j0], Vkey[j1]
     out = (1.0 - t)[:, None, None] * A + t[:, None, None] * B
     out = np.where(A == B, A, out)  # a vertex that does not move stays bit-identical
@@ -255,24 +238,43 @@ def _worker_init(F, n, pinned, gn_options):
         _WORKER["gn"] = GaussNewton(topology(F, n), pinned=pinned, **gn_options)
 
 
-def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vprev, warm, on_frame=None):
-    """Reconstruct a run of frames in time order.
+def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
+               worse_than=None):
+    """Reconstruct a run of consecutive frames, in the run's order (see :func:`_runs`).
 
-    With ``warm`` the initial guess of frame k is the solution of frame k-1 moved by the
-    blend's change ``Vinit[k] - Vprev[k]`` (``Vprev[k]`` = blend at k-1) when k-1 was solved
-    just before; that is much closer to the solution than the blend itself.
+    ``Vanchor`` is the keyframe next to the run's first frame, or a pair of solved frames
+    ``(V[k∓2], V[k∓1])`` that the run continues. With ``warm`` each frame starts from its
+    solved predecessor in the run, moved by the initial sequence's change (``warm="delta"``,
+    for a given good sequence such as a prolonged coarse result) or, with
+    ``warm="extrapolate"``, the second and later frames from the linear extrapolation
+    ``2 V[k∓1] − V[k∓2]`` of the last two solutions (the keyframe counting as the first of
+    them), the first from the keyframe moved by the initial sequence's change
+    ``Vinit[k] − Vanchor``. Extrapolating the solutions carries the motion of the spline
+    itself; moving by the keyframe blend's change instead carries the blend's flaps that turn
+    over between keyframes (measured on the horse: the blend passes 43 edges through ±π).
+
+    ``worse_than`` (energies, one per frame of the run): the run stops at the first frame
+    whose energy is not below it, and that frame is not returned (see :func:`_continued`).
     """
     out = []
-    prev_k, prev_V = None, None
+    if isinstance(Vanchor, tuple):
+        prev2, prev = Vanchor
+        prev_init = prev
+    else:
+        prev2, prev, prev_init = None, Vanchor, Vanchor
     for i, (k, z, w, v) in enumerate(zip(ks, Zs, Ws, Vinit)):
         t0 = time.perf_counter()
-        if warm and prev_k is not None and prev_k == k - 1:
-            vw = prev_V + (v - Vprev[i])
+        v0 = v
+        if warm and prev is not None:
+            vw = 2.0 * prev - prev2 if prev2 is not None and warm == "extrapolate" else \
+                prev + (v - prev_init)
             if np.all(np.isfinite(vw)) and \
                     np.linalg.norm(_tri_normals(vw, gn.T.F), axis=-1).min() > 0:
                 v = vw
         r = gn.solve(z, w, v)
-        prev_k, prev_V = int(k), r.V
+        if worse_than is not None and not r.energy[-1] < worse_than[i]:
+            break
+        prev2, prev, prev_init = prev, r.V, v0
         rec = r.summary()
         rec["frame"] = int(k)
         rec["seconds"] = time.perf_counter() - t0
@@ -282,14 +284,85 @@ def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vprev, warm, on_frame=None):
     return out
 
 
+def _continued(runs, results, Vinit):
+    """Second pass over each keyframe gap solved from both ends (see :func:`_runs`).
+
+    The runs from the two keyframes of a gap can settle into different local minima of the
+    reconstruction (the horse: frame 10 at energy 0.075 from keyframe 0, frame 11 at 0.011
+    from keyframe 20; a jump where they meet). The run whose frame at the meeting point has
+    the lower energy is continued into the other half, frame by frame, for as long as it
+    finds lower energies there than the first pass did.
+
+    Returns the continuation runs ``(frames, (V[k∓2], V[k∓1]), energies to beat)`` for
+    :func:`_run_reconstruction`.
+    """
+    tasks = []
+    # pair each forward run (anchor before its frames) with the backward run of its gap
+    fwd = {int(r[-1]): (r, a) for r, a in runs if len(r) and r[0] > a}
+    for r, a in runs:
+        if not len(r) or r[0] > a:
+            continue
+        m = int(r[-1]) - 1                                   # last frame of the forward half
+        if m not in fwd:
+            continue
+        rf, af = fwd[m]
+        ef = results[m][1]["energy_final"]
+        eb = results[int(r[-1])][1]["energy_final"]
+        if ef <= eb:   # continue the forward run into the backward half
+            frames_, seq, anchor_ = r[::-1], rf, af
+        else:          # continue the backward run into the forward half
+            frames_, seq, anchor_ = rf[::-1], r, a
+        V1 = results[int(seq[-1])][0]
+        V2 = results[int(seq[-2])][0] if len(seq) >= 2 else Vinit[anchor_]
+        tasks.append((frames_, (V2, V1),
+                      np.array([results[int(k)][1]["energy_final"] for k in frames_])))
+    return tasks
+
+
+def _runs(ks, frames, K, periodic):
+    """The frames to reconstruct as runs that start next to a keyframe.
+
+    Each keyframe gap is solved from both ends toward its middle (frames ``a+1 … m`` forward
+    from keyframe ``a``, ``b−1 … m+1`` backward from keyframe ``b``), so every frame next to a
+    keyframe starts from that keyframe and no chain of warm starts ends at a keyframe it never
+    saw (a run ``21 … 39`` drifted away from keyframe 40: a pop into the last keyframe,
+    issue 13). Frames after the last keyframe of a non-periodic sequence run forward from it.
+
+    Returns
+    -------
+    list of ((r,) int array, int)
+        The run's frames in solving order and the frame of its anchor keyframe.
+    """
+    todo = set(int(k) for k in ks)
+    bounds = [int(f) for f in frames] + ([K] if periodic else [])
+    out = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        m = (a + b) // 2
+        fwd = [k for k in range(a + 1, m + 1) if k in todo]
+        bwd = [k for k in range(b - 1, m, -1) if k in todo]
+        out += [(np.array(fwd), a)] if fwd else []
+        out += [(np.array(bwd), b)] if bwd else []
+    tail = [k for k in range(bounds[-1] + 1, K + 1) if k in todo]
+    if tail:
+        out.append((np.array(tail), bounds[-1]))
+    assert sum(len(r) for r, _ in out) == len(todo)
+    return out
+
+
 def _worker_solve(task):
-    if isinstance(task, tuple) and len(task) == 2 and task[0] == "inherited":
+    if isinstance(task, tuple) and len(task) == 4 and task[0] == "inherited":
         # forked worker: the frame data are the parent's arrays, inherited (no copies)
-        ks = task[1]
+        _, ks, anchor, worse = task
         Z, W_of, Vinit, warm = _WORKER["frame_data"]
         return _solve_run(_WORKER["gn"], ks, [Z[k] for k in ks], [W_of(k) for k in ks],
-                          [Vinit[k] for k in ks], [Vinit[max(k - 1, 0)] for k in ks], warm)
+                          [Vinit[k] for k in ks], _anchor(anchor, Vinit), warm,
+                          worse_than=worse)
     return _solve_run(_WORKER["gn"], *task)
+
+
+def _anchor(anchor, Vinit):
+    """A run's anchor: the frame index of its keyframe, or a pair of solved frames."""
+    return anchor if isinstance(anchor, tuple) else Vinit[anchor]
 
 
 def _decode_worker(task):
@@ -317,20 +390,58 @@ def _parallel_decode(P, Vc, frames, K, bc, workers):
         _WORKER.pop("prolong", None)
 
 
+class _AngleBand:
+    """Keeps the spline's dihedral-angle targets off ±π between keyframes that are not there.
+
+    A spline through angles near ±π overshoots between its keyframes; a target beyond ±π asks
+    the reconstruction to pass the edge's triangles through each other (a fold the keyframes
+    do not have). In every keyframe gap each angle is clipped to ``[−π + m, π − m]`` widened
+    to the two keyframe values themselves (so keyframes held past ±π, see
+    :func:`~shellspline.descriptors.consistent_angles`, and the path between them stay as they
+    are), with the margin ``m`` = :data:`ANGLE_MARGIN`. Edges away from ±π are untouched.
+    """
+
+    def __init__(self, Tkey, sT, frames, K, periodic):
+        Tkey = np.asarray(Tkey, dtype=np.float64)
+        ext = np.concatenate([Tkey, Tkey[:1]]) if periodic else Tkey
+        j0, j1, _ = keyframe_bracket(frames, K, periodic)
+        if periodic:  # the gap after the last keyframe ends at row J (keyframe 0 again)
+            j1 = np.where((j1 == 0) & (j0 == len(Tkey) - 1), len(Tkey), j1)
+        self.sT, self.j0, self.j1 = sT, j0, j1
+        self.lo = np.minimum(np.minimum(ext[:-1], ext[1:]), -np.pi + ANGLE_MARGIN)  # per gap
+        self.hi = np.maximum(np.maximum(ext[:-1], ext[1:]), np.pi - ANGLE_MARGIN)
+        self.gap = np.minimum(j0, len(ext) - 2)
+
+    def __call__(self, Z, k=None):
+        """Clip the angle part of targets ``Z`` ((K+1, d), or rows ``k`` of them)."""
+        Z = np.array(Z, dtype=np.float64, copy=True)
+        g = self.gap if k is None else self.gap[k]
+        Z[..., self.sT] = np.clip(Z[..., self.sT], self.lo[g], self.hi[g])
+        return Z
+
+
+#: Margin (radians) between a clipped angle target and ±π (see :class:`_AngleBand`).
+ANGLE_MARGIN = 0.02
+
+
 class _SplineRows:
     """Rows of ``Z = S @ Zkey`` computed on demand (``S (K+1, J)`` the spline's linear map of
-    the keyframe values, ``Zkey (J, d)``): ``Z[k]`` for an int, an index array or a slice,
-    so the (K+1, d) array need not exist while the reconstruction runs."""
+    the keyframe values, ``Zkey (J, d)``, clipped by ``clamp``): ``Z[k]`` for an int, an index
+    array or a slice, so the (K+1, d) array need not exist while the reconstruction runs."""
 
-    def __init__(self, S, Zkey):
+    def __init__(self, S, Zkey, clamp=None):
         self.S, self.Zkey = np.asarray(S, dtype=np.float64), np.asarray(Zkey, dtype=np.float64)
         self.shape = (self.S.shape[0], self.Zkey.shape[1])
+        self.clamp = clamp
 
     def __len__(self):
         return self.shape[0]
 
     def __getitem__(self, k):
-        return self.S[k] @ self.Zkey
+        Z = self.S[k] @ self.Zkey
+        if self.clamp is None:
+            return Z
+        return self.clamp(Z, np.arange(self.shape[0])[k])
 
 
 def _chunks(idx, n_chunks):
@@ -339,28 +450,33 @@ def _chunks(idx, n_chunks):
 
 
 def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress, warm,
-                        stage="reconstruct"):
+                        stage="reconstruct", runs=None):
+    """Reconstruct frames ``ks`` (in ``runs``, see :func:`_runs`; default one run per frame
+    anchored at its predecessor) serially or on ``workers`` processes."""
     results = {}
     total = len(ks)
+    if runs is None:
+        runs = [(np.array([k]), max(int(k) - 1, 0)) for k in ks]
+    runs = [r if len(r) == 3 else (*r, None) for r in runs]
     if total == 0:
         return results
     if workers <= 1 or total == 1 or T.n_vertices * total < SERIAL_RECONSTRUCT_WORK:
         limiter = _single_blas_thread()
         try:
             gn = GaussNewton(T, pinned=pinned, **gn_options)
-            W = np.stack([W_of(k) for k in ks])
-            for kk, Vk, rec in _solve_run(gn, ks, Z[ks], W, Vinit[ks],
-                                          Vinit[np.maximum(ks - 1, 0)], warm,
-                                          lambda i: progress.advance(stage, i, total)):
-                results[kk] = (Vk, rec)
+            for run, anchor, worse in runs:
+                done = len(results)
+                for kk, Vk, rec in _solve_run(gn, run, Z[run], [W_of(k) for k in run],
+                                              Vinit[run], _anchor(anchor, Vinit), warm,
+                                              lambda i: progress.advance(stage, done + i,
+                                                                         total), worse):
+                    results[kk] = (Vk, rec)
         finally:
             if limiter is not None:
                 limiter.restore_original_limits()
         return results
-    # contiguous chunks keep neighbouring (similar) frames on one worker, so its cached
-    # preconditioner and warm starts stay good (frames cost about the same, so one run per
-    # worker balances the load)
-    chunks = _chunks(ks, workers)
+    # runs of neighbouring (similar) frames on one worker keep its cached preconditioner and
+    # warm starts good
     from .parallel import process_pool, start_method
 
     method = start_method()
@@ -378,10 +494,11 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
     try:
         with process_pool(workers, _worker_init, (T.F, T.n_vertices, pinned, gn_options),
                           method) as ex:
-            futs = [ex.submit(_worker_solve, ("inherited", c) if method == "fork" else
+            # one task per run (runs start next to a keyframe; the pool balances them)
+            futs = [ex.submit(_worker_solve, ("inherited", c, a, w) if method == "fork" else
                               (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
-                               Vinit[np.maximum(c - 1, 0)], warm))
-                    for c in chunks]
+                               _anchor(a, Vinit), warm, None, w))
+                    for c, a, w in runs]
             for fut in futs:
                 for kk, Vk, rec in fut.result():
                     results[kk] = (Vk, rec)
@@ -726,7 +843,8 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
     with prog.stage(stage_prefix + "describe"):
         Zkey = lta_descriptors(Vkey, T)
         sT = T.descriptor_slices()[1]
-        Zkey[:, sT] = unwrap_angles(Zkey[:, sT])
+        Zkey[:, sT] = consistent_angles(Zkey[:, sT])
+        clamp = _AngleBand(Zkey[:, sT], sT, frames, K, periodic)
         if isinstance(reference, (int, np.integer)) and not isinstance(reference, bool):
             ref_idx, ref_kind = int(reference), "constant"
             if not 0 <= ref_idx < J:
@@ -749,7 +867,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
                 return W_spline[k]
         else:
             Wkey = lta_weights(Vkey, T, mu=mu, lam=lam, eta=eta)
-            j0, j1, t = _bracketing(frames, K, periodic)
+            j0, j1, t = keyframe_bracket(frames, K, periodic)
             nearest = np.where(t <= 0.5, j0, j1)
             W_spline = W_report = Wkey[nearest]
 
@@ -760,9 +878,9 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
             # constant weights: the spline is one linear map of the keyframes, Z = S Zkey;
             # the reconstruction takes its rows on demand and the (K+1, d) array is formed
             # afterwards (0.5 GB at 150k vertices, K = 50, not held while the workers run)
-            Z = _SplineRows(lta_spline(np.eye(J), frames, K, bc=bc), Zkey)
+            Z = _SplineRows(lta_spline(np.eye(J), frames, K, bc=bc), Zkey, clamp)
         else:
-            Z = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
+            Z = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline))
     is_key = np.zeros(K + 1, dtype=bool)
     is_key[frames] = True
     is_key[K] |= periodic
@@ -770,12 +888,27 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
     # with a given initial sequence (the prolonged coarse result of ``fine=True``) a warm
     # start moves frame k-1's solution by the change of that sequence: it cancels most of
     # the prolongation's misfit and keeps the cached preconditioner good from frame to frame
-    warm = warm_start
+    # (a given sequence is followed by its change; the keyframe blend only for the first
+    # frame of a run, then the solutions are extrapolated, see _solve_run)
+    warm = ("delta" if Vinit is not None else "extrapolate") if warm_start else False
     Vinit = _safe_init(linear_blend(Vkey, frames, K, bc), Vkey, frames, K, bc, T) \
         if Vinit is None else np.asarray(Vinit, dtype=np.float64)
+    runs = _runs(ks, frames, K, periodic)
     with prog.stage(stage_prefix + "reconstruct", total=len(ks)):
         results = _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
-                                      warm, stage=stage_prefix + "reconstruct")
+                                      warm, stage=stage_prefix + "reconstruct", runs=runs)
+    if warm == "extrapolate":
+        again = _continued(runs, results, Vinit)
+        n_again = sum(len(r) for r, _, _ in again)
+        stage = stage_prefix + "reconstruct (continue)"
+        with prog.stage(stage, total=n_again):
+            better = _run_reconstruction(T, np.concatenate([r for r, _, _ in again]) if again
+                                         else np.zeros(0, int), Z, W_of, Vinit, pinned,
+                                         gn_options, workers, prog, warm, stage=stage,
+                                         runs=again)
+        for kk, (Vk, rec) in better.items():
+            rec["continued"] = True
+            results[kk] = (Vk, rec)
     if isinstance(Z, _SplineRows):
         Z = Z[:]
     with prog.stage(stage_prefix + "place"):
@@ -789,7 +922,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         t0 = time.perf_counter()
         with prog.stage(stage_prefix + f"fixpoint {it + 1} solve"):
             W_spline = lta_weights(V, T, mu=mu, lam=lam, eta=eta)
-            Znew = lta_spline(Zkey, frames, K, bc=bc, weights=W_spline)
+            Znew = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline))
         stage = stage_prefix + f"fixpoint {it + 1} reconstruct"
         with prog.stage(stage, total=len(ks)):
             results = _run_reconstruction(T, ks, Znew, lambda k: W_spline[k], V, pinned,
@@ -902,7 +1035,7 @@ def _safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):
 
     a_key = areas(Vkey).mean(axis=0)
     out = blend
-    j0, j1, t = _bracketing(np.asarray(frames), K, bc == "periodic")
+    j0, j1, t = keyframe_bracket(np.asarray(frames), K, bc == "periodic")
     for i in range(0, K + 1, 8):
         bad = (areas(blend[i:i + 8]) < min_ratio * a_key).any(axis=1)
         for k in np.flatnonzero(bad) + i:

@@ -235,7 +235,9 @@ def test_reused_rotated_preconditioner_finds_the_direct_minimiser():
         a = reuse.solve(Z[k], w, v)
         b = direct.solve(Z[k], w, v)
         assert a.success and b.success, (a.message, b.message)
-        assert b.factorizations == b.nit  # the reference really refactors every step
+        # the reference really refactors every step (and once more for the final decrement
+        # test, which solves for a step it does not take)
+        assert b.factorizations == b.nit + int(b.message.startswith("Gauss–Newton decrement"))
         iters, facts = iters + a.nit, facts + a.factorizations
         scale = np.abs(Vs[0]).max()
         assert np.abs(a.V - b.V).max() < 1e-6 * scale  # pins fix the rigid motion
