@@ -187,9 +187,9 @@ def unwrap_angles(Theta) -> np.ndarray:
     return Theta
 
 
-#: Two keyframe angles on opposite sides of ±π, both within this many radians of it, are
-#: one fold that passed a little through itself (real keyframes have such edges: skin
-#: folding at a joint until its triangles touch): the angle path between them crosses ±π.
+#: A keyframe angle within this many radians of ±π is a fold whose sign is not to be trusted
+#: (real keyframes hold creases a little past the touching point: skin folding at a joint,
+#: neighbouring edges of one crease at +2.9 and −2.6): the path to it may cross ±π.
 FOLD_BAND = 0.5
 
 
@@ -199,10 +199,12 @@ def consistent_angles(Theta, periodic: bool = False) -> np.ndarray:
     A signed dihedral angle of ±π means the edge's two triangles lie on top of each other;
     passing through it means they pass through each other. Between two keyframes whose angles
     lie in ``(−π, π]`` the physical path is therefore the *direct* one, even when it is longer
-    than π (an edge that turns from 37° concave to 177° convex unfolds through flat), not the
-    shorter one through ±π that an angle unwrap takes. The one exception is a pair that sits
-    on opposite sides of ±π, both within :data:`FOLD_BAND` of it: that is one fold the
-    keyframes themselves hold a little past the touching point, and the path crosses ±π.
+    than π (an edge that turns from 20° convex to 150° concave unfolds through flat), not the
+    shorter one through ±π that an angle unwrap takes. The exception is a keyframe angle
+    within :data:`FOLD_BAND` of ±π: a fold the keyframes hold a little past the touching
+    point, whose sign says little (neighbouring edges of one crease of the horse sit at +2.91
+    and −2.65); the path to or from it takes the shorter way, through ±π when that is
+    shorter (−1.46 → 2.91 becomes −1.46 → −3.37: a concave fold that ends 13° past flat).
 
     Parameters
     ----------
@@ -221,8 +223,10 @@ def consistent_angles(Theta, periodic: bool = False) -> np.ndarray:
     Examples
     --------
     >>> import numpy as np
-    >>> consistent_angles(np.array([[-0.64], [3.09]]))[:, 0].round(2).tolist()
-    [-0.64, 3.09]
+    >>> consistent_angles(np.array([[0.35], [-2.3]]))[:, 0].round(2).tolist()
+    [0.35, -2.3]
+    >>> consistent_angles(np.array([[-1.46], [2.91]]))[:, 0].round(2).tolist()
+    [-1.46, -3.37]
     >>> consistent_angles(np.array([[3.09], [-3.10]]))[:, 0].round(2).tolist()
     [3.09, 3.18]
     """
@@ -232,7 +236,7 @@ def consistent_angles(Theta, periodic: bool = False) -> np.ndarray:
     near = np.abs(rows) > np.pi - FOLD_BAND
     for j in range(1, rows.shape[0]):  # loop over keyframes only (J is small)
         d = rows[j] - rows[j - 1]
-        cross = near[j] & near[j - 1] & (np.abs(d) > np.pi)
+        cross = (near[j] | near[j - 1]) & (np.abs(d) > np.pi)
         d = np.where(cross, wrap_angle(d), d)
         out[j] = out[j - 1] + d
     return out

@@ -199,9 +199,11 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
       :data:`COLLAPSE_RATIO` of its smallest keyframe area;
     - **folded edges**: step ``k−1 → k`` takes an interior edge's signed dihedral angle
       through ±π (its two triangles pass through each other), unless the keyframes around the
-      step are such that the shorter change between their angles passes through ±π itself
-      (real keyframes have such edges: skin folding at a joint until the triangles touch and
-      pass a few degrees through each other);
+      step hold it within :data:`~shellspline.descriptors.FOLD_BAND` of ±π at one end and the
+      shorter way between them crosses ±π (a fold the keyframes themselves hold a little past
+      the touching point: skin folding at a joint); an edge that turns by more than π between
+      keyframes away from ±π is expected to turn the direct way, through 0 (see
+      :func:`~shellspline.descriptors.consistent_angles`);
     - **pop**: the largest vertex displacement of a step over the typical one around it,
       ``max_i |V[k+1,i] − V[k,i]|`` divided by the median of the same quantity over the up to
       four neighbouring steps (``k−2..k+2`` without ``k``). A smooth sequence stays near 1; a
@@ -240,7 +242,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     >>> d["flipped_faces"], d["collapsed_faces"], d["folded_edges"], round(d["pop"], 6)
     (0, 0, 0, 1.0)
     """
-    from .descriptors import dihedral_angles, face_normals
+    from .descriptors import FOLD_BAND, dihedral_angles, face_normals
     from .timeline import keyframe_bracket, keyframe_gap
 
     V = np.asarray(V, dtype=np.float64)
@@ -260,7 +262,10 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     is_key[K] |= periodic
     g0, g1 = keyframe_gap(frames, K, periodic)                          # per step
     key_flip = np.einsum("jmi,jmi->jm", Nkey[g0], Nkey[g1]) < 0 if K else None
-    key_fold = np.abs(Tkey[g1] - Tkey[g0]) > np.pi      # the keyframes' own short path
+    # a crossing the keyframes hold themselves: one end near ±π, the short way through it
+    Ta, Tb = Tkey[g0], Tkey[g1]
+    band = np.pi - FOLD_BAND
+    key_fold = ((np.abs(Ta) > band) | (np.abs(Tb) > band)) & (np.abs(Tb - Ta) > np.pi)
     prevN = prevT = prevV = None
     for i in range(0, K + 1, chunk):
         Vc = V[i:i + chunk]
