@@ -827,10 +827,12 @@ def _quality_warning(report: dict) -> str:
         parts.append(f"Gauss–Newton converged on {gn['converged']}/{gn['frames']} frames")
     if not q.get("keyframes_exact", True):
         parts.append("keyframes not reproduced exactly")
-    if q.get("flipped_faces"):
-        parts.append(f"{q['flipped_faces']} flipped faces")
-    if q.get("degenerate_faces"):
-        parts.append(f"{q['degenerate_faces']} degenerate faces")
+    for key, what in (("flipped_faces", "flipped faces"), ("collapsed_faces", "collapsed faces"),
+                      ("folded_edges", "folded edges"), ("degenerate_faces", "degenerate faces")):
+        if q.get(key):
+            parts.append(f"{q[key]} {what}")
+    if q.get("pop", 0.0) > q.get("pop_limit", float("inf")):
+        parts.append(f"a pop of {q['pop']:.1f}x the neighbouring steps at frame {q['pop_frame']}")
     for name in ("geodesic", "nonlinear"):
         if name in report and not report[name]["success"]:
             parts.append(f"{name} did not converge")

@@ -330,12 +330,21 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
     t = rep["timings"]
     lines.append("time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     if gn:
-        lines.append(f"Gauss–Newton: {gn['converged']}/{gn['frames']} frames converged, "
-                     f"{gn['iterations_total']} iterations (max {gn['iterations_max']}), "
-                     f"{gn['factorizations_total']} factorizations")
-    lines.append(f"quality: keyframes exact={q['keyframes_exact']}, flipped faces "
-                 f"{q['flipped_faces']}, degenerate faces {q['degenerate_faces']}, "
-                 f"min area ratio {q['min_area_ratio']:.3g}")
+        line = (f"Gauss–Newton: {gn['converged']}/{gn['frames']} frames converged, "
+                f"{gn['iterations_total']} iterations (median {gn.get('iterations_median', 0):g}"
+                f", max {gn['iterations_max']}), {gn['factorizations_total']} factorizations")
+        for key, what in (("stalled", "stalled"), ("iteration_limit", "at the iteration limit")):
+            if gn.get(key):
+                fr = gn[key]
+                line += f"; {what}: frames {fr[:8]}{' …' if len(fr) > 8 else ''}"
+        lines.append(line)
+    line = (f"quality: keyframes exact={q['keyframes_exact']}, new flipped faces "
+            f"{q['flipped_faces']}, collapsed {q.get('collapsed_faces', 0)}, folded edges "
+            f"{q.get('folded_edges', 0)}, degenerate {q['degenerate_faces']}, pop "
+            f"{q.get('pop', 0.0):.2f}")
+    if q.get("worst_frames"):
+        line += f"; worst frames {q['worst_frames']} (report.json quality.per_frame)"
+    lines.append(line)
     for name in ("geodesic", "nonlinear"):
         if name in rep:
             r = rep[name]
@@ -346,8 +355,9 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
                          f"{r['grad_norm_final'] / r['grad_norm_initial']:.1e} in "
                          f"{r['seconds']:.1f} s")
             lines.append(line)
-    ok = q["keyframes_exact"] and q["flipped_faces"] == 0 and q["degenerate_faces"] == 0 and \
-        (not gn or gn["converged"] == gn["frames"]) and \
+    from .pipeline import quality_ok
+
+    ok = quality_ok(q) and (not gn or gn["converged"] == gn["frames"]) and \
         all(rep[name]["success"] for name in ("geodesic", "nonlinear") if name in rep)
     if not quiet:
         print("\n".join(lines), file=sys.stderr)

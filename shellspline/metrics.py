@@ -291,7 +291,9 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     collapsed[is_key] = 0
     pop = np.zeros(K + 1)
     if K >= 2:
-        floor = 1e-12 * max(float(steps.max()), np.finfo(float).tiny)
+        # steps at round-off level (static frames) are not motion
+        diag = float(np.linalg.norm(np.ptp(V[frames].reshape(-1, 3), axis=0)))
+        floor = max(1e-12 * float(steps.max()), 1e-10 * diag, np.finfo(float).tiny)
         for k in range(K):  # K scalars: the neighbourhood medians
             nb = np.concatenate([steps[max(k - 2, 0):k], steps[k + 1:k + 3]])
             pop[k + 1] = steps[k] / max(float(np.median(nb)), floor) if steps[k] > floor \

@@ -23,7 +23,7 @@ from .timeline import keyframe_bracket
 from .topology import Topology, topology
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
-           "canonical_frames", "linear_blend", "sequence_quality"]
+           "canonical_frames", "linear_blend", "sequence_quality", "quality_ok", "POP_LIMIT"]
 
 #: Below this many vertex-frames the Gauss–Newton reconstruction runs in this process even
 #: with ``workers > 1``: starting a pool costs more than the work (cactus γ = 0.05, K = 20:
@@ -181,11 +181,12 @@ def linear_blend(Vkey, frames, K, bc: str = "natural"):
 
 
 def sequence_quality(V, T: Topology, frames) -> dict:
-    """Quality checks of a sequence: degenerate and flipped triangles, keyframe error.
+    """Quality checks of a sequence: degenerate and flipped triangles.
 
     A triangle is *flipped* in frame ``k`` when its normal points against its normal in frame
-    ``k-1`` (dot product < 0); *degenerate* when its area is below 1e-6 of its mean area over
-    the keyframes.
+    ``k-1`` (dot product < 0; counted whether or not the keyframes force it, see
+    :func:`shellspline.metrics.sequence_defects` for the defects the keyframes do not have);
+    *degenerate* when its area is below 1e-6 of its mean area over the keyframes.
     """
     V = np.asarray(V)
     F = T.F
@@ -213,6 +214,42 @@ def sequence_quality(V, T: Topology, frames) -> dict:
         "flipped_faces": n_flip,
         "max_area_ratio": rmax,
     }
+
+
+#: A step whose largest vertex displacement exceeds this multiple of its neighbours' is a pop
+#: (:func:`shellspline.metrics.sequence_defects`); a velocity kink between keyframe gaps of
+#: different speed (linear blending) stays below 2.
+POP_LIMIT = 2.0
+
+
+def _quality(V, T: Topology, frames, bc, Vkey) -> dict:
+    """The report's quality record: new defects (flipped and collapsed faces, folded edges,
+    pops; :func:`shellspline.metrics.sequence_defects`), with a per-frame record and the
+    worst frames, the older counts of :func:`sequence_quality`, and keyframe exactness."""
+    from .metrics import sequence_defects
+
+    old = sequence_quality(V, T, frames)
+    d = sequence_defects(V, T, frames, bc=bc)
+    per = d.pop("per_frame")
+    return {
+        "keyframes_exact": bool(all(np.array_equal(V[f], Vkey[j]) for j, f in enumerate(frames))),
+        "flipped_faces": d["flipped_faces"], "collapsed_faces": d["collapsed_faces"],
+        "folded_edges": d["folded_edges"], "pop": d["pop"], "pop_frame": d["pop_frame"],
+        "pop_limit": POP_LIMIT, "worst_frames": d["worst_frames"],
+        "degenerate_faces": old["degenerate_faces"],
+        "flipped_faces_all": old["flipped_faces"],
+        "min_area_ratio": old["min_area_ratio"], "max_area_ratio": old["max_area_ratio"],
+        "per_frame": per,
+    }
+
+
+def quality_ok(quality: dict) -> bool:
+    """Whether a quality record (``report["quality"]``) shows no defect: keyframes exact, no new
+    flipped or collapsed face, no folded edge, no degenerate face, no pop."""
+    return bool(quality["keyframes_exact"] and not quality["flipped_faces"]
+                and not quality.get("collapsed_faces", 0) and not quality.get("folded_edges", 0)
+                and not quality["degenerate_faces"]
+                and quality.get("pop", 0.0) <= quality.get("pop_limit", POP_LIMIT))
 
 
 # -- parallel reconstruction -----------------------------------------------------------------
@@ -280,8 +317,14 @@ def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
         rec["seconds"] = time.perf_counter() - t0
         out.append((int(k), r.V, rec))
         if on_frame is not None:
-            on_frame(i + 1)
+            on_frame(i + 1, rec)
     return out
+
+
+def _frame_text(rec) -> str:
+    """One progress line for a reconstructed frame (logs get one per frame)."""
+    return (f"frame {rec['frame']:4d}: {rec['status']:<9s} {rec['nit']:3d} it  "
+            f"E {rec['energy_final']:.3g}")
 
 
 def _continued(runs, results, Vinit):
@@ -374,6 +417,8 @@ def _decode_worker(task):
 def _parallel_decode(P, Vc, frames, K, bc, workers):
     """Prolongation of every frame; frames split over ``workers`` forked processes (they share
     the parent's factorization; without fork, or with one worker, it runs here)."""
+    from concurrent.futures import as_completed
+
     from .parallel import process_pool, start_method
 
     if workers <= 1 or start_method() != "fork" or P.n_vertices * (K + 1) < SERIAL_DECODE_WORK:
@@ -468,8 +513,9 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
                 done = len(results)
                 for kk, Vk, rec in _solve_run(gn, run, Z[run], [W_of(k) for k in run],
                                               Vinit[run], _anchor(anchor, Vinit), warm,
-                                              lambda i: progress.advance(stage, done + i,
-                                                                         total), worse):
+                                              lambda i, rec: progress.advance(
+                                                  stage, done + i, total,
+                                                  text=_frame_text(rec)), worse):
                     results[kk] = (Vk, rec)
         finally:
             if limiter is not None:
@@ -477,6 +523,8 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
         return results
     # runs of neighbouring (similar) frames on one worker keep its cached preconditioner and
     # warm starts good
+    from concurrent.futures import as_completed
+
     from .parallel import process_pool, start_method
 
     method = start_method()
@@ -499,11 +547,11 @@ def _run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog
                               (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
                                _anchor(a, Vinit), warm, None, w))
                     for c, a, w in runs]
-            for fut in futs:
+            for fut in as_completed(futs):
                 for kk, Vk, rec in fut.result():
                     results[kk] = (Vk, rec)
                     done += 1
-                    progress.advance(stage, done, total)
+                    progress.advance(stage, done, total, text=_frame_text(rec))
     finally:
         _WORKER.pop("gn", None)
         _WORKER.pop("frame_data", None)
@@ -771,14 +819,17 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         report["energies"]["resolution"] = resolution
     report["frames"] = frame_records
     with prog.stage("quality"):
-        report["quality"] = sequence_quality(V, T, frames)
-        report["quality"]["keyframes_exact"] = bool(all(np.array_equal(V[f], Vkey[j])
-                                                        for j, f in enumerate(frames)))
+        report["quality"] = _quality(V, T, frames, bc, Vkey)
     if frame_records:
         nits = [r["nit"] for r in frame_records]
         report["gauss_newton"] = {
             "frames": len(frame_records),
             "converged": int(sum(r["success"] for r in frame_records)),
+            "stalled": [int(r["frame"]) for r in frame_records
+                        if r.get("status") == "stalled"],
+            "iteration_limit": [int(r["frame"]) for r in frame_records
+                                if r.get("status") == "limit"],
+            "iterations_median": float(np.median(nits)),
             "iterations_total": int(sum(nits)),
             "iterations_max": int(max(nits)),
             "cg_iterations_total": int(sum(r["cg_iterations"] for r in frame_records)),
