@@ -204,24 +204,40 @@ class GaussNewton:
         self._sL, self._sT, self._sA = sl
 
     # -- pieces -------------------------------------------------------------------------
-    def _merit(self, z, z_target, w):
-        """Energy and its Gauss–Newton form at descriptors ``z``.
+    def merit(self, z, z_target, w):
+        """The reconstruction energy and its Gauss–Newton form at descriptors ``z``.
 
-        Angle residuals are wrapped to ``[−π, π)`` (the targets keep off ±π, see
-        :class:`shellspline.pipeline.interpolate`'s angle band; following each angle
-        continuously instead of wrapping was measured on the horse and gave 5x more flipped
-        triangles: it holds flaps that the initial guess has on the wrong side of ±π there).
-        Areas: a triangle compressed below its target (``a < a*``) has the residual
-        ``(a − a*) √(a*/a)`` instead of ``a − a*``: equal value and slope at ``a = a*``,
-        unchanged for ``a ≥ a*``, and a barrier that grows like ``1/a`` as the triangle
-        collapses. Without it the line search stalled against its no-collapse guard on the
-        horse (gradients up to 3e4 at "converged" frames, 29 collapsed triangles); starting the
-        barrier only at a quarter of the target area was measured too and stalled on 23 of 38
-        horse frames (the full form conditions the Gauss–Newton matrix of compressed
-        triangles). It changes the ellipsoids of paper Fig. 3 by at most 6e-4 of a half-axis.
+        Parameters
+        ----------
+        z, z_target : (e+i+m,) float64 arrays
+            Descriptors of the iterate and the target.
+        w : (e+i+m,) float64 array
+            Weights.
 
-        Returns ``(f, r_eff, w_eff)`` with ``f = Σ w ρ²`` and ``Jᵀ(w_eff r_eff)`` its
-        gradient, ``Jᵀ W_eff J`` its Gauss–Newton matrix.
+        Returns
+        -------
+        f : float
+            ``Σ w ρ²``.
+        r_eff, w_eff : (e+i+m,) float64 arrays
+            ``Jᵀ (w_eff r_eff)`` is half the gradient of ``f`` and ``Jᵀ W_eff J`` its
+            Gauss–Newton matrix (``J`` the descriptor Jacobian).
+
+        Notes
+        -----
+        ``ρ = z − z*`` (paper eq. 12) except:
+
+        - angle residuals are wrapped to ``[−π, π)`` (the spline's targets keep off ±π, see
+          :func:`shellspline.descriptors.consistent_angles`; following each angle continuously
+          instead was measured on the horse and gave 5x more flipped triangles: it holds flaps
+          that the initial guess has on the wrong side of ±π there);
+        - a triangle compressed below its target (``a < a*``) has ``ρ = (a − a*) √(a*/a)``:
+          equal value and slope at ``a = a*``, unchanged for ``a ≥ a*``, and a barrier that
+          grows like ``1/a`` as the triangle collapses. Without it the line search stalled
+          against its no-collapse guard on the horse (gradients up to 3e4 at "converged"
+          frames, 29 collapsed triangles); starting the barrier only at a quarter of the
+          target area stalled on 23 of 38 horse frames (the full form conditions the
+          Gauss–Newton matrix of compressed triangles). It moves the ellipsoids of paper
+          Fig. 3 by at most 6e-4 of a half-axis.
         """
         r = z - z_target
         r[self._sT] = wrap_angle(r[self._sT])
@@ -410,7 +426,7 @@ class GaussNewton:
         a_floor = 1e-6 * np.maximum(z_target[self._sA], 0.0)
         x = np.array(V_init, dtype=np.float64, copy=True).ravel()
         J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
-        f, r, w_eff = self._merit(z, z_target, w)
+        f, r, w_eff = self.merit(z, z_target, w)
         g = J.T @ (w_eff * r)
         g[self._dof_pinned] = 0.0
         g0 = float(np.linalg.norm(g))
@@ -471,7 +487,7 @@ class GaussNewton:
                 an = face_areas(Vn, T)
                 if np.all(an > a_floor):
                     zn = lta_descriptors(Vn, T)
-                    fn, rn, wn = self._merit(zn, z_target, w)
+                    fn, rn, wn = self.merit(zn, z_target, w)
                     if fn <= f + 1e-4 * alpha * slope:
                         accepted = True
                         break
@@ -498,7 +514,7 @@ class GaussNewton:
             x = xn
             f_old, f = f, fn
             J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
-            f, r, w_eff = self._merit(z, z_target, w)
+            f, r, w_eff = self.merit(z, z_target, w)
             g = J.T @ (w_eff * r)
             g[self._dof_pinned] = 0.0
             gn = float(np.linalg.norm(g))

@@ -1,0 +1,212 @@
+"""Real-mesh difficulties (issue 13): angle paths that avoid ±π, a reconstruction that cannot
+collapse triangles and reports stalls honestly, and the defect measurements themselves."""
+import numpy as np
+import pytest
+import trimesh
+
+import shellspline as ss
+from data_synth import stress
+from shellspline.descriptors import (FOLD_BAND, consistent_angles, dihedral_angles,
+                                     lta_descriptors, lta_jacobian, lta_weights)
+from shellspline.metrics import COLLAPSE_RATIO, sequence_defects
+from shellspline.reconstruct import GaussNewton
+
+
+# -- angle paths ------------------------------------------------------------------------------
+def test_consistent_angles_take_the_direct_way_away_from_pi():
+    # 0.63 -> -2.59 (36° convex to 148° concave): 3.22 rad directly, 3.06 through ±π; the
+    # direct way, unlike an unwrap (neither angle is within FOLD_BAND of ±π)
+    T = np.array([[0.63, 0.35, -2.0], [-2.59, 2.2, 2.0]])
+    out = consistent_angles(T)
+    np.testing.assert_array_equal(out, T)           # never through ±π: no row moves
+    unwrapped = ss.descriptors.unwrap_angles(T)
+    assert unwrapped[1, 0] != T[1, 0] and unwrapped[1, 2] != T[1, 2]   # the unwrap crosses
+
+
+def test_consistent_angles_cross_pi_only_next_to_a_fold():
+    near = np.pi - 0.5 * FOLD_BAND
+    T = np.array([[-1.46, near, -near], [near, -1.46, near]])
+    out = consistent_angles(T)
+    # -1.46 -> +near: the fold is reached the short way, through -π (ends past -π)
+    assert out[1, 0] == pytest.approx(near - 2 * np.pi)
+    # +near -> -1.46: leaves the fold the short way, through +π
+    assert out[1, 1] == pytest.approx(-1.46 + 2 * np.pi)
+    # -near -> +near: one fold held past the touching point, crosses
+    assert out[1, 2] == pytest.approx(near - 2 * np.pi)
+    assert np.all(np.abs(np.diff(out, axis=0)) <= np.pi)
+
+
+def test_consistent_angles_chain_over_keyframes_and_periodic_row():
+    T = np.array([[0.1], [np.pi - 0.1], [-np.pi + 0.1], [0.2]])
+    out = consistent_angles(T)
+    # into the fold past +π, then back out the way it came (not on through another turn)
+    np.testing.assert_allclose(out[:, 0], [0.1, np.pi - 0.1, np.pi + 0.1, 0.2])
+    assert consistent_angles(T, periodic=True).shape == (5, 1)
+
+
+def test_spline_angle_targets_stay_off_pi_between_keyframes():
+    # a flap folding 0° -> 150° -> 176°: the natural spline of its crease angle overshoots
+    # past 176°; the targets stay below π − margin (the keyframe at 176° is 4° from π)
+    d = stress.fold_over()
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], pinned=d["pinned"])
+    T = ss.topology(d["F"])
+    sT = T.descriptor_slices()[1]
+    Zs = res.Z[:, sT]
+    key = dihedral_angles(d["V"], T)
+    assert np.abs(key).max() > np.pi - 0.1                       # the case is what it says
+    assert np.abs(Zs).max() < np.pi                              # no target past the fold
+    free = np.setdiff1d(np.arange(21), d["frames"])
+    assert np.abs(Zs[free]).max() <= np.pi - ss.pipeline.ANGLE_MARGIN + 1e-12
+
+
+# -- reconstruction ----------------------------------------------------------------------------
+def _sphere_problem(seed=0, area_scale=(0.5, 8.0)):
+    m = trimesh.creation.icosphere(1)
+    V, T = m.vertices, ss.topology(m.faces)
+    rng = np.random.default_rng(seed)
+    zt = lta_descriptors(V, T)
+    zt[T.descriptor_slices()[2]] *= rng.uniform(*area_scale, T.n_faces)
+    return V, T, zt, lta_weights(V, T), rng
+
+
+def test_merit_gradient_matches_central_differences():
+    V, T, zt, w, rng = _sphere_problem()
+    gn = GaussNewton(T)
+    X = V + 0.05 * rng.standard_normal(V.shape)
+    J, z = lta_jacobian(X, T, return_values=True)
+    f, r, we = gn.merit(z, zt, w)
+    sA = T.descriptor_slices()[2]
+    assert (z[sA] < zt[sA]).sum() > 10           # the barrier branch is exercised
+    g = 2.0 * J.T @ (we * r)
+
+    def F(x):
+        return gn.merit(lta_descriptors(x.reshape(-1, 3), T), zt, w)[0]
+
+    for _ in range(3):
+        d = rng.standard_normal(X.size)
+        h = 1e-6
+        fd = (F(X.ravel() + h * d) - F(X.ravel() - h * d)) / (2 * h)
+        assert g @ d == pytest.approx(fd, rel=1e-7)
+
+
+def test_merit_is_the_paper_energy_where_no_triangle_is_compressed():
+    V, T, zt, w, _ = _sphere_problem(area_scale=(0.2, 0.9))   # every target smaller
+    X = V * 1.01
+    z = lta_descriptors(X, T)
+    r = z - zt
+    r[T.descriptor_slices()[1]] = ss.descriptors.wrap_angle(r[T.descriptor_slices()[1]])
+    f = GaussNewton(T).merit(z, zt, w)[0]
+    assert f == pytest.approx(float(w @ (r * r)), rel=1e-13)
+
+
+def test_a_stalled_or_truncated_frame_is_not_converged():
+    V, T, zt, w, rng = _sphere_problem()
+    X = V + 0.1 * rng.standard_normal(V.shape)
+    res = GaussNewton(T, max_iter=1).solve(zt, w, X)
+    assert res.status == "limit" and not res.success and "iteration limit" in res.message
+    full = GaussNewton(T).solve(zt, w, X)
+    assert full.status == "converged" and full.success
+    assert full.energy[-1] < res.energy[-1]
+
+
+def test_identical_target_is_converged_at_once():
+    V, T, zt, w, _ = _sphere_problem(area_scale=(1.0, 1.0))
+    res = GaussNewton(T).solve(zt, w, V)
+    assert res.success and res.status == "converged" and res.nit == 0
+
+
+@pytest.mark.parametrize("pinned", [False, True])
+def test_flexing_joint_has_no_collapsed_triangle_and_no_fold(pinned):
+    # a tube flexing 0° -> 150° -> 30°: the blend of the keyframes passes 21 edges through
+    # ±π; before the compression barrier and the angle rule the LΘA result had 5-6 collapsed
+    # triangles and 1-2 folded edges, and reported every frame converged
+    d = stress.joint()
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"],
+                         pinned=d["pinned"] if pinned else None)
+    q = res.report["quality"]
+    assert q["keyframes_exact"]
+    assert q["collapsed_faces"] == 0 and q["folded_edges"] == 0
+    T = ss.topology(d["F"])
+    a = ss.face_areas(res.V, T)
+    assert a.min() > COLLAPSE_RATIO * ss.face_areas(d["V"], T).min(axis=0).min()
+    # the status is honest: a frame counts as converged only with the gradient criterion
+    for rec in res.report["frames"]:
+        assert rec["success"] == (rec["status"] == "converged")
+        if rec["status"] == "converged":
+            assert rec["message"] in ("gradient norm reduced below gtol",
+                                      "Gauss–Newton decrement below dtol",
+                                      "initial guess is stationary",
+                                      "converged (no further decrease at round-off level)")
+    gn = res.report["gauss_newton"]
+    assert gn["converged"] + len(gn["stalled"]) + len(gn["iteration_limit"]) == gn["frames"]
+
+
+# -- measurements ------------------------------------------------------------------------------
+def _flap(theta):
+    """Two triangles sharing the edge (0,1) with dihedral angle ``theta``."""
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -np.cos(theta), -np.sin(theta)]])
+    return V, F
+
+
+def test_defects_see_a_fold_through_pi_and_excuse_one_the_keyframes_hold():
+    _, F = _flap(0.0)
+    T = ss.topology(F)
+    # 0.3 -> 2.6 rad, but the in-betweens go the other way round, through ±π
+    path = np.concatenate([np.linspace(0.3, -np.pi - 0.6, 6)])
+    path[-1] = 2.6 + 0.0
+    Vs = np.stack([_flap(t)[0] for t in np.r_[0.3, np.linspace(-0.5, -3.5, 4), 2.6]])
+    th = dihedral_angles(Vs, T)[:, 0]
+    assert np.abs(np.diff(th)).max() > np.pi                 # really crosses
+    d = sequence_defects(Vs, T, [0, 5])
+    assert d["folded_edges"] == 1 and d["per_frame"]["folded"].index(1) > 0
+    # the keyframes themselves sit on both sides of ±π, near it: the crossing is theirs
+    Vk = np.stack([_flap(t)[0] for t in np.linspace(np.pi - 0.1, np.pi + 0.1, 6)])
+    assert sequence_defects(Vk, T, [0, 5])["folded_edges"] == 0
+
+
+def test_defects_count_flips_collapses_and_pops():
+    V, F = _flap(0.5)
+    T = ss.topology(F)
+    K = 10
+    up = np.array([0.0, 0.0, 0.01])
+    Vs = np.stack([V + k * up for k in range(K + 1)])
+    clean = sequence_defects(Vs, T, [0, K])
+    assert clean["flipped_faces"] == clean["collapsed_faces"] == clean["folded_edges"] == 0
+    assert clean["pop"] == pytest.approx(1.0) and clean["worst_frames"] == []
+    flip = Vs.copy()
+    flip[4, 2] = [0.5, -0.2, 0.04]         # face 0 turned over in frame 4, back in frame 5
+    d = sequence_defects(flip, T, [0, K])
+    assert d["per_frame"]["flipped"] == [0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0]
+    assert d["flipped_faces"] == 2 and 4 in d["worst_frames"]
+    col = Vs.copy()
+    col[7, 3] = 0.5 * (col[7, 0] + col[7, 1]) + [0.0, 0.0, 1e-6]   # face 1 onto its edge
+    d = sequence_defects(col, T, [0, K])
+    assert d["per_frame"]["collapsed"] == [0] * 7 + [1] + [0] * 3
+    pop = Vs.copy()
+    pop[6] += 5 * up                       # frame 6 jumps ahead and comes back
+    d = sequence_defects(pop, T, [0, K])
+    assert d["pop"] > 4 and d["pop_frame"] in (6, 7)
+    assert d["flipped_faces"] == d["collapsed_faces"] == 0
+
+
+def test_keyframe_flip_is_not_a_new_defect():
+    V, F = _flap(0.5)
+    T = ss.topology(F)
+    Vb = V.copy()
+    Vb[2] = [0.5, -1.0, 0.0]                 # face 0 reversed in the second keyframe
+    Vs = np.stack([V + t * (Vb - V) for t in np.linspace(0, 1, 6)])
+    assert sequence_defects(Vs, T, [0, 5])["flipped_faces"] == 0
+
+
+def test_report_quality_has_per_frame_records_that_add_up():
+    d = stress.joint(angles=(0.0, 60.0, 0.0))
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"])
+    q = res.report["quality"]
+    for key, per in (("flipped_faces", "flipped"), ("collapsed_faces", "collapsed"),
+                     ("folded_edges", "folded")):
+        assert sum(q["per_frame"][per]) == q[key]
+        assert len(q["per_frame"][per]) == res.K + 1
+    assert max(q["per_frame"]["pop"]) == pytest.approx(q["pop"])
+    assert ss.pipeline.quality_ok(q) == (q["pop"] <= ss.pipeline.POP_LIMIT
+                                         and q["flipped_faces"] == 0)
