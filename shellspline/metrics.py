@@ -205,10 +205,12 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
       keyframes away from ±π is expected to turn the direct way, through 0 (see
       :func:`~shellspline.descriptors.consistent_angles`);
     - **pop**: the largest vertex displacement of a step over the typical one around it,
-      ``max_i |V[k+1,i] − V[k,i]|`` divided by the median of the same quantity over the up to
-      four neighbouring steps (``k−2..k+2`` without ``k``). A smooth sequence stays near 1; a
-      velocity kink between keyframe gaps of different speed gives at most about 2; a frame
-      that jumps gives much more.
+      ``max_i |V[k+1,i] − V[k,i]|`` divided by the mean of the same quantity over the up to
+      four neighbouring steps (``k−2..k+2`` without ``k``). A smooth sequence stays near 1
+      (also where it slows down to turn back: the mean, unlike the median, is not fooled by
+      two near-zero steps at a turning point, and neighbouring steps below a quarter of the
+      sequence's median step count as that quarter); a velocity kink between keyframe gaps
+      of different speed gives at most about 2; a frame that jumps gives much more.
 
     Parameters
     ----------
@@ -293,10 +295,13 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     if K >= 2:
         # steps at round-off level (static frames) are not motion
         diag = float(np.linalg.norm(np.ptp(V[frames].reshape(-1, 3), axis=0)))
-        floor = max(1e-12 * float(steps.max()), 1e-10 * diag, np.finfo(float).tiny)
-        for k in range(K):  # K scalars: the neighbourhood medians
+        # ... and neither are steps far below the sequence's own speed (a motion that slows
+        # down to a stop and starts again is not a pop: compare with a quarter of the median)
+        floor = max(1e-12 * float(steps.max()), 1e-10 * diag, np.finfo(float).tiny,
+                    0.25 * float(np.median(steps)))
+        for k in range(K):  # K scalars: the neighbourhood means
             nb = np.concatenate([steps[max(k - 2, 0):k], steps[k + 1:k + 3]])
-            pop[k + 1] = steps[k] / max(float(np.median(nb)), floor) if steps[k] > floor \
+            pop[k + 1] = steps[k] / max(float(np.mean(nb)), floor) if steps[k] > floor \
                 else 1.0
     elif K == 1:
         pop[1] = 1.0

@@ -497,11 +497,7 @@ def test_missing_dask_is_a_one_line_error(tmp_path, capsys, monkeypatch):
 def test_regression_pipeline_passes_and_catches_a_perturbation(tmp_path, capsys):
     out = tmp_path / "out"
     rc, err = _cli(capsys, PIPELINES / "regression_ellipsoids.toml", "-o", out)
-    # one sequence has a real pop: nearest-keyframe reference weights switch at the middle of
-    # each gap, and the speed jumps by 2.3x there (the quality check's warning, exit 1)
-    assert rc == 1, err
-    warned = [line for line in err.splitlines() if "warning" in line and "done" in line]
-    assert warned and all("fig3_keyframe_reference" in w and "pop of 2." in w for w in warned)
+    assert rc == 0, err
     s = _summary(out)
     assert s["regression"]["passed"] and len(s["regression"]["checks"]) >= 40
     assert "regression: passed" in err
