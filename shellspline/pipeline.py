@@ -717,7 +717,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                        callback=lambda s, r: prog.advance("geodesic", s + 1,
                                                                           len(frames)),
                                        **dict(solver_options or {}))
-        V = _placed(g.V, frames, K, bc, pinned, Vkey)
+        V = _placed(g.V, frames, K, bc, pinned, Vkey, T.F)
         report["geodesic"] = {"success": bool(g.success), "nit": int(g.nit),
                               "message": g.message,
                               "segment_energies": [float(e) for e in g.segment_energies]}
@@ -795,7 +795,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 # energies where the spline was solved (full-resolution descriptors of every
                 # frame would cost more than the whole coarse run)
                 energy_source = (Vc, Zc, Tc, Wc)
-            V = _placed(V, frames, K, bc, pinned, Vkey)
+            V = _placed(V, frames, K, bc, pinned, Vkey, T.F)
         if fixpoint:
             report["fixpoint"] = fixpoint_log
         if W_report is None:
@@ -803,7 +803,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         if method == "nonlinear" and "nonlinear" not in report:
             Vn, report["nonlinear"] = _nonlinear_stage(Vkey, T, pinned, V, frames, K, bc, mu,
                                                        lam, eta, solver_options, prog)
-            V = _placed(Vn, frames, K, bc, pinned, Vkey)
+            V = _placed(Vn, frames, K, bc, pinned, Vkey, T.F)
             energy_source = None  # energies of the final (full-resolution) sequence
     with prog.stage("energies"):
         if energy_source is not None:
@@ -967,7 +967,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         V = blend.copy()
         for k in ks:
             V[k] = results[k][0]
-        V = _placed(V, frames, K, bc, pinned, Vkey)
+        V = _placed(V, frames, K, bc, pinned, Vkey, T.F)
     records = [results[k][1] for k in ks]
     for it in range(int(fixpoint)):
         t0 = time.perf_counter()
@@ -981,7 +981,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         Vnew = blend.copy()
         for k in ks:
             Vnew[k] = results[k][0]
-        Vnew = _placed(Vnew, frames, K, bc, pinned, Vkey)
+        Vnew = _placed(Vnew, frames, K, bc, pinned, Vkey, T.F)
         if fixpoint_log is not None:
             fixpoint_log.append(dict(_fixpoint_change(V, Vnew, Z, Znew, T, Vkey),
                                      iteration=it + 1, resolution=stage_prefix.strip() or "full",
@@ -1176,23 +1176,49 @@ def placement_track(Vkey, frames, K, bc: str = "natural"):
     return cs(k).reshape(K + 1, *Vkey.shape[1:])
 
 
-def _placed(V, frames, K, bc, pinned, Vkey):
+def _placed(V, frames, K, bc, pinned, Vkey, F):
     """Rigidly place the in-between frames onto :func:`placement_track` (with pins: only by the
-    rigid motions that keep them fixed) and restore the keyframes bit for bit."""
+    rigid motions that keep them fixed) and restore the keyframes bit for bit. Each connected
+    component of the mesh is placed on its own: shell energies do not see how separate pieces
+    sit relative to each other, so a reconstruction leaves that free."""
     V = np.array(V, dtype=np.float64, copy=True)
     periodic = bc == "periodic"
     track = placement_track(Vkey, frames, K, bc)
     is_key = np.zeros(K + 1, dtype=bool)
     is_key[frames] = True
     is_key[K] |= periodic
+    parts = _components(F, Vkey.shape[1], pinned)
     for k in np.flatnonzero(~is_key):
         # with pins only the motions they leave free (none for 3+ non-collinear pins)
-        V[k] = rigid_placement(V[k], track[k], fixed=pinned)
+        for idx, fixed in parts:
+            V[k, idx] = rigid_placement(V[k, idx], track[k, idx], fixed=fixed)
     for j, f in enumerate(frames):
         V[f] = Vkey[j]
     if periodic:
         V[K] = Vkey[0]
     return V
+
+
+def _components(F, n, pinned):
+    """``[(vertex indices, pins among them as local indices or None), ...]`` of the connected
+    components of the mesh ``F`` with ``n`` vertices (one entry for a connected mesh)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    A = coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))
+    m, label = connected_components(A, directed=False)
+    if m == 1:
+        return [(slice(None), pinned)]
+    out = []
+    for c in range(m):
+        idx = np.flatnonzero(label == c)
+        fixed = None
+        if pinned is not None and len(pinned):
+            local = np.flatnonzero(np.isin(idx, pinned))
+            fixed = local if local.size else None
+        out.append((idx, fixed))
+    return out
 
 
 def _energies(V, Z, T: Topology, bc: str, W, chunk: int | None = None) -> dict:
