@@ -234,3 +234,23 @@ def test_each_connected_component_is_placed_on_its_own():
     # the rigid second sphere follows the cubic track through its keyframe positions exactly
     track = ss.pipeline.placement_track(keys, [0, 10, 20], 20)
     np.testing.assert_allclose(res.V[:, n:], track[:, n:], atol=1e-6)
+
+
+def test_reconstruction_prints_one_line_per_frame_in_logs(tmp_path, capsys):
+    # off a terminal (a log, a pipe) a long reconstruction says what it is doing frame by frame
+    from shellspline.cli import main
+
+    d = stress.joint(angles=(0.0, 60.0, 0.0), frames=(0, 4, 8))
+    paths = []
+    for j, V in enumerate(d["V"]):
+        p = tmp_path / f"k{j}.obj"
+        p.write_text("".join("v %.17g %.17g %.17g\n" % tuple(r) for r in V)
+                     + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in d["F"]))
+        paths.append(str(p))
+    rc = main(["interpolate", *paths, "--frames", "0,4,8", "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "reconstruct" in ln and " frame " in ln]
+    first = [ln for ln in lines if "(continue)" not in ln]       # the second pass re-solves some
+    assert sorted(int(ln.split(" frame ")[1].split(":")[0]) for ln in first) == [1, 2, 3, 5, 6, 7]
+    assert all(("converged" in ln) or ("stalled" in ln) or ("limit" in ln) for ln in lines)
+    assert rc in (0, 1) and "Gauss–Newton:" in err
