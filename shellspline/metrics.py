@@ -206,11 +206,12 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
       :func:`~shellspline.descriptors.consistent_angles`);
     - **pop**: the largest vertex displacement of a step over the typical one around it,
       ``max_i |V[k+1,i] − V[k,i]|`` divided by the mean of the same quantity over the up to
-      four neighbouring steps (``k−2..k+2`` without ``k``). A smooth sequence stays near 1
-      (also where it slows down to turn back: the mean, unlike the median, is not fooled by
-      two near-zero steps at a turning point, and neighbouring steps below a quarter of the
-      sequence's median step count as that quarter); a velocity kink between keyframe gaps
-      of different speed gives at most about 2; a frame that jumps gives much more.
+      four neighbouring steps (``k−2..k+2`` without ``k``; not wrapped around a periodic
+      sequence), that mean raised to at least a quarter of the sequence's median step; a step
+      below that quarter counts 1. A smooth sequence stays near 1 (also where it slows down
+      to turn back: the mean, unlike the median, is not fooled by two near-zero steps at a
+      turning point); a velocity kink between keyframe gaps of different speed gives at
+      most about 2; a frame that jumps gives much more.
 
     Parameters
     ----------

@@ -295,6 +295,8 @@ def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
     whose energy is not below it, and that frame is not returned (see :func:`_continued`).
     """
     out = []
+    gn.reset()  # a run's result does not depend on which runs this solver did before, so
+    # one worker and several give the same sequence
     if isinstance(Vanchor, tuple):
         prev2, prev = Vanchor
         prev_init = prev
@@ -306,11 +308,13 @@ def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
         if warm and prev is not None:
             vw = 2.0 * prev - prev2 if prev2 is not None and warm == "extrapolate" else \
                 prev + (v - prev_init)
-            if np.all(np.isfinite(vw)) and \
-                    np.linalg.norm(_tri_normals(vw, gn.T.F), axis=-1).min() > 0:
+            # a start must leave every triangle above the line search's floor
+            if np.all(np.isfinite(vw)) and np.all(
+                    0.5 * np.linalg.norm(_tri_normals(vw, gn.T.F), axis=-1)
+                    > 1e-6 * np.maximum(z[gn.T.descriptor_slices()[2]], 0.0)):
                 v = vw
         r = gn.solve(z, w, v)
-        if worse_than is not None and not r.energy[-1] < worse_than[i]:
+        if worse_than is not None and not r.energy[-1] < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
             break
         prev2, prev, prev_init = prev, r.V, v0
         rec = r.summary()
@@ -326,6 +330,12 @@ def _frame_text(rec) -> str:
     """One progress line for a reconstructed frame (logs get one per frame)."""
     return (f"frame {rec['frame']:4d}: {rec['status']:<9s} {rec['nit']:3d} it  "
             f"E {rec['energy_final']:.3g}")
+
+
+#: A continued run replaces a first-pass frame only when its energy is lower by this fraction
+#: (equal minima differ at solver tolerance; without a margin the choice was decided by
+#: round-off and differed between one and two workers).
+CONTINUE_MARGIN = 1e-3
 
 
 def _continued(runs, results, Vinit):
@@ -436,6 +446,19 @@ def _parallel_decode(P, Vc, frames, K, bc, workers):
         _WORKER.pop("prolong", None)
 
 
+def _keyframe_angles(Theta, periodic):
+    """Keyframe angles on the paths of :func:`~shellspline.descriptors.consistent_angles`; for
+    a periodic sequence an edge whose paths wind once around the circle over the loop (frame
+    K must equal frame 0) takes the direct path in every gap instead."""
+    out = consistent_angles(Theta, periodic=periodic)
+    if not periodic:
+        return out
+    wound = np.abs(out[-1] - out[0]) > np.pi
+    out = out[:-1]
+    out[:, wound] = Theta[:, wound]
+    return out
+
+
 class _AngleBand:
     """Keeps the spline's dihedral-angle targets off ±π between keyframes that are not there.
 
@@ -450,10 +473,8 @@ class _AngleBand:
     def __init__(self, Tkey, sT, frames, K, periodic):
         Tkey = np.asarray(Tkey, dtype=np.float64)
         ext = np.concatenate([Tkey, Tkey[:1]]) if periodic else Tkey
-        j0, j1, _ = keyframe_bracket(frames, K, periodic)
-        if periodic:  # the gap after the last keyframe ends at row J (keyframe 0 again)
-            j1 = np.where((j1 == 0) & (j0 == len(Tkey) - 1), len(Tkey), j1)
-        self.sT, self.j0, self.j1 = sT, j0, j1
+        j0, _, _ = keyframe_bracket(frames, K, periodic)
+        self.sT = sT
         self.lo = np.minimum(np.minimum(ext[:-1], ext[1:]), -np.pi + ANGLE_MARGIN)  # per gap
         self.hi = np.maximum(np.maximum(ext[:-1], ext[1:]), np.pi - ANGLE_MARGIN)
         self.gap = np.minimum(j0, len(ext) - 2)
@@ -894,7 +915,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
     with prog.stage(stage_prefix + "describe"):
         Zkey = lta_descriptors(Vkey, T)
         sT = T.descriptor_slices()[1]
-        Zkey[:, sT] = consistent_angles(Zkey[:, sT])
+        Zkey[:, sT] = _keyframe_angles(Zkey[:, sT], periodic)
         clamp = _AngleBand(Zkey[:, sT], sT, frames, K, periodic)
         if isinstance(reference, (int, np.integer)) and not isinstance(reference, bool):
             ref_idx, ref_kind = int(reference), "constant"

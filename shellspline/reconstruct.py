@@ -120,8 +120,9 @@ class GaussNewton:
         Converged when ``|g| <= gtol * |g_0|``.
     dtol : float
         Converged when the Gauss–Newton decrement is below ``dtol`` times the energy:
-        ``−gᵀp / 2 <= dtol f`` for the (inexact) Gauss–Newton step ``p``, i.e. the quadratic
-        model predicts no relative decrease above ``dtol`` (``λ²/2`` of Newton's method, a
+        ``−gᵀp <= dtol f`` for the (inexact) Gauss–Newton step ``p`` and ``g = JᵀWρ`` (half the
+        gradient of ``f = Σ w ρ²``), i.e. the quadratic model predicts no relative decrease
+        above ``dtol`` (``λ²/2`` of Newton's method, a
         gradient norm in the metric of the Gauss–Newton matrix; scale-free, and independent of
         how good the initial guess was, unlike ``gtol``).
     damping : float
@@ -165,7 +166,7 @@ class GaussNewton:
     def __init__(self, T: Topology, *, pinned=None, backend: str = "auto", max_iter: int = 60,
                  ftol: float = 1e-6, gtol: float = 1e-5, damping: float = 1e-8,
                  cg_tol: float = 1e-2, cg_max_iter: int = 40, refresh_cg: int | None = None,
-                 dtol: float = 1e-6,
+                 dtol: float = 2e-6,
                  rotate_preconditioner: bool | None = None, ordering: str = "auto",
                  amortize_refresh: bool | None = None):
         self.T = T
@@ -202,6 +203,13 @@ class GaussNewton:
         self._stale = True
         sl = T.descriptor_slices()
         self._sL, self._sT, self._sA = sl
+
+    def reset(self) -> None:
+        """Refactor at the next iterate: the next :meth:`solve` no longer depends on the frames
+        this solver solved before (the cached preconditioner only changes the inexact steps,
+        but those reach the converged frame by different paths)."""
+        self._stale = True
+        self._last_cg = 0
 
     # -- pieces -------------------------------------------------------------------------
     def merit(self, z, z_target, w):
@@ -473,9 +481,10 @@ class GaussNewton:
                 p = -precond(g)
                 slope = float(g @ p)
                 self._stale = True
-            # the Gauss–Newton decrement: the decrease the model still predicts (-g·p/2 for
-            # the model's minimiser); below dtol·f the frame is converged
-            if -0.5 * slope <= self.dtol * f and ok:
+            # the Gauss–Newton decrement: the decrease the model still predicts at its
+            # minimiser p (f = Σ w ρ², g = Jᵀ W ρ is half its gradient: the model
+            # f + 2 g·p + pᵀ JᵀWJ p drops by -g·p there); below dtol·f the frame is converged
+            if -slope <= self.dtol * f and ok:
                 res.nit = it - 1
                 res.success, res.status = True, "converged"
                 res.message = "Gauss–Newton decrement below dtol"
@@ -488,13 +497,13 @@ class GaussNewton:
                 if np.all(an > a_floor):
                     zn = lta_descriptors(Vn, T)
                     fn, rn, wn = self.merit(zn, z_target, w)
-                    if fn <= f + 1e-4 * alpha * slope:
+                    if fn <= f + 2e-4 * alpha * slope:      # Armijo; f'(0) = 2 g·p
                         accepted = True
                         break
-                    # minimiser of the quadratic through f, slope and fn, kept in
+                    # minimiser of the quadratic through f, f'(0) = 2 g·p and fn, kept in
                     # [0.1, 0.5] alpha (large-residual frames overshoot by a steady factor)
-                    curv = fn - f - alpha * slope
-                    q = -slope * alpha * alpha / (2.0 * curv) if curv > 0 else 0.5 * alpha
+                    curv = fn - f - 2.0 * alpha * slope
+                    q = -slope * alpha * alpha / curv if curv > 0 else 0.5 * alpha
                     alpha = min(max(q, 0.1 * alpha), 0.5 * alpha)
                     continue
                 alpha *= 0.5

@@ -41,7 +41,22 @@ def test_consistent_angles_chain_over_keyframes_and_periodic_row():
     out = consistent_angles(T)
     # into the fold past +π, then back out the way it came (not on through another turn)
     np.testing.assert_allclose(out[:, 0], [0.1, np.pi - 0.1, np.pi + 0.1, 0.2])
-    assert consistent_angles(T, periodic=True).shape == (5, 1)
+    loop = consistent_angles(T, periodic=True)
+    assert loop.shape == (5, 1)
+    # the loop back to the first keyframe goes the direct way, 0.2 -> 0.1 (no winding)
+    assert loop[4, 0] == pytest.approx(0.1)
+
+
+def test_periodic_loop_whose_angle_paths_would_wind_closes_directly():
+    # 0 -> 2.9 -> (through π) -> -2.9 -> -1.0 -> back to 0: one winding over the loop, which a
+    # periodic spline cannot represent (frame K is frame 0); that edge goes the direct way
+    from shellspline.pipeline import _keyframe_angles
+
+    T = np.array([[0.0], [2.9], [-2.9], [-1.0]])
+    assert consistent_angles(T, periodic=True)[-1, 0] == pytest.approx(2 * np.pi)
+    np.testing.assert_array_equal(_keyframe_angles(T, True), T)
+    np.testing.assert_allclose(_keyframe_angles(T, False)[:, 0], [0.0, 2.9, np.pi + 0.2417, 5.2832],
+                               atol=1e-3)
 
 
 def test_spline_angle_targets_stay_off_pi_between_keyframes():
@@ -109,6 +124,16 @@ def test_a_stalled_or_truncated_frame_is_not_converged():
     assert full.energy[-1] < res.energy[-1]
 
 
+def test_no_progress_without_the_gradient_criterion_is_stalled_not_converged():
+    # an energy that stops falling (here: by less than 90 % per iteration, three times) while
+    # neither gradient criterion holds is "stalled", never converged
+    V, T, zt, w, rng = _sphere_problem()
+    X = V + 0.1 * rng.standard_normal(V.shape)
+    res = GaussNewton(T, ftol=0.9, gtol=1e-15, dtol=0.0).solve(zt, w, X)
+    assert res.status == "stalled" and not res.success and res.message.startswith("stalled")
+    assert res.summary()["status"] == "stalled"
+
+
 def test_identical_target_is_converged_at_once():
     V, T, zt, w, _ = _sphere_problem(area_scale=(1.0, 1.0))
     res = GaussNewton(T).solve(zt, w, V)
@@ -153,8 +178,6 @@ def test_defects_see_a_fold_through_pi_and_excuse_one_the_keyframes_hold():
     _, F = _flap(0.0)
     T = ss.topology(F)
     # 0.3 -> 2.6 rad, but the in-betweens go the other way round, through ±π
-    path = np.concatenate([np.linspace(0.3, -np.pi - 0.6, 6)])
-    path[-1] = 2.6 + 0.0
     Vs = np.stack([_flap(t)[0] for t in np.r_[0.3, np.linspace(-0.5, -3.5, 4), 2.6]])
     th = dihedral_angles(Vs, T)[:, 0]
     assert np.abs(np.diff(th)).max() > np.pi                 # really crosses
@@ -187,11 +210,11 @@ def test_defects_count_flips_collapses_and_pops():
     pop[6] += 10 * up                      # frame 6 jumps ahead and comes back
     d = sequence_defects(pop, T, [0, K])
     assert d["pop"] > 3 and d["pop_frame"] in (6, 7)
+    assert d["flipped_faces"] == d["collapsed_faces"] == 0
     # slowing down to a stop and starting again is not a pop
     t = np.linspace(-1.0, 1.0, K + 1)
     turn = np.stack([V + (1.0 - tt * tt) * np.array([0.0, 0.0, 1.0]) for tt in t])
     assert sequence_defects(turn, T, [0, K])["pop"] < 1.6
-    assert d["flipped_faces"] == d["collapsed_faces"] == 0
 
 
 def test_keyframe_flip_is_not_a_new_defect():
@@ -212,8 +235,12 @@ def test_report_quality_has_per_frame_records_that_add_up():
         assert sum(q["per_frame"][per]) == q[key]
         assert len(q["per_frame"][per]) == res.K + 1
     assert max(q["per_frame"]["pop"]) == pytest.approx(q["pop"])
-    assert ss.pipeline.quality_ok(q) == (q["pop"] <= ss.pipeline.POP_LIMIT
-                                         and q["flipped_faces"] == 0)
+    clean = {"keyframes_exact": True, "flipped_faces": 0, "collapsed_faces": 0,
+             "folded_edges": 0, "degenerate_faces": 0, "pop": 1.0, "pop_limit": 2.0}
+    assert ss.pipeline.quality_ok(clean)
+    for key, bad in (("keyframes_exact", False), ("flipped_faces", 1), ("collapsed_faces", 2),
+                     ("folded_edges", 1), ("degenerate_faces", 1), ("pop", 2.5)):
+        assert not ss.pipeline.quality_ok(dict(clean, **{key: bad}))
 
 
 def test_each_connected_component_is_placed_on_its_own():
