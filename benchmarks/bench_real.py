@@ -195,7 +195,8 @@ def _strip(d: dict) -> dict:
 
 def _where(name, runs, truth, inner, size, owner, names, rec) -> dict:
     """Where an LΘA run's error comes from: its worst in-between frames, and the joints whose
-    vertices (by strongest skinning weight) carry most of its excess over the cubic."""
+    vertices (by strongest skinning weight) carry most of its excess over the cubic (share of
+    the summed excess of the joints where it is worse; LΘA may be better overall)."""
     lta, cub = rec["methods"][name], rec["methods"]["cubic"]
     e = np.asarray(lta["err_per_frame"])
     worst = inner[np.argsort(-e[inner])[:3]]
@@ -206,7 +207,7 @@ def _where(name, runs, truth, inner, size, owner, names, rec) -> dict:
     d_c = ((runs["cubic"][0][inner] - truth[inner]) ** 2).sum(-1).mean(0)
     J = owner.max() + 1
     excess = np.bincount(owner, d_l - d_c, minlength=J)
-    total = max(float(np.sum(d_l - d_c)), 1e-300)
+    total = max(float(np.sum(np.maximum(excess, 0.0))), 1e-300)  # joints where LΘA is worse
     joints = []
     for j in np.argsort(-excess)[:3]:
         m = owner == j
