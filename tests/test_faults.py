@@ -187,7 +187,8 @@ def test_pool_watchdog_alone_stops_orphaned_workers(tmp_path, how):
             par._set_pdeathsig = lambda sig: False  # as on a platform without prctl
 
         def work(i):
-            print(os.getpid(), flush=True)
+            # one write per line: two workers' print() calls (text, then newline) interleave
+            os.write(1, f"{{os.getpid()}}\\n".encode())
             time.sleep(60)
 
         def run():
