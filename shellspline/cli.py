@@ -142,6 +142,12 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="N fixpoint iterations (paper §9, Fig. 9): reference meshes <- "
                         "current result, re-solve the LΘA spline and reconstruct; the change "
                         "per iteration goes to report.json 'fixpoint' (default 0)")
+    q.add_argument("--rigid-track", choices=("fit", "spline", "linear"), default="fit",
+                   help="where in-betweens are placed rigidly: onto a per-vertex C² cubic "
+                        "through the keyframes (fit, default: closest to the truth on skinned "
+                        "walks), along a C² SE(3) spline through the keyframes' rigid poses "
+                        "(spline: exact for rigid turns, e.g. a circle), or onto the linear "
+                        "blend (linear)")
     q.add_argument("--pinned", help="file of vertex indices held fixed (e.g. a base)")
     q.add_argument("--fix-boundary", action="store_true",
                    help="hold the mesh boundary vertices fixed")
@@ -269,7 +275,8 @@ def _interpolate(args) -> int:
                          lam=args.lam, reference=reference, pinned=pinned,
                          workers=args.workers, gn_options=gn_options,
                          solver_options=solver_options, coarse=args.coarse, fine=args.fine,
-                         fixpoint=args.fixpoint, progress=bar)
+                         fixpoint=args.fixpoint, rigid_track=args.rigid_track,
+                         progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     if res.source is not None:  # the input's polygons and numbering, written back

@@ -24,7 +24,7 @@ from .topology import Topology, topology
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
            "canonical_frames", "linear_blend", "placement_track", "sequence_quality",
-           "quality_ok", "POP_LIMIT"]
+           "quality_ok", "POP_LIMIT", "RIGID_TRACKS"]
 
 #: Below this many vertex-frames the Gauss–Newton reconstruction runs in this process even
 #: with ``workers > 1``: starting a pool costs more than the work (cactus γ = 0.05, K = 20:
@@ -585,7 +585,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 pinned=None, workers: int = 1, gn_options: dict | None = None,
                 warm_start: bool = True, solver_options: dict | None = None,
                 coarse="auto", fine: bool = False, fixpoint: int = 0,
-                progress=None) -> InterpolationResult:
+                rigid_track: str = "fit", progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
     Parameters
@@ -644,6 +644,11 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Start frame k's Gauss–Newton from frame k-1's solution moved by the change of the
         keyframe blend (frames are solved in time order within each worker's run); otherwise
         from the blend.
+    rigid_track : {"fit", "spline", "linear"}
+        Where in-between frames are placed rigidly (shell energies do not see rigid motions):
+        onto the per-vertex C² cubic through the keyframes (``"fit"``), along a C² SE(3)
+        spline through the keyframes' rigid poses (``"spline"``), or onto the per-vertex
+        linear blend (``"linear"``); see :func:`placement_track`.
     progress : callable(ProgressEvent), optional
         Receives stage/progress events (the CLI draws a bar with it).
 
@@ -663,6 +668,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     t_start = time.perf_counter()
     prog = Progress(progress)
     method = _canonical_choice(method, "method", METHODS)
+    rigid_track = _canonical_choice(rigid_track, "rigid_track", RIGID_TRACKS)
     bc = _canonical_choice(bc, "bc", BOUNDARY_CONDITIONS)
     for name, val in (("eta", eta), ("mu", mu), ("lam", lam)):
         if not np.isfinite(val) or val < 0:
@@ -717,7 +723,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
             "pinned_vertices": 0 if pinned is None else int(pinned.size),
             "gn_options": dict(gn_options or {}),
             "solver_options": dict(solver_options or {}), "coarse": coarse, "fine": bool(fine),
-            "fixpoint": int(fixpoint),
+            "fixpoint": int(fixpoint), "rigid_track": rigid_track,
         },
         "mesh": {"vertices": int(n), "faces": int(T.n_faces), "edges": int(T.n_edges),
                  "keyframes": int(J), "names": list(kf.names)},
@@ -738,7 +744,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                        callback=lambda s, r: prog.advance("geodesic", s + 1,
                                                                           len(frames)),
                                        **dict(solver_options or {}))
-        V = _placed(g.V, frames, K, bc, pinned, Vkey, T.F)
+        V = _placed(g.V, frames, K, bc, pinned, Vkey, T.F, rigid_track)
         report["geodesic"] = {"success": bool(g.success), "nit": int(g.nit),
                               "message": g.message,
                               "segment_energies": [float(e) for e in g.segment_energies]}
@@ -753,7 +759,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         lta_args = dict(frames=frames, K=K, bc=bc, mu=mu, lam=lam, eta=eta, reference=reference,
                         workers=workers, gn_options=dict(gn_options or {}),
                         warm_start=warm_start, prog=prog, fixpoint=fixpoint,
-                        fixpoint_log=fixpoint_log)
+                        fixpoint_log=fixpoint_log, rigid_track=rigid_track)
         n_coarse = _coarse_target(coarse, n, method)
         if method == "nonlinear" and not fine:
             if n_coarse is not None and _coarse_target(coarse, n) is None:
@@ -816,7 +822,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 # energies where the spline was solved (full-resolution descriptors of every
                 # frame would cost more than the whole coarse run)
                 energy_source = (Vc, Zc, Tc, Wc)
-            V = _placed(V, frames, K, bc, pinned, Vkey, T.F)
+            V = _placed(V, frames, K, bc, pinned, Vkey, T.F, rigid_track)
         if fixpoint:
             report["fixpoint"] = fixpoint_log
         if W_report is None:
@@ -824,7 +830,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         if method == "nonlinear" and "nonlinear" not in report:
             Vn, report["nonlinear"] = _nonlinear_stage(Vkey, T, pinned, V, frames, K, bc, mu,
                                                        lam, eta, solver_options, prog)
-            V = _placed(Vn, frames, K, bc, pinned, Vkey, T.F)
+            V = _placed(Vn, frames, K, bc, pinned, Vkey, T.F, rigid_track)
             energy_source = None  # energies of the final (full-resolution) sequence
     with prog.stage("energies"):
         if energy_source is not None:
@@ -904,7 +910,7 @@ def _coarse_target(coarse, n, method: str = "lta"):
 
 def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, workers,
                   gn_options, warm_start, prog, Vinit=None, stage_prefix="", fixpoint=0,
-                  fixpoint_log=None):
+                  fixpoint_log=None, rigid_track="fit"):
     """The LΘA stages on one resolution: describe, solve, reconstruct, place (and the
     optional fixpoint iterations, appending their records to ``fixpoint_log``).
 
@@ -988,7 +994,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         V = blend.copy()
         for k in ks:
             V[k] = results[k][0]
-        V = _placed(V, frames, K, bc, pinned, Vkey, T.F)
+        V = _placed(V, frames, K, bc, pinned, Vkey, T.F, rigid_track)
     records = [results[k][1] for k in ks]
     for it in range(int(fixpoint)):
         t0 = time.perf_counter()
@@ -1002,7 +1008,7 @@ def _lta_sequence(Vkey, T, pinned, *, frames, K, bc, mu, lam, eta, reference, wo
         Vnew = blend.copy()
         for k in ks:
             Vnew[k] = results[k][0]
-        Vnew = _placed(Vnew, frames, K, bc, pinned, Vkey, T.F)
+        Vnew = _placed(Vnew, frames, K, bc, pinned, Vkey, T.F, rigid_track)
         if fixpoint_log is not None:
             fixpoint_log.append(dict(_fixpoint_change(V, Vnew, Z, Znew, T, Vkey),
                                      iteration=it + 1, resolution=stage_prefix.strip() or "full",
@@ -1152,7 +1158,11 @@ def _jsonable(obj):
     return obj
 
 
-def placement_track(Vkey, frames, K, bc: str = "natural"):
+#: Where in-between frames are placed rigidly (:func:`placement_track`).
+RIGID_TRACKS = ("fit", "spline", "linear")
+
+
+def placement_track(Vkey, frames, K, bc: str = "natural", kind: str = "fit"):
     """Where the frames of a sequence are placed rigidly: a per-vertex C² cubic spline through
     the keyframes (natural, or periodic through frame K), held at the last keyframe after it.
 
@@ -1168,6 +1178,14 @@ def placement_track(Vkey, frames, K, bc: str = "natural"):
     frames : (J,) int array
     K : int
     bc : {"natural", "periodic", "hermite"}
+    kind : {"fit", "spline", "linear"}
+        ``"fit"``: the per-vertex cubic above. ``"spline"``: a rigid track: each keyframe's
+        rigid pose (Kabsch against the first keyframe, about the vertex centroid) follows a C²
+        SE(3) spline with the screw (Ad-invariant) metric (:func:`shellspline.curves.cubic_spline`),
+        and the keyframe shapes, brought back by their poses, are blended linearly: a body
+        that turns while it travels follows a screw motion (a circle exactly), where the
+        per-vertex cubic cuts the corner; falls back to ``"fit"`` when consecutive keyframes
+        turn by half a turn or more. ``"linear"``: the per-vertex linear blend.
 
     Returns
     -------
@@ -1178,6 +1196,12 @@ def placement_track(Vkey, frames, K, bc: str = "natural"):
     from scipy.interpolate import CubicSpline
 
     Vkey = np.asarray(Vkey, dtype=np.float64)
+    if kind == "linear":
+        return linear_blend(Vkey, frames, K, bc)
+    if kind == "spline":
+        track = _screw_track(Vkey, frames, K, bc)
+        if track is not None:
+            return track
     frames = np.asarray(frames)
     J = Vkey.shape[0]
     periodic = bc == "periodic"
@@ -1197,14 +1221,51 @@ def placement_track(Vkey, frames, K, bc: str = "natural"):
     return cs(k).reshape(K + 1, *Vkey.shape[1:])
 
 
-def _placed(V, frames, K, bc, pinned, Vkey, F):
+def _screw_track(Vkey, frames, K, bc):
+    """The ``kind="spline"`` track of :func:`placement_track`, or None where the SE(3) spline
+    is not defined (consecutive keyframe poses half a turn or more apart)."""
+    from ._errors import ShellsplineError
+    from .curves import cubic_spline
+
+    J = Vkey.shape[0]
+    periodic = bc == "periodic"
+    c = Vkey.mean(axis=1)                                    # (J,3)
+    X0 = Vkey[0] - c[0]
+    H = np.einsum("ni,jnk->jik", X0, Vkey - c[:, None])      # (J,3,3) cross-covariances
+    U, _, Wt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("jki,jlk->jil", Wt, U)))
+    D = np.zeros((J, 3, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = np.where(d == 0, 1.0, d)
+    R = np.einsum("jki,jkl,jml->jim", Wt, D, U)              # Vkey[j] - c[j] ≈ R_j X0
+    G = np.zeros((J, 4, 4))
+    G[:, :3, :3], G[:, :3, 3], G[:, 3, 3] = R, c, 1.0
+    t = np.asarray(frames, dtype=np.float64)
+    if periodic:
+        G, t = np.concatenate([G, G[:1]]), np.concatenate([t, [K]])
+    try:
+        s = cubic_spline("se3", t, G, bc="periodic" if periodic else "natural")
+    except ShellsplineError:
+        return None
+    if s.solve is not None and s.solve.status != "converged":
+        return None
+    k = np.arange(K + 1, dtype=np.float64)
+    if not periodic:
+        k = np.minimum(k, t[-1])
+    Gk = s(k)                                                # (K+1,4,4)
+    shapes = np.einsum("jnk,jki->jni", Vkey - c[:, None], R)  # R_jᵀ (V - c): keyframes at rest
+    rest = linear_blend(shapes, frames, K, bc)
+    return np.einsum("kni,kji->knj", rest, Gk[:, :3, :3]) + Gk[:, None, :3, 3]
+
+
+def _placed(V, frames, K, bc, pinned, Vkey, F, rigid_track="fit"):
     """Rigidly place the in-between frames onto :func:`placement_track` (with pins: only by the
     rigid motions that keep them fixed) and restore the keyframes bit for bit. Each connected
     component of the mesh is placed on its own: shell energies do not see how separate pieces
     sit relative to each other, so a reconstruction leaves that free."""
     V = np.array(V, dtype=np.float64, copy=True)
     periodic = bc == "periodic"
-    track = placement_track(Vkey, frames, K, bc)
+    track = placement_track(Vkey, frames, K, bc, kind=rigid_track)
     is_key = np.zeros(K + 1, dtype=bool)
     is_key[frames] = True
     is_key[K] |= periodic
