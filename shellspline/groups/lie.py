@@ -26,6 +26,8 @@ curves are left-invariant geodesic constructions. Its elements are ordinary pose
 """
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from .._errors import ShellsplineError
@@ -35,36 +37,44 @@ from . import se3, so3
 __all__ = ["LieGroup", "SO3", "SE3", "SO3xR3", "SO3dR3", "group", "karcher_mean"]
 
 
-class LieGroup:
-    """Base class: the generic operations built from the group's primitives."""
+class LieGroup(ABC):
+    """Base class: the generic operations built from the group's primitives (the abstract
+    methods, which every concrete group implements)."""
 
     name = "group"
     shape: tuple = ()
     dim = 0
 
     # --- primitives (subclasses) ---------------------------------------------------------
+    @abstractmethod
     def compose(self, a, b):  # pragma: no cover - abstract
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def inverse(self, a):  # pragma: no cover - abstract
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def exp(self, xi):  # pragma: no cover - abstract
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def log(self, g):  # pragma: no cover - abstract
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def adjoint(self, g, xi):  # pragma: no cover - abstract
         """``Ad_g xi``: the space-frame vector of the body-frame velocity ``xi`` at ``g``."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def jac_right(self, xi, x):  # pragma: no cover - abstract
         """``J_r(xi) x`` with ``exp(xi)^{-1} d/dt exp(xi(t)) = J_r(xi) xi'``."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def jac_right_inv(self, xi, x):  # pragma: no cover - abstract
-        raise NotImplementedError
+        ...
 
     def kernel(self):
         """The component-first fast kernel of this group (see :mod:`shellspline.groups.kernel`),
