@@ -1,0 +1,761 @@
+"""Elastic (SRV) time alignment of two sampled curves, with feature points (seeds 000, 003).
+
+Given SRVs ``q0`` and ``q1`` of two curves (any dimension: curves in ``R^m`` or, through
+:func:`~shellspline.curves.srv.srv`, in ``SO(3)^d x R^m``) we look for the warp ``phi`` of
+``[0, 1]`` minimising (seed 003 eq. 21, seed 000 eq. 10)
+
+    ``E(phi) = int_0^1 |q0(t) - sqrt(phi'(t)) q1(phi(t))|^2 dt + lam sum_i (phi(a_i) - b_i)^2``
+
+(times normalised to ``[0, 1]``; ``a_i``, ``b_i`` feature times of curve 0 and curve 1),
+optionally with the symmetric term ``lam sum_i (phi^{-1}(b_i) - a_i)^2`` (seed 003 sect. 2.4)
+and hard bounds ``|phi(a_i) - b_i| <= bound_i``.
+
+Both curves are piecewise geodesic between their samples, so their SRVs are piecewise
+constant and, for a piecewise-linear ``phi``, the elastic term has the closed form
+
+    ``|q0|^2 + |q1|^2 - 2 sum_n sqrt(h0 / dphi_n) <q0_n, Q1(phi_{n+1}) - Q1(phi_n)>``
+
+with ``Q1`` the (piecewise-linear) integral of ``q1``. The dynamic programme (seed 003 sect.
+3.2) evaluates exactly this energy on every lattice segment, so the energy it reports *is* the
+energy of the warp it returns; a quasi-Newton refinement (seed 003 sect. 3.1, in the
+``log dphi`` variables, which keep ``phi`` increasing) then moves the vertices off the lattice.
+
+The DP is vectorised over one grid axis: segment costs are built for blocks of rows at once
+from the Gram matrix ``<q0_n, q1_p>`` (one shifted add per non-zero overlap of a step), and
+the recursion over a row takes the minimum over all predecessor steps in one gather.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from math import gcd
+
+import numpy as np
+
+from ..errors import ShellsplineError
+from .srv import ProductCurve, normalized_times, srv
+
+__all__ = ["AlignResult", "align", "align_srv", "warp_energy", "warp_energy_grad",
+           "shape_distance", "project_closed", "neighborhood", "dtw"]
+
+# Rows of the DP cost computed at once: large enough to amortise numpy's per-call overhead,
+# small enough that 23 cost blocks of 1,600 columns stay in cache-friendly ~10 MB
+# (benchmarks/bench_motion.py, bench_dp).
+_ROW_BLOCK = 48
+# DTW cost of a cell outside the band: finite, so that running sums never meet inf - inf.
+_FAR = 1e150
+# L-BFGS restarts after a failed line search (see _refine).
+_RESTARTS = 20
+
+
+def neighborhood(size: int = 6) -> np.ndarray:
+    """DP steps ``(a, b)``: all coprime pairs with ``1 <= a, b <= size``, ``(S, 2)`` int64.
+
+    ``size = 6`` gives the 23 steps of fdasrsf (slopes from 1/6 to 6).
+    """
+    size = int(size)
+    if size < 1:
+        raise ShellsplineError(f"neighborhood: size must be >= 1, got {size}")
+    return np.array([(a, b) for a in range(1, size + 1) for b in range(1, size + 1)
+                     if gcd(a, b) == 1], dtype=np.int64)
+
+
+@dataclass
+class AlignResult:
+    """Result of :func:`align` / :func:`align_srv`.
+
+    Attributes
+    ----------
+    phi : (N0,) ndarray
+        The warp on curve 0's times, with values in curve 1's times (``curve1 o phi`` is
+        aligned to ``curve0``). For closed curves the values run from ``shift`` to
+        ``shift + period`` (take them modulo the period).
+    t : (N0,) ndarray
+        Curve 0's times.
+    energy : float
+        Final energy ``E(phi)`` (elastic + feature terms), normalised time.
+    energy_dp : float
+        Energy of the DP warp (before refinement).
+    energy_identity : float
+        Energy of the identity (affine) warp, for comparison.
+    elastic : float
+        The elastic part of ``energy``; ``distance = sqrt(elastic)``.
+    distance : float
+        SRV distance of ``curve0`` and ``curve1 o phi``.
+    iterations : int
+        Refinement iterations (0 without refinement).
+    status : str
+        ``"dp"`` (DP only: optimal among warps on the lattice), ``"converged"``,
+        ``"stalled"`` (the refinement stopped without meeting its tolerance, or did not lower
+        the energy, and the DP warp is kept) or ``"limit"`` (iteration limit).
+    message : str
+    shift : float
+        Closed curves: the time of curve 1 matched to curve 0's start (else ``t1[0]``).
+    path : (K,2) ndarray
+        Lattice vertices ``(i, j)`` of the DP warp (sample indices of curve 0 and curve 1).
+    """
+
+    phi: np.ndarray
+    t: np.ndarray
+    energy: float
+    energy_dp: float
+    energy_identity: float
+    elastic: float
+    distance: float
+    iterations: int
+    status: str
+    message: str
+    shift: float = 0.0
+    path: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+
+
+# --------------------------------------------------------------------------------------------
+# features
+
+
+@dataclass(frozen=True)
+class _Features:
+    """Feature times in normalised units: ``a`` (curve 0), ``b`` (curve 1), soft weight,
+    symmetric flag, hard bounds (inf = none)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    lam: float
+    symmetric: bool
+    bound: np.ndarray
+
+    @property
+    def n(self):
+        return self.a.shape[0]
+
+
+def _canonical_features(features, lam, symmetric, bounds, t0, t1, N0, N1):
+    if features is None:
+        if bounds is not None:
+            raise ShellsplineError("align: bounds given without features")
+        return None
+    try:
+        a, b = features
+        a = np.asarray(a, dtype=np.float64).reshape(-1)
+        b = np.asarray(b, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ShellsplineError("align: features must be a pair (times in curve 0, times in "
+                               f"curve 1), got {features!r}") from None
+    if a.shape != b.shape:
+        raise ShellsplineError(f"align: features need as many times in curve 0 as in curve 1, "
+                               f"got {a.shape[0]} and {b.shape[0]}")
+    for name, x, t in (("curve 0", a, t0), ("curve 1", b, t1)):
+        if not np.all(np.isfinite(x)) or x.size and (x.min() < t[0] or x.max() > t[-1]):
+            raise ShellsplineError(f"align: feature times of {name} must lie in "
+                                   f"[{t[0]!r}, {t[-1]!r}], got {x.tolist()}")
+    lam = float(lam)
+    if not lam >= 0:
+        raise ShellsplineError(f"align: lam must be >= 0, got {lam!r}")
+    an, bn = (a - t0[0]) / (t0[-1] - t0[0]), (b - t1[0]) / (t1[-1] - t1[0])
+    if bounds is None:
+        bound = np.full(a.shape, np.inf)
+    else:
+        bound = np.broadcast_to(np.asarray(bounds, dtype=np.float64), a.shape).copy()
+        if np.any(~(bound >= 0)):
+            raise ShellsplineError(f"align: bounds must be >= 0, got {np.asarray(bounds)}")
+        bound = bound / (t1[-1] - t1[0])
+        # a zero bound is a passage point: snap both times to the nearest samples
+        z = bound == 0
+        an[z] = np.round(an[z] * (N0 - 1)) / (N0 - 1)
+        bn[z] = np.round(bn[z] * (N1 - 1)) / (N1 - 1)
+        bound[z] = 1e-9
+    return _Features(an, bn, lam, bool(symmetric), bound)
+
+
+# --------------------------------------------------------------------------------------------
+# exact energy of a piecewise-linear warp
+
+
+def _Q1(q1, u):
+    """``p`` (interval index) and ``Q1(u) = int_0^u q1`` for ``u`` in ``[0, 1]``."""
+    n1 = q1.shape[0]
+    h1 = 1.0 / n1
+    cum = np.concatenate([np.zeros((1, q1.shape[1])), np.cumsum(q1, axis=0) * h1])
+    p = np.clip(np.floor(u * n1).astype(np.int64), 0, n1 - 1)
+    return p, cum[p] + (u - p * h1)[:, None] * q1[p]
+
+
+def _feature_terms(phi, feats, with_grad):
+    """Feature energy and its gradient w.r.t. the vertex values ``phi (N0,)``."""
+    N0 = phi.shape[0]
+    h0 = 1.0 / (N0 - 1)
+    g = np.zeros(N0)
+    if feats is None or feats.n == 0 or feats.lam == 0:
+        return 0.0, g
+    x = feats.a / h0
+    n = np.clip(np.floor(x).astype(np.int64), 0, N0 - 2)
+    f = x - n
+    val = phi[n] + f * (phi[n + 1] - phi[n])
+    r = val - feats.b
+    E = feats.lam * float(np.sum(r * r))
+    if with_grad:
+        np.add.at(g, n, 2 * feats.lam * r * (1 - f))
+        np.add.at(g, n + 1, 2 * feats.lam * r * f)
+    if feats.symmetric:
+        y = feats.b
+        k = np.clip(np.searchsorted(phi, y, side="right") - 1, 0, N0 - 2)
+        D = phi[k + 1] - phi[k]
+        rr = (y - phi[k]) / D
+        inv = (k + rr) * h0
+        s = inv - feats.a
+        E += feats.lam * float(np.sum(s * s))
+        if with_grad:
+            np.add.at(g, k, 2 * feats.lam * s * h0 * (rr - 1) / D)
+            np.add.at(g, k + 1, 2 * feats.lam * s * h0 * (-rr) / D)
+    return E, g
+
+
+def warp_energy(q0, q1, phi, feats=None) -> tuple[float, float]:
+    """Exact energy of a piecewise-linear warp (normalised time, uniform grids).
+
+    Parameters
+    ----------
+    q0 : (N0-1, D) array_like
+        SRV of curve 0 on ``N0 - 1`` equal intervals of ``[0, 1]``.
+    q1 : (N1-1, D) array_like
+        SRV of curve 1.
+    phi : (N0,) array_like
+        Increasing warp values at curve 0's vertices, ``phi[0] = 0``, ``phi[-1] = 1``.
+    feats : optional
+        Internal feature description (see :func:`align`).
+
+    Returns
+    -------
+    total, elastic : float
+        ``elastic = int |q0 - sqrt(phi') q1(phi)|^2``, ``total = elastic + feature terms``.
+    """
+    E, _ = _energy(np.asarray(q0, float), np.asarray(q1, float), np.asarray(phi, float), feats,
+                   False)
+    return E
+
+
+def warp_energy_grad(q0, q1, phi, feats=None) -> tuple[float, np.ndarray]:
+    """Total energy of :func:`warp_energy` and its gradient w.r.t. ``phi``, ``(N0,)``
+    (zero at both ends, which are fixed)."""
+    (E, _), g = _energy(np.asarray(q0, float), np.asarray(q1, float), np.asarray(phi, float),
+                        feats, True)
+    return E, g
+
+
+def _energy(q0, q1, phi, feats, with_grad):
+    N0 = phi.shape[0]
+    h0 = 1.0 / (N0 - 1)
+    h1 = 1.0 / q1.shape[0]
+    n0sq = h0 * float(np.einsum("ij,ij->", q0, q0))
+    n1sq = h1 * float(np.einsum("ij,ij->", q1, q1))
+    dphi = np.diff(phi)
+    lo = phi[:-1]
+    hi = phi[1:]
+    # Q1 is continuous; its derivative q1 is taken from the right at samples of curve 1 (so
+    # the gradient is the right derivative at the kinks there)
+    p_lo, Q_lo = _Q1(q1, lo)
+    p_hi, Q_hi = _Q1(q1, hi)
+    C = np.einsum("ij,ij->i", q0, Q_hi - Q_lo)
+    pos = dphi > 0
+    sq = np.sqrt(h0 / np.where(pos, dphi, 1.0))
+    cross = np.where(pos, sq * C, 0.0)
+    elastic = n0sq + n1sq - 2.0 * float(np.sum(cross))
+    Ef, gf = _feature_terms(phi, feats, with_grad)
+    if not with_grad:
+        return (elastic + Ef, elastic), None
+    a_hi = np.einsum("ij,ij->i", q0, q1[p_hi])
+    a_lo = np.einsum("ij,ij->i", q0, q1[p_lo])
+    dC = np.where(pos, 0.5 * sq / np.where(pos, dphi, 1.0) * C, 0.0)
+    g = np.zeros(N0)
+    g[1:] += -2.0 * (np.where(pos, sq * a_hi, 0.0) - dC)
+    g[:-1] += -2.0 * (-np.where(pos, sq * a_lo, 0.0) + dC)
+    g += gf
+    g[0] = g[-1] = 0.0
+    return (elastic + Ef, elastic), g
+
+
+# --------------------------------------------------------------------------------------------
+# dynamic programming
+
+
+def _overlaps(a, b):
+    """Non-zero overlaps of curve-0 interval ``n`` (mapped to ``[n b/a, (n+1) b/a]``) with
+    curve-1 interval ``[p, p+1]``: arrays ``n, p, w`` (index units)."""
+    n = np.arange(a)[:, None]
+    p = np.arange(b)[None, :]
+    w = np.minimum((n + 1) * b / a, p + 1) - np.maximum(n * b / a, p)
+    n, p = np.nonzero(w > 1e-12)
+    return n, p, w[n, p]
+
+
+def _dp(q0, q1, steps, window, feats):
+    """Lattice DP; returns (energy, path (K,2))."""
+    N0, N1 = q0.shape[0] + 1, q1.shape[0] + 1
+    h0, h1 = 1.0 / (N0 - 1), 1.0 / (N1 - 1)
+    S = steps.shape[0]
+    P = int(steps.max())
+    G = np.zeros((N0 - 1 + P, N1 - 1 + P))
+    G[P:, P:] = q0 @ q1.T
+    A0 = np.concatenate([np.zeros(P + 1), np.cumsum(h0 * np.einsum("ij,ij->i", q0, q0))])
+    A1 = np.concatenate([np.zeros(P + 1), np.cumsum(h1 * np.einsum("ij,ij->i", q1, q1))])
+    # A0[P + i] = int_0^{t_i} |q0|^2
+    ovl = [_overlaps(int(a), int(b)) for a, b in steps]
+    coef = np.array([2.0 * h1 / np.sqrt(b * h1 / (a * h0)) for a, b in steps])
+    W = N1 + P
+    Hp = np.full((N0 + P, W), np.inf)
+    Hp[P, P] = 0.0
+    back = np.zeros((N0, N1), dtype=np.int8)
+    flatH = Hp.reshape(-1)
+    w = 1.0 if window is None else float(window)
+    ii = np.arange(N0) * h0
+    for r0 in range(1, N0, _ROW_BLOCK):
+        r1 = min(N0, r0 + _ROW_BLOCK)
+        jlo = max(1, int(np.floor((ii[r0] - w) / h1)) - 1)
+        jhi = min(N1, int(np.ceil((ii[r1 - 1] + w) / h1)) + 2)
+        rows = np.arange(r0, r1)
+        cols = np.arange(jlo, jhi)
+        nr, nc = rows.size, cols.size
+        inwin = np.abs(rows[:, None] * h0 - cols[None, :] * h1) <= w + 1e-12
+        C = np.empty((S, nr, nc))
+        for s, (a, b) in enumerate(steps):
+            a, b = int(a), int(b)
+            cross = np.zeros((nr, nc))
+            for n, p, wt in zip(*ovl[s]):
+                cross += wt * G[P + r0 - a + n:P + r1 - a + n, P + jlo - b + p:P + jhi - b + p]
+            Cs = C[s]
+            np.subtract((A0[P + rows] - A0[P + rows - a])[:, None], coef[s] * cross, out=Cs)
+            Cs += (A1[P + cols] - A1[P + cols - b])[None, :]
+            Cs[~inwin] = np.inf
+            Cs[rows < a] = np.inf
+            Cs[:, cols < b] = np.inf
+            if feats is not None and feats.n:
+                _add_features(Cs, feats, a, b, rows, cols, h0, h1)
+        base = ((P - steps[:, 0]) * W - steps[:, 1])[:, None] + (P + cols)[None, :]
+        for k, i in enumerate(rows):
+            cand = np.take(flatH, base + i * W)
+            cand += C[:, k, :]
+            arg = np.argmin(cand, axis=0)
+            Hp[P + i, P + jlo:P + jhi] = np.take_along_axis(cand, arg[None], 0)[0]
+            back[i, jlo:jhi] = arg
+    E = Hp[P + N0 - 1, P + N1 - 1]
+    if not np.isfinite(E):
+        raise ShellsplineError("align: no admissible warp: the feature bounds, the window and "
+                               "the slope limits cannot all be met")
+    path = [(N0 - 1, N1 - 1)]
+    i, j = N0 - 1, N1 - 1
+    while i > 0 or j > 0:
+        a, b = steps[back[i, j]]
+        i, j = i - int(a), j - int(b)
+        path.append((i, j))
+    return float(E), np.array(path[::-1], dtype=np.int64)
+
+
+def _add_features(Cs, feats, a, b, rows, cols, h0, h1):
+    """Add the feature terms of step ``(a, b)`` to the cost block ``Cs`` (rows x cols)."""
+    N0m1 = round(1.0 / h0)
+    r0, r1 = rows[0], rows[-1] + 1
+    x = feats.a / h0
+    nidx = np.minimum(np.floor(x).astype(np.int64), N0m1 - 1)
+    for m in np.nonzero((nidx + a >= r0) & (nidx + 1 < r1))[0]:
+        lo, hi = max(r0, nidx[m] + 1), min(r1, nidx[m] + a + 1)
+        if lo >= hi:
+            continue
+        ri = np.arange(lo, hi)
+        frac = (x[m] - (ri - a)) / a                              # position in the segment
+        phi = (cols[None, :] - b + b * frac[:, None]) * h1
+        r = phi - feats.b[m]
+        blk = Cs[lo - r0:hi - r0]
+        blk += feats.lam * r * r
+        blk[np.abs(r) > feats.bound[m]] = np.inf
+    if feats.symmetric:
+        N1m1 = round(1.0 / h1)
+        y = feats.b / h1
+        pidx = np.minimum(np.floor(y).astype(np.int64), N1m1 - 1)
+        c0, c1 = cols[0], cols[-1] + 1
+        for m in np.nonzero((pidx + b >= c0) & (pidx + 1 < c1))[0]:
+            lo, hi = max(c0, pidx[m] + 1), min(c1, pidx[m] + b + 1)
+            if lo >= hi:
+                continue
+            cj = np.arange(lo, hi)
+            frac = (y[m] - (cj - b)) / b
+            inv = (rows[:, None] - a + a * frac[None, :]) * h0
+            r = inv - feats.a[m]
+            Cs[:, lo - c0:hi - c0] += feats.lam * r * r
+
+
+# --------------------------------------------------------------------------------------------
+# refinement
+
+
+def _refine(q0, q1, phi, feats, max_iter, tol):
+    """L-BFGS on ``z = log dphi`` (``dphi = softmax(z)`` keeps ``phi`` increasing with fixed
+    ends); returns ``(phi, energy, iterations, converged, message)``."""
+    from scipy.optimize import minimize
+
+    def unpack(z):
+        e = np.exp(z - z.max())
+        dphi = e / e.sum()
+        return np.concatenate([[0.0], np.cumsum(dphi)[:-1], [1.0]]), dphi
+
+    def fun(z):
+        ph, dphi = unpack(z)
+        (E, _), g = _energy(q0, q1, ph, feats, True)
+        gd = np.cumsum(g[::-1])[::-1][1:]                # dE/d dphi_n = sum_{i > n} dE/dphi_i
+        return E, dphi * (gd - np.dot(dphi, gd))
+
+    # start off the lattice: at the DP's vertices (sample nodes of both curves) the energy
+    # has kinks on which the line search stalls at once; one [1/4, 1/2, 1/4] pass moves them
+    # inside their segments
+    phi = phi.copy()
+    phi[1:-1] = 0.25 * phi[:-2] + 0.5 * phi[1:-1] + 0.25 * phi[2:]
+    # and off the samples of curve 1 (a shift by 0.1 of its step; the DP's slopes are at
+    # least 1/6 of a step per interval, so phi stays increasing)
+    h1 = 1.0 / q1.shape[0]
+    phi[1:-1] += 0.1 * h1 * np.minimum(1.0, np.diff(phi)[-1] / h1)
+    z = np.log(np.maximum(np.diff(phi), 1e-12))
+    E = fun(z)[0]
+    nit, ok, msg = 0, False, "no iteration"
+    # the energy is only piecewise smooth (kinks where a vertex crosses a sample of curve 1):
+    # a line search that fails on a kink is restarted (fresh quasi-Newton memory) while it
+    # still makes progress
+    for _ in range(_RESTARTS):
+        res = minimize(fun, z, jac=True, method="L-BFGS-B",
+                       options={"maxiter": max(1, int(max_iter) - nit), "gtol": tol,
+                                "ftol": 1e-13})
+        nit += int(res.nit)
+        gain = E - float(res.fun)
+        z, E, ok, msg = res.x, float(res.fun), bool(res.success), str(res.message)
+        if ok or nit >= max_iter or gain <= 1e-12 * max(abs(E), 1e-300):
+            break
+    ph, _ = unpack(z)
+    return ph, E, nit, ok, msg
+
+
+# --------------------------------------------------------------------------------------------
+# public entry points
+
+
+def align_srv(q0, q1, *, features=None, lam=0.0, symmetric=False, bounds=None,
+              window=0.25, neighborhood_size=6, refine=True, max_iter=200,
+              tol=1e-8) -> AlignResult:
+    """Align two SRVs given on equal intervals of ``[0, 1]`` (see :func:`align`).
+
+    Parameters
+    ----------
+    q0 : (N0-1, D) array_like
+    q1 : (N1-1, D) array_like
+    features, lam, symmetric, bounds, window, neighborhood_size, refine, max_iter, tol
+        As in :func:`align`; feature times in ``[0, 1]``.
+
+    Returns
+    -------
+    AlignResult
+        With ``phi`` and ``t`` in ``[0, 1]``.
+    """
+    q0 = np.asarray(q0, dtype=np.float64)
+    q1 = np.asarray(q1, dtype=np.float64)
+    if q0.ndim != 2 or q1.ndim != 2 or q0.shape[1] != q1.shape[1]:
+        raise ShellsplineError(f"align: q0 and q1 must be (N0-1, D) and (N1-1, D) arrays, got "
+                               f"{q0.shape} and {q1.shape}")
+    if q0.shape[0] < 1 or q1.shape[0] < 1:
+        raise ShellsplineError("align: curves need at least 2 samples")
+    if not (np.all(np.isfinite(q0)) and np.all(np.isfinite(q1))):
+        raise ShellsplineError("align: q0 and q1 must be finite")
+    N0, N1 = q0.shape[0] + 1, q1.shape[0] + 1
+    t0, t1 = np.linspace(0, 1, N0), np.linspace(0, 1, N1)
+    feats = _canonical_features(features, lam, symmetric, bounds, t0, t1, N0, N1)
+    if window is not None and not window > 0:
+        raise ShellsplineError(f"align: window must be > 0 (a fraction of the duration) or "
+                               f"None, got {window!r}")
+    steps = neighborhood(neighborhood_size)
+    return _align_normalised(q0, q1, feats, steps, window, refine, max_iter, tol)
+
+
+def _align_normalised(q0, q1, feats, steps, window, refine, max_iter, tol):
+    N0, N1 = q0.shape[0] + 1, q1.shape[0] + 1
+    t0 = np.linspace(0, 1, N0)
+    E_id, _ = _energy(q0, q1, t0, feats, False)[0]
+    E_dp, path = _dp(q0, q1, steps, window, feats)
+    phi = np.interp(np.arange(N0), path[:, 0], path[:, 1] / (N1 - 1))
+    (E, el), _ = _energy(q0, q1, phi, feats, False)
+    status, msg, nit = "dp", "dynamic programming on the sample lattice", 0
+    if refine and N0 > 2:
+        ph, E_r, nit, ok, msg_r = _refine(q0, q1, phi, feats, max_iter, tol)
+        within = feats is None or np.all(
+            np.abs(_feature_values(ph, feats) - feats.b) <= feats.bound)
+        if E_r < E and within:
+            phi, E = ph, E_r
+            (_, el), _ = _energy(q0, q1, phi, feats, False)
+            status = "converged" if ok else ("limit" if nit >= max_iter else "stalled")
+            msg = f"refined from the DP warp: {msg_r}"
+        else:
+            status = "stalled"
+            msg = ("refinement did not lower the DP energy" if within else
+                   "refinement left the hard feature bounds") + "; DP warp kept"
+    return AlignResult(phi=phi, t=t0, energy=float(E), energy_dp=float(E_dp),
+                       energy_identity=float(E_id), elastic=float(el),
+                       distance=float(np.sqrt(max(el, 0.0))), iterations=nit, status=status,
+                       message=msg, shift=0.0, path=path)
+
+
+def _feature_values(phi, feats):
+    N0 = phi.shape[0]
+    x = feats.a * (N0 - 1)
+    n = np.clip(np.floor(x).astype(np.int64), 0, N0 - 2)
+    f = x - n
+    return phi[n] + f * (phi[n + 1] - phi[n])
+
+
+def _as_curve(c, name):
+    if isinstance(c, ProductCurve):
+        return c
+    try:
+        return ProductCurve(X=np.asarray(c, dtype=np.float64))
+    except ShellsplineError as e:
+        raise ShellsplineError(f"align: {name}: {e}") from None
+
+
+def align(curve0, curve1, *, features=None, lam=0.0, symmetric=False, bounds=None,
+          window=0.25, closed=False, n_starts=4, neighborhood_size=6, refine=True,
+          max_iter=200, tol=1e-8) -> AlignResult:
+    """Optimal time warp ``phi`` aligning ``curve1 o phi`` to ``curve0`` for the SRV metric.
+
+    Parameters
+    ----------
+    curve0, curve1 : ProductCurve or (N,m) array_like
+        Curves in ``SO(3)^d x R^m`` (same ``d`` and ``m``; any numbers of samples; plain
+        arrays are curves in ``R^m`` on ``linspace(0, 1, N)``). Uniform sample times are
+        assumed for the DP lattice (times are normalised to ``[0, 1]``).
+    features : pair of (F,) array_like, optional
+        Feature times ``(a, b)``: ``a_i`` in curve 0's times should map to ``b_i`` in curve
+        1's times.
+    lam : float
+        Weight of the soft feature term ``lam sum (phi(a_i) - b_i)^2`` (normalised times).
+    symmetric : bool
+        Add the symmetric term ``lam sum (phi^{-1}(b_i) - a_i)^2`` (seed 003 sect. 2.4).
+    bounds : float or (F,) array_like, optional
+        Hard bounds ``|phi(a_i) - b_i| <= bound_i`` (curve 1's time units). ``0`` makes the
+        pair a passage point (both times snapped to the nearest samples).
+    window : float or None
+        Admissible band ``|t - phi(t)| <= window`` (normalised times); ``None``: no band.
+    closed : bool
+        Closed curves (``c[-1] == c[0]``): also optimise the start point of curve 1 (the
+        ``n_starts`` best cyclic shifts by FFT correlation are aligned by DP; the best is
+        kept).
+    n_starts : int
+        Candidate start points for closed curves.
+    neighborhood_size : int
+        DP steps ``(a, b)`` coprime with ``a, b <= neighborhood_size`` (slopes 1/size..size).
+    refine : bool
+        Refine the DP warp by L-BFGS on the exact energy.
+    max_iter : int
+        Refinement iteration limit.
+    tol : float
+        Refinement gradient tolerance.
+
+    Returns
+    -------
+    AlignResult
+
+    Raises
+    ------
+    ShellsplineError
+        On bad curves or options, or when no warp meets the hard bounds.
+
+    Notes
+    -----
+    Energy (seed 003 eq. 20/21, seed 000 eq. 10 for the Lie group SRVT):
+    ``int_0^1 |q0 - sqrt(phi') q1 o phi|^2 + lam sum (phi(a_i) - b_i)^2``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.linspace(0, 1, 101)
+    >>> c1 = np.c_[np.cos(3 * t), np.sin(5 * t)]
+    >>> c0 = np.c_[np.cos(3 * t ** 2), np.sin(5 * t ** 2)]      # c0 = c1 o t^2
+    >>> r = align(c0, c1)
+    >>> bool(np.abs(r.phi - t ** 2).max() < 0.01)
+    True
+    """
+    c0, c1 = _as_curve(curve0, "curve0"), _as_curve(curve1, "curve1")
+    if (c0.d, c0.m) != (c1.d, c1.m):
+        raise ShellsplineError(f"align: curves must have the same components, got (d, m) = "
+                               f"{(c0.d, c0.m)} and {(c1.d, c1.m)}")
+    for name, c in (("curve0", c0), ("curve1", c1)):
+        dt = np.diff(c.t)
+        if np.ptp(dt) > 1e-6 * dt.mean():
+            raise ShellsplineError(f"align: {name} must have uniform sample times (resample it "
+                                   "with reparametrize first)")
+    t0, t1 = c0.t, c1.t
+    N0, N1 = t0.size, t1.size
+    feats = _canonical_features(features, lam, symmetric, bounds, t0, t1, N0, N1)
+    if window is not None and not window > 0:
+        raise ShellsplineError(f"align: window must be > 0 (a fraction of the duration) or "
+                               f"None, got {window!r}")
+    steps = neighborhood(neighborhood_size)
+    q0 = srv(c0.with_times(normalized_times(t0)))
+    q1 = srv(c1.with_times(normalized_times(t1)))
+    T1 = t1[-1] - t1[0]
+    if not closed:
+        r = _align_normalised(q0, q1, feats, steps, window, refine, max_iter, tol)
+        r.phi = t1[0] + r.phi * T1
+        r.t = t0.copy()
+        r.shift = float(t1[0])
+        return r
+    best = None
+    for s in _start_candidates(q0, q1, int(n_starts)):
+        fs = feats
+        if feats is not None:
+            fs = _Features(feats.a, np.mod(feats.b - s / (N1 - 1), 1.0), feats.lam,
+                           feats.symmetric, feats.bound)
+        r = _align_normalised(q0, np.roll(q1, -s, axis=0), fs, steps, window, refine,
+                              max_iter, tol)
+        if best is None or r.energy < best[0].energy:
+            best = (r, s)
+    r, s = best
+    r.shift = float(t1[0] + s * T1 / (N1 - 1))
+    r.phi = r.shift + r.phi * T1
+    r.t = t0.copy()
+    return r
+
+
+def _start_candidates(q0, q1, k):
+    """Cyclic shifts ``s`` of ``q1`` (in intervals) with the largest correlation
+    ``sum_n <q0_n, q1_{n+s}>`` (``q1`` resampled to ``q0``'s intervals by nearest index)."""
+    n0, n1 = q0.shape[0], q1.shape[0]
+    idx = np.minimum((np.arange(n0) * n1) // n0, n1 - 1)
+    qr = q1[idx]
+    corr = np.fft.irfft(np.sum(np.conj(np.fft.rfft(q0, axis=0)) * np.fft.rfft(qr, axis=0),
+                               axis=1), n=n0)
+    order = np.argsort(-corr)[:max(1, k)]
+    return sorted({int(round(s * n1 / n0)) % n1 for s in order})
+
+
+def shape_distance(curve0, curve1, **options) -> float:
+    """Symmetric elastic shape distance ``inf_phi |q0 - sqrt(phi') q1 o phi|`` (seed 000 eq.
+    10), estimated both ways.
+
+    Both :func:`align` (curve 1 onto curve 0) and the reverse give upper bounds of the
+    infimum (a discrete optimum); the smaller one is returned, which is symmetric in the two
+    curves. ``options`` go to :func:`align` (without feature points: this is the distance of
+    the unparametrised curves).
+
+    Returns
+    -------
+    float
+    """
+    if "features" in options:
+        raise ShellsplineError("shape_distance: feature points do not define a distance; use "
+                               "align")
+    r01 = align(curve0, curve1, **options)
+    r10 = align(curve1, curve0, **options)
+    return float(min(r01.distance, r10.distance))
+
+
+def project_closed(Q, t=None, *, tol=1e-12, max_iter=50) -> np.ndarray:
+    """Project the SRV of an open curve in ``R^m`` onto the SRVs of closed curves (seed 003
+    Theorem 2): the nearest ``q`` (Newton along the normal basis ``U_i``) with
+    ``int |q| q dt = 0``.
+
+    Parameters
+    ----------
+    Q : (N-1, m) array_like
+        Piecewise constant SRV.
+    t : (N,) array_like, optional
+        Sample times (default ``linspace(0, 1, N)``).
+    tol : float
+        Stop when ``|int |q| q| <= tol * int |q|^2`` (the closure gap relative to the length).
+    max_iter : int
+
+    Returns
+    -------
+    (N-1, m) ndarray
+
+    Raises
+    ------
+    ShellsplineError
+        When the iteration does not close the curve in ``max_iter`` steps.
+
+    Notes
+    -----
+    The constraint ``G(q) = int |q| q`` has the derivative
+    ``U_i(q) = (q_i q + |q|^2 e_i) / |q|`` (seed 003 eq. 11); each step solves
+    ``G(q) - sum_j beta_j <U_i, U_j> = 0`` and sets ``q <- q - sum_j beta_j U_j``.
+    """
+    Q = np.array(Q, dtype=np.float64)
+    if Q.ndim != 2:
+        raise ShellsplineError(f"project_closed: Q must be (N-1, m), got {Q.shape}")
+    n, m = Q.shape
+    t = np.linspace(0, 1, n + 1) if t is None else np.asarray(t, dtype=np.float64)
+    if t.shape != (n + 1,):
+        raise ShellsplineError(f"project_closed: t must have shape ({n + 1},), got {t.shape}")
+    dt = np.diff(t)
+    length = float(np.sum(dt * np.einsum("ij,ij->i", Q, Q)))
+    for _ in range(max_iter):
+        nq = np.sqrt(np.einsum("ij,ij->i", Q, Q))
+        Gv = (dt * nq) @ Q
+        if np.linalg.norm(Gv) <= tol * max(length, 1e-300):
+            return Q
+        safe = np.where(nq > 0, nq, 1.0)
+        # U[k, i, :] = (q_i q + |q|^2 e_i) / |q| on interval k
+        U = (Q[:, :, None] * Q[:, None, :] + (nq ** 2)[:, None, None] * np.eye(m)) \
+            / safe[:, None, None]
+        M = np.einsum("k,kia,kja->ij", dt, U, U)
+        beta = np.linalg.solve(M, Gv)
+        Q = Q - np.einsum("j,kja->ka", beta, U)
+    raise ShellsplineError(f"project_closed: the curve did not close in {max_iter} steps "
+                           f"(gap {np.linalg.norm(Gv):.2g})")
+
+
+def dtw(x0, x1, *, window=None) -> tuple[float, np.ndarray]:
+    """Dynamic time warping of two sampled curves (a baseline for :func:`align`).
+
+    Parameters
+    ----------
+    x0 : (N0, D) array_like
+    x1 : (N1, D) array_like
+    window : float, optional
+        Sakoe-Chiba band ``|i/N0 - j/N1| <= window``.
+
+    Returns
+    -------
+    cost : float
+        Sum of Euclidean distances along the optimal path (steps (1,0), (0,1), (1,1)).
+    path : (K,2) int64 ndarray
+    """
+    x0 = np.asarray(x0, dtype=np.float64)
+    x1 = np.asarray(x1, dtype=np.float64)
+    if x0.ndim == 1:
+        x0 = x0[:, None]
+    if x1.ndim == 1:
+        x1 = x1[:, None]
+    N0, N1 = x0.shape[0], x1.shape[0]
+    d2 = (np.einsum("ij,ij->i", x0, x0)[:, None] + np.einsum("ij,ij->i", x1, x1)[None, :]
+          - 2 * x0 @ x1.T)
+    Dm = np.sqrt(np.maximum(d2, 0))
+    if window is not None:
+        i = np.arange(N0)[:, None] / max(N0 - 1, 1)
+        j = np.arange(N1)[None, :] / max(N1 - 1, 1)
+        Dm[np.abs(i - j) > window] = _FAR
+    H = np.full((N0, N1), np.inf)
+    H[0] = np.cumsum(Dm[0])
+    back = np.zeros((N0, N1), dtype=np.int8)
+    for i in range(1, N0):
+        diag = np.concatenate([[np.inf], H[i - 1, :-1]])
+        up = H[i - 1]
+        best = np.minimum(diag, up)
+        src = np.where(diag <= up, 0, 1)
+        # left moves within the row: H[i, j] = min(best[j], H[i, j-1]) + D[i, j], a running
+        # minimum of (best - cumsum D) shifted by cumsum D
+        cs = np.cumsum(Dm[i])
+        v = best - np.concatenate([[0.0], cs[:-1]])
+        run = np.minimum.accumulate(v)
+        H[i] = run + cs
+        back[i] = np.where(v <= run, src, 2)
+    path = [(N0 - 1, N1 - 1)]
+    i, j = N0 - 1, N1 - 1
+    while i > 0 or j > 0:
+        k = back[i, j] if i > 0 else 2
+        i, j = (i - 1, j - 1) if k == 0 else (i - 1, j) if k == 1 else (i, j - 1)
+        path.append((i, j))
+    cost = float(H[-1, -1])
+    return (cost if cost < _FAR else np.inf), np.array(path[::-1], dtype=np.int64)
