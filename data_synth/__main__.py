@@ -1,6 +1,7 @@
 """Command line: ``python -m data_synth NAME OUT [--vertices N] [--format obj|ply|off]
 [--count C]``, and ``python -m data_synth skinned BVH OUT ...`` (a body skinned to a BVH clip,
-every frame written: see :mod:`data_synth.skinned`)."""
+every frame written: see :mod:`data_synth.skinned`), and ``python -m data_synth motion OUT.bvh
+...`` (a synthetic walk in any BVH channel layout: see :mod:`data_synth.motion`)."""
 from __future__ import annotations
 
 import argparse
@@ -44,6 +45,9 @@ def main(argv=None) -> int:
     if argv[:1] == ["skinned"]:  # its own arguments (a BVH file, a window of frames)
         from .skinned import main as skinned_main
         return skinned_main(argv[1:])
+    if argv[:1] == ["motion"]:  # a synthetic BVH walk in a chosen channel layout
+        from .motion import main as motion_main
+        return motion_main(argv[1:])
     args = parser.parse_args(argv)
     if args.name in DCC_NAMES:
         if args.count is not None or args.vertices is not None:

@@ -1,0 +1,991 @@
+"""Skeletal animations as curves on SO(3)^d x R^m: conversion, features, metrics, operations.
+
+A :class:`~shellspline.io.bvh.Motion` becomes a :class:`MotionCurve`: the local rotation of
+every joint that has rotation channels (``d`` joints, ``R (N,d,3,3)``) and the values of every
+position channel (``m`` channels, ``X (N,m)``, file units), sampled at ``N`` frames. The curve
+goes back to a ``Motion`` with the same channel layout: rotations are written in each joint's
+own Euler order, on the branch nearest a reference (the source values), position channels
+stay position channels. Nothing here assumes a skeleton, joint names, an up axis, a frame
+rate or a channel layout.
+
+On top of it:
+
+* resampling to another frame rate or length (:func:`resample`, geodesic between frames);
+* the up axis (:func:`up_axis`), the feet (:func:`find_feet`) and foot contacts from joint
+  heights and speeds (:func:`foot_contacts`), all detected from the data;
+* metrics: foot skate (:func:`foot_skate`) and the seam gap of a loop (:func:`seam_gap`);
+* operations (:func:`distance`, :func:`align`, :func:`blend`, :func:`close`) built on the
+  square-root-velocity machinery of :mod:`shellspline.curves` (seed 000), with foot contacts
+  as feature points (seed 003), and a root-translation correction that keeps planted feet
+  from sliding (:func:`plant_feet`).
+
+Layer: above :mod:`shellspline.io` (imports ``io.bvh``, ``curves``, ``groups``, ``errors``).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .errors import ShellsplineError
+from .groups import so3
+from .io.bvh import Motion, euler_matrices, forward_kinematics
+
+__all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_grid",
+           "warp_motion", "up_axis", "body_height", "translation_root", "find_feet",
+           "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
+           "contact_features", "AlignReport", "align", "distance", "blend"]
+
+# Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
+# a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
+# moves horizontally slower than CONTACT_SPEED * L per second. On the real walks (L ~ 90 cm)
+# planted toes move < 10 cm/s and swinging ones 100-400 cm/s; heights 4.2 cm planted, up to
+# 14 cm in swing (tests/test_animation.py checks the gait periodicity).
+CONTACT_HEIGHT = 0.05
+CONTACT_SPEED = 0.5
+# Weight of the feature term lam * sum (phi(a_i) - b_i)^2 (normalised times) when feature
+# points are given without a weight.
+FEATURE_WEIGHT = 1.0
+
+
+# ----------------------------------------------------------------------------------------
+# Motion <-> curve
+# ----------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class MotionCurve:
+    """A motion as a sampled curve in SO(3)^d x R^m.
+
+    Attributes
+    ----------
+    R : (N,d,3,3) float64 numpy array
+        Local rotations of the joints that have rotation channels.
+    X : (N,m) float64 numpy array
+        Values of every position channel (file units), in column order.
+    frame_time : float
+        Seconds per frame.
+    template : Motion
+        The motion that gives the skeleton and channel layout.
+    rot_joints : (d,) int64 numpy array
+        Joint index of every rotation block.
+    pos_cols : (m,) int64 numpy array
+        Column of :attr:`Motion.values` of every position channel.
+    reference : (N,C) float64 numpy array
+        Channel values whose Euler branches :meth:`to_motion` follows (the source values,
+        resampled to the curve's frames).
+    """
+
+    R: np.ndarray
+    X: np.ndarray
+    frame_time: float
+    template: Motion
+    rot_joints: np.ndarray
+    pos_cols: np.ndarray
+    reference: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        """Number of samples ``N``."""
+        return self.R.shape[0]
+
+    @property
+    def t(self) -> np.ndarray:
+        """Normalised parameter ``(N,)``: ``linspace(0, 1, N)``."""
+        return np.linspace(0.0, 1.0, self.n_frames)
+
+    @property
+    def duration(self) -> float:
+        """``(N - 1) * frame_time`` seconds."""
+        return (self.n_frames - 1) * self.frame_time
+
+    def with_samples(self, R, X, frame_time=None, reference=None) -> "MotionCurve":
+        """The same layout with other samples (``reference`` resampled from this curve's by
+        frame position when not given)."""
+        R = np.asarray(R, dtype=np.float64)
+        X = np.asarray(X, dtype=np.float64)
+        if reference is None:
+            reference = _resample_linear(self.reference, R.shape[0])
+        return replace(self, R=R, X=X, reference=np.asarray(reference, dtype=np.float64),
+                       frame_time=self.frame_time if frame_time is None else float(frame_time))
+
+    def to_motion(self) -> Motion:
+        """The curve as a :class:`Motion` with the template's channel layout.
+
+        Rotations are converted to each joint's own Euler order (1 to 3 rotation channels),
+        choosing per frame the Euler solution and the multiples of 360 degrees nearest the
+        reference values; position channels take the values of ``X``; channels of joints
+        without rotation keep their reference values.
+        """
+        tpl = self.template
+        values = self.reference.copy()
+        values[:, self.pos_cols] = self.X
+        for b, j in enumerate(self.rot_joints):
+            cols = tpl.channel_columns(int(j))
+            rcols = [c for c, name in zip(cols, tpl.channels[j]) if name.endswith("rotation")]
+            axes = "".join(name[0] for name in tpl.channels[j] if name.endswith("rotation"))
+            values[:, rcols] = euler_angles(self.R[:, b], axes, values[:, rcols])
+        return Motion(tpl.names, tpl.parents, tpl.offsets, tpl.channels, self.frame_time,
+                      values, tpl.end_sites)
+
+
+def _rotation_layout(motion: Motion):
+    rot_joints, pos_cols = [], []
+    col = 0
+    for j, chans in enumerate(motion.channels):
+        if any(c.endswith("rotation") for c in chans):
+            rot_joints.append(j)
+        for c in chans:
+            if c.endswith("position"):
+                pos_cols.append(col)
+            col += 1
+    return np.array(rot_joints, dtype=np.int64), np.array(pos_cols, dtype=np.int64)
+
+
+def motion_curve(motion: Motion) -> MotionCurve:
+    """A motion as a curve in SO(3)^d x R^m.
+
+    Parameters
+    ----------
+    motion : Motion
+        Any skeleton and channel layout; at least one frame.
+
+    Returns
+    -------
+    MotionCurve
+        ``R (T,d,3,3)``: local rotations (``bvh.euler_matrices`` of each joint's rotation
+        channels) of the ``d`` joints with rotation channels; ``X (T,m)``: the ``m`` position
+        channels; ``reference``: the channel values.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from shellspline.io.bvh import Motion
+    >>> m = Motion(("root",), [-1], np.zeros((1, 3)), (("Xposition", "Zrotation"),), 0.1,
+    ...            [[1.0, 30.0], [2.0, 40.0]])
+    >>> c = motion_curve(m)
+    >>> c.R.shape, c.X.ravel().tolist()
+    ((2, 1, 3, 3), [1.0, 2.0])
+    >>> bool(np.allclose(c.to_motion().values, m.values))
+    True
+    """
+    if not isinstance(motion, Motion):
+        raise ShellsplineError(f"motion_curve: expected a Motion, got {type(motion).__name__}")
+    if motion.n_frames < 1:
+        raise ShellsplineError("motion_curve: the motion has no frame")
+    rot_joints, pos_cols = _rotation_layout(motion)
+    T = motion.n_frames
+    R = np.zeros((T, rot_joints.size, 3, 3))
+    for b, j in enumerate(rot_joints):
+        cols = motion.channel_columns(int(j))
+        rcols = [c for c, name in zip(cols, motion.channels[j]) if name.endswith("rotation")]
+        axes = "".join(name[0] for name in motion.channels[j] if name.endswith("rotation"))
+        R[:, b] = euler_matrices(motion.values[:, rcols], axes)
+    return MotionCurve(R, motion.values[:, pos_cols].copy(), motion.frame_time, motion,
+                       rot_joints, pos_cols, motion.values.copy())
+
+
+def euler_angles(R, axes: str, reference=None) -> np.ndarray:
+    """Intrinsic Euler angles in degrees of rotation matrices: the inverse of
+    :func:`~shellspline.io.bvh.euler_matrices`.
+
+    Parameters
+    ----------
+    R : (...,3,3) array_like
+    axes : str of length k (1 to 3)
+        Composition order, e.g. ``"ZXY"``.
+    reference : (...,k) array_like, optional
+        Angles to stay near: of the two Euler solutions (3 axes) the nearer one is taken and
+        every angle is shifted by the multiple of 360 nearest the reference.
+
+    Returns
+    -------
+    (...,k) float64 numpy array
+        Exact for 3 axes; for 1 or 2 axes the rotation is projected on the axes (exact when
+        ``R`` is a product of rotations about them).
+    """
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(R, dtype=np.float64)
+    axes = axes.upper()
+    lead = R.shape[:-2]
+    flat = R.reshape(-1, 3, 3)
+    k = len(axes)
+    if k == 1:
+        p, q = {"X": (1, 2), "Y": (2, 0), "Z": (0, 1)}[axes]
+        cands = [np.degrees(np.arctan2(flat[:, q, p], flat[:, p, p]))[:, None]]
+    else:
+        full = axes if k == 3 else axes + ({"X", "Y", "Z"} - set(axes)).pop()
+        with warnings.catch_warnings():  # gimbal lock: scipy warns and sets the last angle 0
+            warnings.simplefilter("ignore")
+            a = Rotation.from_matrix(flat).as_euler(full, degrees=True)
+        if k == 3:
+            alt = a + [180.0, 0.0, 180.0]
+            alt[:, 1] = -a[:, 1] if full[0] == full[2] else 180.0 - a[:, 1]
+            cands = [a, alt]
+        else:
+            cands = [a[:, :2]]
+    if reference is None:
+        out = cands[0]
+    else:
+        ref = np.broadcast_to(np.asarray(reference, dtype=np.float64), lead + (k,)).reshape(-1, k)
+        shifted = [c + 360.0 * np.round((ref - c) / 360.0) for c in cands]
+        cost = np.stack([np.abs(s - ref).sum(axis=1) for s in shifted])
+        out = np.take_along_axis(np.stack(shifted), np.argmin(cost, axis=0)[None, :, None],
+                                 axis=0)[0]
+    return out.reshape(lead + (k,))
+
+
+def _resample_linear(A, n: int) -> np.ndarray:
+    """Rows of ``A (N,...)`` linearly interpolated at ``n`` evenly spaced positions."""
+    N = A.shape[0]
+    if n == N:
+        return A.copy()
+    s = np.linspace(0.0, N - 1.0, n)
+    i = np.minimum(np.floor(s).astype(np.int64), max(N - 2, 0))
+    w = (s - i).reshape((-1,) + (1,) * (A.ndim - 1))
+    return A[i] * (1 - w) + A[np.minimum(i + 1, N - 1)] * w
+
+
+def _slerp_rows(R, s) -> np.ndarray:
+    """Rotations ``R (N,d,3,3)`` at fractional frame positions ``s (n,)`` (geodesic between
+    neighbouring frames)."""
+    N = R.shape[0]
+    i = np.minimum(np.floor(s).astype(np.int64), max(N - 2, 0))
+    w = s - i
+    j = np.minimum(i + 1, N - 1)
+    D = so3.log(np.swapaxes(R[i], -1, -2) @ R[j])  # (n,d,3), body-frame step
+    return R[i] @ so3.exp(D * w[:, None, None])
+
+
+def _sample_curve(c: MotionCurve, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(R, X, reference)`` of a curve at fractional frame positions ``s (n,)``."""
+    s = np.asarray(s, dtype=np.float64)
+    N = c.n_frames
+    i = np.minimum(np.floor(s).astype(np.int64), max(N - 2, 0))
+    w = (s - i)[:, None]
+    j = np.minimum(i + 1, N - 1)
+    return (_slerp_rows(c.R, s), c.X[i] * (1 - w) + c.X[j] * w,
+            c.reference[i] * (1 - w) + c.reference[j] * w)
+
+
+def resample(motion: Motion, *, frame_time: float | None = None,
+             n_frames: int | None = None) -> Motion:
+    """The motion at another frame rate, or stretched to another number of frames.
+
+    Parameters
+    ----------
+    motion : Motion
+    frame_time : float, optional
+        New seconds per frame; the duration is kept (to the nearest frame).
+    n_frames : int, optional
+        New number of frames (>= 2); with ``frame_time`` too, the clip is stretched to
+        ``(n_frames - 1) * frame_time`` seconds, otherwise the duration is kept.
+
+    Returns
+    -------
+    Motion
+        Rotations interpolated along SO(3) geodesics between neighbouring frames, position
+        channels linearly; the same channel layout.
+    """
+    if motion.n_frames < 2:
+        raise ShellsplineError(f"resample: need at least 2 frames, got {motion.n_frames}")
+    dur = (motion.n_frames - 1) * motion.frame_time
+    if frame_time is not None and not (np.isfinite(frame_time) and frame_time > 0):
+        raise ShellsplineError(f"resample: frame_time must be positive, got {frame_time!r}")
+    if n_frames is None:
+        if frame_time is None:
+            return motion
+        n_frames = int(round(dur / frame_time)) + 1
+    n_frames = int(n_frames)
+    if n_frames < 2:
+        raise ShellsplineError(f"resample: n_frames must be >= 2, got {n_frames}")
+    if frame_time is None:
+        frame_time = dur / (n_frames - 1)
+    c = motion_curve(motion)
+    R, X, ref = _sample_curve(c, np.linspace(0.0, motion.n_frames - 1.0, n_frames))
+    return c.with_samples(R, X, frame_time, ref).to_motion()
+
+
+def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Motion, Motion]:
+    """Two motions of one skeleton brought to the same number of frames.
+
+    Each clip is stretched over ``[0, 1]`` to ``n_frames`` samples (default: enough for the
+    longer clip at the finer frame time), so their curves share one parameter grid.
+
+    Raises
+    ------
+    ShellsplineError
+        When the two skeletons differ (joint count, parents or channel layout).
+    """
+    same = (a.n_joints == b.n_joints and np.array_equal(a.parents, b.parents)
+            and a.channels == b.channels)
+    if not same:
+        raise ShellsplineError(
+            f"the two motions have different skeletons: {a.n_joints} joints "
+            f"({sum(map(len, a.channels))} channels) against {b.n_joints} joints "
+            f"({sum(map(len, b.channels))} channels)")
+    if n_frames is None:
+        ft = min(a.frame_time, b.frame_time)
+        dur = max((a.n_frames - 1) * a.frame_time, (b.n_frames - 1) * b.frame_time)
+        n_frames = int(round(dur / ft)) + 1
+    out = []
+    for m in (a, b):
+        if m.n_frames == n_frames:
+            out.append(m)
+        else:
+            dur = (m.n_frames - 1) * m.frame_time
+            out.append(resample(m, n_frames=n_frames, frame_time=dur / (n_frames - 1)))
+    return out[0], out[1]
+
+
+# ----------------------------------------------------------------------------------------
+# Up axis, feet, contacts
+# ----------------------------------------------------------------------------------------
+def _parse_up(up) -> tuple[int, float]:
+    if isinstance(up, tuple):
+        return int(up[0]), float(up[1])
+    s = str(up).strip().lower()
+    sign = -1.0 if s.startswith("-") else 1.0
+    s = s.lstrip("+-")
+    if s not in ("x", "y", "z"):
+        raise ShellsplineError(f"up axis must be one of x, y, z, +y, -z, ..., got {up!r}")
+    return "xyz".index(s), sign
+
+
+def up_axis(motion: Motion, positions=None) -> tuple[int, float]:
+    """The up axis of a motion, detected from the data.
+
+    Parameters
+    ----------
+    motion : Motion
+    positions : (T,J,3) array_like, optional
+        World joint positions (``forward_kinematics(motion)[0]``), when already computed.
+
+    Returns
+    -------
+    axis : int
+        0, 1 or 2: the axis along which the body (every joint but the roots, which may be a
+        ground marker far from the body) has its largest extent, median over frames.
+    sign : float
+        ``+1`` or ``-1``: the sign that puts the centroid of the joints above the middle of
+        their extent (more joints sit in the upper body: spine, arms, head).
+
+    Notes
+    -----
+    A heuristic for humanoids standing or walking; pass ``up="y"``, ``"-z"``, ... to the
+    functions that take it when it fails (lying, crawling, quadrupeds).
+    """
+    P = forward_kinematics(motion)[0] if positions is None else np.asarray(positions)
+    body = motion.parents >= 0
+    if body.sum() < 2:
+        body = np.ones(motion.n_joints, dtype=bool)
+    B = P[:, body]
+    ext = np.median(B.max(axis=1) - B.min(axis=1), axis=0)
+    axis = int(np.argmax(ext))
+    h = B[..., axis]
+    mid = 0.5 * (h.max(axis=1) + h.min(axis=1))
+    sign = 1.0 if np.median(h.mean(axis=1) - mid) >= 0 else -1.0
+    return axis, sign
+
+
+def _children(motion: Motion) -> list[list[int]]:
+    ch = [[] for _ in range(motion.n_joints)]
+    for j, p in enumerate(motion.parents):
+        if p >= 0:
+            ch[p].append(j)
+    return ch
+
+
+def find_feet(motion: Motion, up=None, positions=None, count: int = 2) -> tuple[int, ...]:
+    """The feet: the ``count`` leaf joints lowest on average along the up axis.
+
+    Parameters
+    ----------
+    motion : Motion
+    up : str or (int, float), optional
+        Up axis override (``"y"``, ``"-z"``, ...); detected by :func:`up_axis` otherwise.
+    positions : (T,J,3) array_like, optional
+        World joint positions, when already computed.
+    count : int
+        Number of feet (2 for bipeds; fewer when the skeleton has fewer leaves).
+
+    Returns
+    -------
+    tuple of int
+        Leaf joint indices, lowest first. Leaves on the same chain as an already chosen
+        foot are skipped. Joint names are not used.
+    """
+    P = forward_kinematics(motion)[0] if positions is None else np.asarray(positions)
+    ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
+    ch = _children(motion)
+    leaves = [j for j in range(motion.n_joints) if not ch[j] and motion.parents[j] >= 0]
+    if not leaves:
+        leaves = [j for j in range(motion.n_joints) if not ch[j]]
+    height = sign * P[:, leaves, ax].mean(axis=0)
+    return tuple(int(leaves[i]) for i in np.argsort(height, kind="stable")[:count])
+
+
+def _chain(motion: Motion, foot: int, ch) -> list[int]:
+    """The foot leaf and its ancestors up to (not including) the nearest branch point."""
+    out = [foot]
+    p = int(motion.parents[foot])
+    while p >= 0 and len(ch[p]) == 1:
+        out.append(p)
+        p = int(motion.parents[p])
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class FootContacts:
+    """Foot contacts of a motion.
+
+    Attributes
+    ----------
+    feet : tuple of int
+        Foot leaf joints.
+    joints : tuple of (int, int)
+        The joints tested for contact per foot: the leaf (toe) and its parent (ankle) when
+        the parent is on the foot's chain, else the leaf twice.
+    contact : (T,k) bool numpy array
+        Foot ``i`` planted at frame ``f`` (either of its joints planted).
+    joint_contact : (T,k,2) bool numpy array
+        Contact of each tested joint.
+    heights : (T,k,2) float64 numpy array
+        Heights of the tested joints above their own lowest level (file units).
+    up : (int, float)
+        Up axis and sign used.
+    leg_length : float
+        Rest length of the leg chain (file units): the mean over feet of the summed bone
+        lengths from the leaf to the branch point (the hips).
+    positions : (T,J,3) float64 numpy array
+        World joint positions.
+    """
+
+    feet: tuple
+    joints: tuple
+    contact: np.ndarray
+    joint_contact: np.ndarray
+    heights: np.ndarray
+    up: tuple
+    leg_length: float
+    positions: np.ndarray = field(repr=False)
+
+    def onsets(self, foot: int) -> np.ndarray:
+        """Frames where foot ``foot`` (its index in :attr:`feet`) touches down."""
+        c = self.contact[:, foot]
+        return np.flatnonzero(c[1:] & ~c[:-1]) + 1
+
+
+def foot_contacts(motion: Motion, *, feet=None, up=None, height: float = CONTACT_HEIGHT,
+                  speed: float = CONTACT_SPEED) -> FootContacts:
+    """Foot contacts from joint heights and horizontal speeds.
+
+    Parameters
+    ----------
+    motion : Motion
+    feet : sequence of int or str, optional
+        Foot joints (indices or names); :func:`find_feet` otherwise.
+    up : str or (int, float), optional
+        Up axis override; :func:`up_axis` otherwise.
+    height : float
+        A joint is low when within ``height * leg_length`` of its own lowest level (the 2nd
+        percentile of its height over the clip: robust to a single spike).
+    speed : float
+        ... and slow when its horizontal speed is below ``speed * leg_length`` per second
+        (central differences).
+
+    Returns
+    -------
+    FootContacts
+    """
+    P, _ = forward_kinematics(motion)
+    ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
+    if feet is None:
+        feet = find_feet(motion, (ax, sign), P)
+    else:
+        feet = tuple(motion.joint_index(f) if isinstance(f, str) else int(f) for f in feet)
+        bad = [f for f in feet if not 0 <= f < motion.n_joints]
+        if bad:
+            raise ShellsplineError(f"feet: joint indices out of range 0..{motion.n_joints - 1}:"
+                                   f" {bad}")
+    ch = _children(motion)
+    chains = [_chain(motion, f, ch) for f in feet]
+    _, t_loc = motion.local_transforms()
+    rest = np.linalg.norm(t_loc[0], axis=1)
+    leg = float(np.mean([rest[c[1:]].sum() if len(c) > 1 else rest[c[0]] for c in chains]))
+    if not leg > 0:
+        leg = float(np.ptp(P[..., ax])) or 1.0
+    joints = tuple((c[0], c[1] if len(c) > 1 else c[0]) for c in chains)
+    idx = np.array(joints, dtype=np.int64)  # (k,2)
+    H = sign * P[:, idx, ax]  # (T,k,2)
+    H = H - np.percentile(H, 2, axis=0)
+    hor = [a for a in range(3) if a != ax]
+    Q = P[:, idx][..., hor]  # (T,k,2,2)
+    if motion.n_frames > 1:
+        V = np.gradient(Q, motion.frame_time, axis=0)
+        v = np.linalg.norm(V, axis=-1)
+    else:
+        v = np.zeros(H.shape)
+    jc = (H <= height * leg) & (v <= speed * leg)
+    return FootContacts(tuple(feet), joints, jc.any(axis=2), jc, H, (ax, sign), leg, P)
+
+
+def foot_skate(motion: Motion, contacts: FootContacts | None = None, **kw) -> dict:
+    """Horizontal drift of planted feet.
+
+    Parameters
+    ----------
+    motion : Motion
+    contacts : FootContacts, optional
+        Contacts to measure with (e.g. those of the source clip, for a modified clip of the
+        same timing); detected on ``motion`` (``**kw`` to :func:`foot_contacts`) otherwise.
+
+    Returns
+    -------
+    dict
+        ``drift``: the summed horizontal displacement of the planted point of every foot
+        between consecutive frames where it is planted (file units; of the foot's planted
+        joints the one that moves least, so that a foot rolling over its toe pivots); ``drift_per_leg``: the same over
+        the leg length; ``speed``: the mean horizontal speed while planted (units/s);
+        ``speed_per_leg``: the same in leg lengths per second; ``contact_frames``: planted
+        foot-steps counted.
+    """
+    if contacts is None:
+        contacts = foot_contacts(motion, **kw)
+    step, planted = _planted_steps(motion, contacts)
+    drift = float(step[planted].sum())
+    n = int(planted.sum())
+    leg = contacts.leg_length
+    spd = drift / (n * motion.frame_time) if n else 0.0
+    return {"drift": drift, "drift_per_leg": drift / leg, "speed": spd,
+            "speed_per_leg": spd / leg, "contact_frames": n}
+
+
+def _planted_steps(motion: Motion, contacts: FootContacts):
+    """Per frame step and foot: the horizontal step ``(T-1,k,2)`` of the planted point (of
+    the foot's tested joints planted at both ends of the step, the one that moves least: a
+    foot rolling over its toe pivots about the toe) and whether the foot is planted
+    ``(T-1,k)``."""
+    P = forward_kinematics(motion)[0]
+    ax = contacts.up[0]
+    hor = [a for a in range(3) if a != ax]
+    idx = np.array(contacts.joints, dtype=np.int64)
+    D = np.diff(P[:, idx][..., hor], axis=0)  # (T-1,k,2,2)
+    jc = contacts.joint_contact[: motion.n_frames]
+    both = jc[1:] & jc[:-1]  # (T-1,k,2)
+    size = np.where(both, np.linalg.norm(D, axis=-1), np.inf)
+    pick = np.argmin(size, axis=2)  # (T-1,k)
+    planted = both.any(axis=2)
+    steps = np.take_along_axis(D, pick[..., None, None], axis=2)[:, :, 0]
+    return steps, planted
+
+
+def seam_gap(motion: Motion, *, up=None, root_motion: str = "keep") -> dict:
+    """How far the last frame is from the first: the jump when the clip loops.
+
+    Parameters
+    ----------
+    motion : Motion
+    up : str, optional
+        Up axis override.
+    root_motion : {"keep", "close"}
+        ``"keep"``: the horizontal travel of the root between the first and last frame is
+        the loop's root motion, not a gap (a walk loops forward); ``"close"``: it is a gap.
+
+    Returns
+    -------
+    dict
+        ``rotation_rms`` and ``rotation_max``: angles of ``R_last R_first^T`` over the joints
+        (degrees); ``position_max``: the largest jump of a joint's world position (file units,
+        the root's horizontal travel removed for ``"keep"``); ``position_per_height``: the
+        same over the body height; ``energy``: ``1/2 |log c(1) c(0)^-1|^2`` on the analysis
+        curve (radians; position channels over the body height), the seed's closing energy.
+    """
+    c = motion_curve(motion)
+    P = forward_kinematics(motion)[0]
+    ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
+    H = body_height(motion, P, ax)
+    ang = so3.angle(c.R[-1] @ np.swapaxes(c.R[0], -1, -2))
+    jump = P[-1] - P[0]
+    if root_motion == "keep":
+        r = translation_root(motion)
+        travel = jump[r].copy()
+        travel[ax] = 0.0
+        jump[_subtree(motion, r)] -= travel
+    Xd = _detrend(c, ax) if root_motion == "keep" else c.X
+    dx = (Xd[-1] - Xd[0]) / H
+    energy = 0.5 * (float(np.sum(so3.log(c.R[-1] @ np.swapaxes(c.R[0], -1, -2)) ** 2))
+                    + float(dx @ dx))
+    pm = float(np.linalg.norm(jump, axis=1).max())
+    return {"rotation_rms": float(np.degrees(np.sqrt(np.mean(ang ** 2)))),
+            "rotation_max": float(np.degrees(ang.max())) if ang.size else 0.0,
+            "position_max": pm, "position_per_height": pm / H, "energy": energy}
+
+
+def body_height(motion: Motion, positions=None, axis: int | None = None) -> float:
+    """Median over frames of the body's extent along the up axis (roots excluded), the
+    length scale that makes position channels comparable with angles."""
+    P = forward_kinematics(motion)[0] if positions is None else positions
+    if axis is None:
+        axis = up_axis(motion, P)[0]
+    body = motion.parents >= 0
+    if body.sum() < 2:
+        body = np.ones(motion.n_joints, dtype=bool)
+    h = P[:, body, axis]
+    H = float(np.median(h.max(axis=1) - h.min(axis=1)))
+    return H if H > 0 else 1.0
+
+
+def translation_root(motion: Motion) -> int:
+    """The joint whose world position carries the horizontal travel: the first joint with
+    varying position channels, else the first root."""
+    col = 0
+    for j, chans in enumerate(motion.channels):
+        for c in chans:
+            if c.endswith("position") and np.ptp(motion.values[:, col]) > 0:
+                return j
+            col += 1
+    return int(np.flatnonzero(motion.parents < 0)[0])
+
+
+def _subtree(motion: Motion, joint: int) -> np.ndarray:
+    """``joint`` and its descendants, as a boolean mask ``(J,)``."""
+    inside = np.zeros(motion.n_joints, dtype=bool)
+    inside[joint] = True
+    for j in range(joint + 1, motion.n_joints):  # parents come before children
+        p = motion.parents[j]
+        inside[j] = p >= 0 and inside[p]
+    return inside
+
+
+def _horizontal_cols(c: MotionCurve, ax: int) -> np.ndarray:
+    """Positions in ``X`` of the position channels along the horizontal axes."""
+    names = [c.template.channels[j][k] for j in range(c.template.n_joints)
+             for k in range(len(c.template.channels[j]))]
+    return np.array([i for i, col in enumerate(c.pos_cols) if names[col][0] != "XYZ"[ax]],
+                    dtype=np.int64)
+
+
+def _detrend(c: MotionCurve, ax: int, trend_out: list | None = None) -> np.ndarray:
+    """``X`` with the straight line from the first to the last frame removed from the
+    horizontal position channels (the loop's root motion)."""
+    X = c.X.copy()
+    hc = _horizontal_cols(c, ax)
+    if hc.size:
+        s = np.linspace(0.0, 1.0, c.n_frames)[:, None]
+        trend = s * (X[-1, hc] - X[0, hc])
+        X[:, hc] -= trend
+        if trend_out is not None:
+            trend_out.append((hc, trend))
+    return X
+
+
+def plant_feet(motion: Motion, contacts: FootContacts, *, smooth: int = 0) -> Motion:
+    """Keep planted feet from sliding by moving the root horizontally (no IK).
+
+    While a foot is planted (``contacts.joint_contact`` at two consecutive frames), the
+    horizontal step of its planted point (see :func:`foot_skate`) is subtracted from the
+    root's translation (averaged over the feet planted at that step); the corrections
+    accumulate over the clip.
+
+    Parameters
+    ----------
+    motion : Motion
+    contacts : FootContacts
+        Contacts (usually those of the source clip).
+    smooth : int
+        Half-width in frames of a moving average of the per-step correction (0: none), to
+        soften the velocity change at touch-down and lift-off.
+
+    Returns
+    -------
+    Motion
+        The root's horizontal position channels changed; exact for one planted foot (world
+        positions are linear in the root translation), a compromise in double support.
+        The motion unchanged when the root has no horizontal position channels.
+    """
+    hor = [a for a in range(3) if a != contacts.up[0]]
+    steps, planted = _planted_steps(motion, contacts)
+    w = planted.sum(axis=1).astype(np.float64)
+    corr = -(steps * planted[..., None]).sum(axis=1) / np.maximum(w, 1.0)[:, None]
+    if smooth > 0:
+        ker = np.ones(2 * smooth + 1) / (2 * smooth + 1)
+        corr = np.stack([np.convolve(corr[:, i], ker, mode="same") for i in range(2)], 1)
+    offset = np.vstack([np.zeros((1, 2)), np.cumsum(corr, axis=0)])
+    roots = np.flatnonzero(motion.parents < 0)
+    values = motion.values.copy()
+    for r in roots:
+        cols = motion.channel_columns(int(r))
+        names = motion.channels[r]
+        found = {names[k][0]: cols[k] for k in range(len(names)) if names[k].endswith("position")}
+        if all("XYZ"[a] in found for a in hor):
+            for i, a in enumerate(hor):
+                values[:, found["XYZ"[a]]] += offset[:, i]
+        else:
+            # a root translated by its offset only: nothing to move without a channel
+            continue
+    return Motion(motion.names, motion.parents, motion.offsets, motion.channels,
+                  motion.frame_time, values, motion.end_sites)
+
+
+# ----------------------------------------------------------------------------------------
+# Operations: distance, alignment, blending, closing (seed 000 on SO(3)^d x R^m)
+# ----------------------------------------------------------------------------------------
+def _product_curve(c: MotionCurve, scale: float, X=None):
+    """The analysis curve of seed 000: rotations, position channels over ``scale`` (the
+    body height: lengths in body heights weigh like radians), on ``t = linspace(0, 1, N)``."""
+    from .curves.srv import ProductCurve
+
+    X = c.X if X is None else X
+    return ProductCurve(c.R, X / scale, c.t)
+
+
+def _pair(a: Motion, b: Motion, n_frames=None):
+    a2, b2 = common_grid(a, b, n_frames)
+    ca, cb = motion_curve(a2), motion_curve(b2)
+    H = 0.5 * (body_height(a) + body_height(b))  # symmetric in a and b
+    return a2, b2, ca, cb, H
+
+
+def contact_features(a: Motion, b: Motion, *, up=None) -> np.ndarray:
+    """Feature points for aligning two clips: their foot touch-downs, paired.
+
+    For every foot (the same joints in both clips: one skeleton), each touch-down of ``a``
+    is paired with the touch-down of ``b`` nearest in normalised time; pairs that would
+    not keep both sequences increasing are dropped.
+
+    Returns
+    -------
+    (k,2) float64 numpy array
+        ``(t_a, t_b)`` in normalised time ``[0, 1]`` of each clip, sorted by ``t_a``.
+    """
+    fa, fb = foot_contacts(a, up=up), foot_contacts(b, up=up)
+    fb = foot_contacts(b, up=fa.up, feet=fa.feet) if fb.feet != fa.feet else fb
+    pairs = []
+    for i in range(len(fa.feet)):
+        ta = fa.onsets(i) / max(a.n_frames - 1, 1)
+        tb = fb.onsets(i) / max(b.n_frames - 1, 1)
+        if not ta.size or not tb.size:
+            continue
+        last = -1.0
+        for x in ta:
+            y = tb[np.argmin(np.abs(tb - x))]
+            if y > last:
+                pairs.append((x, y))
+                last = y
+    P = np.array(sorted(pairs), dtype=np.float64).reshape(-1, 2)
+    if P.shape[0]:  # keep the pairs monotone across feet too
+        keep = np.concatenate([[True], np.diff(P[:, 1]) > 0])
+        P = P[keep]
+    return P
+
+
+def _features(features, a: Motion, b: Motion, up=None):
+    """Canonical feature pairs in normalised time, or None."""
+    if features is None or (isinstance(features, str) and features == "none"):
+        return None
+    if isinstance(features, str):
+        if features != "contacts":
+            raise ShellsplineError(f"features must be 'contacts', 'none' or (k,2) pairs of "
+                                   f"times in seconds, got {features!r}")
+        P = contact_features(a, b, up=up)
+        return P if P.shape[0] else None
+    P = np.asarray(features, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 2 or not np.all(np.isfinite(P)):
+        raise ShellsplineError(f"features: expected (k,2) pairs of times in seconds, got "
+                               f"shape {P.shape}")
+    da = (a.n_frames - 1) * a.frame_time
+    db = (b.n_frames - 1) * b.frame_time
+    P = P / [da, db]
+    if P.min() < 0 or P.max() > 1:
+        raise ShellsplineError(f"features: times must lie within the clips (0..{da:g} s and "
+                               f"0..{db:g} s)")
+    return P
+
+
+@dataclass(frozen=True, eq=False)
+class AlignReport:
+    """A time alignment of two motions.
+
+    Attributes
+    ----------
+    t : (N,) float64 numpy array
+        Normalised time of the first clip, ``linspace(0, 1, N)``.
+    phi : (N,) float64 numpy array
+        The warp: ``b(phi(t))`` matches ``a(t)`` (normalised times).
+    seconds : (N,2) float64 numpy array
+        ``(t * duration_a, phi * duration_b)``.
+    distance_before, distance_after : float
+        SRV distance with the identity warp and with ``phi``.
+    features : (k,2) float64 numpy array or None
+        Feature pairs used (normalised times).
+    result : object
+        The result of :func:`shellspline.curves.align` (status, iterations, energies).
+    """
+
+    t: np.ndarray
+    phi: np.ndarray
+    seconds: np.ndarray
+    distance_before: float
+    distance_after: float
+    features: np.ndarray | None
+    result: object = None
+
+
+def _align_curves(pa, pb, features, kw):
+    """``phi`` aligning ``pb`` to ``pa`` (normalised time) and the solver's result."""
+    from .curves.align import align as align_curves
+
+    kw = dict(kw)
+    if features is not None:
+        kw.setdefault("lam", FEATURE_WEIGHT)
+        features = (features[:, 0], features[:, 1])
+    res = align_curves(pa, pb, features=features, **kw)
+    return np.clip(np.asarray(res.phi, dtype=np.float64), 0.0, 1.0), res
+
+
+def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
+          **kw) -> AlignReport:
+    """The time warp that aligns ``b`` to ``a`` (elastic SRV metric on SO(3)^d x R^m).
+
+    Parameters
+    ----------
+    a, b : Motion
+        One skeleton (the same joints and channel layout); any frame rates and lengths
+        (both are brought to one grid by :func:`common_grid`).
+    features : None, "contacts" or (k,2) array_like
+        Feature points pulling the alignment (seed 003): ``"contacts"`` pairs the foot
+        touch-downs (:func:`contact_features`); an array gives ``(t_a, t_b)`` pairs in
+        seconds.
+    n_frames : int, optional
+        Grid size (default: :func:`common_grid`'s).
+    up : str, optional
+        Up axis override (for contacts).
+    **kw
+        Passed to :func:`shellspline.curves.align.align` (``lam``, ``window``, ...).
+
+    Returns
+    -------
+    AlignReport
+    """
+    from .curves.srv import reparametrize, srv_distance
+
+    a2, b2, ca, cb, H = _pair(a, b, n_frames)
+    pa, pb = _product_curve(ca, H), _product_curve(cb, H)
+    F = _features(features, a, b, up)
+    phi, res = _align_curves(pa, pb, F, kw)
+    before = srv_distance(pa, pb)
+    after = srv_distance(pa, reparametrize(pb, phi, pa.t))
+    da = (a.n_frames - 1) * a.frame_time
+    db = (b.n_frames - 1) * b.frame_time
+    return AlignReport(pa.t, phi, np.stack([pa.t * da, phi * db], axis=1), before, after, F,
+                       res)
+
+
+_align_motions = align  # the parameters called ``align`` below shadow the function
+
+
+def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames=None,
+             up=None, **kw) -> float:
+    """SRV distance of two motions of one skeleton (seed 000 eq. 7).
+
+    Parameters
+    ----------
+    a, b : Motion
+    align : {"dp", "none"}
+        ``"none"``: the clips are compared on one normalised time grid; ``"dp"``: the
+        symmetric shape distance ``(d(a, b o phi) + d(b, a o psi)) / 2`` with each warp
+        found by dynamic programming.
+    features : None, "contacts" or (k,2) array_like
+        As in :func:`align`.
+
+    Returns
+    -------
+    float
+        ``0`` for a motion and itself; symmetric in ``a`` and ``b``.
+    """
+    from .curves.srv import srv_distance
+
+    if align not in ("dp", "none"):
+        raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
+    if align == "none":
+        _, _, ca, cb, H = _pair(a, b, n_frames)
+        return srv_distance(_product_curve(ca, H), _product_curve(cb, H))
+    d1 = _align_motions(a, b, features=features, n_frames=n_frames, up=up, **kw).distance_after
+    F = _features(features, a, b, up)
+    F2 = None if F is None else F[:, ::-1] * [(b.n_frames - 1) * b.frame_time,
+                                              (a.n_frames - 1) * a.frame_time]
+    d2 = _align_motions(b, a, features=F2, n_frames=n_frames, up=up, **kw).distance_after
+    return 0.5 * (d1 + d2)
+
+
+def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=None,
+          n_frames=None, up=None, **kw) -> tuple[Motion, AlignReport | None]:
+    """A new motion between two takes: the SRV geodesic ``R^-1((1-s) q_a + s q_b o phi)``.
+
+    Parameters
+    ----------
+    a, b : Motion
+        One skeleton; any frame rates and lengths.
+    s : float
+        Weight of ``b`` (0: ``a``, 1: ``b``).
+    align : {"dp", "none"}
+        Align ``b`` to ``a`` in time first (seed 000 Fig. 4: needed when the takes are out of
+        phase) or blend on one normalised grid.
+    features : None, "contacts" or (k,2) array_like
+        Feature points of the alignment.
+
+    Returns
+    -------
+    motion : Motion
+        ``a``'s channel layout, the finer of the two frame times, duration
+        ``(1-s) T_a + s T_b``; its timing is blended too: the result is the blend composed
+        with the inverse of ``(1-s) id + s phi``, so that ``s = 1`` plays ``b``'s timing.
+    report : AlignReport or None
+    """
+    from .curves.srv import blend as blend_curves
+    from .curves.srv import reparametrize
+
+    if align not in ("dp", "none"):
+        raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
+    s = float(s)
+    if not np.isfinite(s):
+        raise ShellsplineError(f"s must be a finite number, got {s!r}")
+    a2, b2, ca, cb, H = _pair(a, b, n_frames)
+    pa, pb = _product_curve(ca, H), _product_curve(cb, H)
+    rep = None
+    phi = pa.t.copy()
+    if align == "dp":
+        rep = _align_motions(a, b, features=features, n_frames=ca.n_frames, up=up, **kw)
+        phi = rep.phi
+    c = blend_curves(pa, pb, s, warp=phi)
+    psi = (1 - s) * pa.t + s * phi
+    if np.any(np.diff(psi) <= 0):
+        psi = np.maximum.accumulate(psi + 1e-12 * pa.t)
+    inv = np.interp(pa.t, psi, pa.t)
+    c = reparametrize(c, inv, pa.t)
+    ref_b = _sample_curve(cb, phi * (cb.n_frames - 1))[2]
+    ref = (1 - s) * ca.reference + s * ref_b
+    out = ca.with_samples(c.R, c.X * H, reference=ref)
+    da = (a.n_frames - 1) * a.frame_time
+    db = (b.n_frames - 1) * b.frame_time
+    dur = max((1 - s) * da + s * db, 0.0)
+    ft = min(a.frame_time, b.frame_time)
+    n_out = max(int(round(dur / ft)) + 1, 2)
+    R, X, ref = _sample_curve(out, np.linspace(0.0, out.n_frames - 1.0, n_out))
+    return out.with_samples(R, X, ft, ref).to_motion(), rep
+
+
+def warp_motion(motion: Motion, phi, frame_time: float | None = None) -> Motion:
+    """``motion o phi``: the clip sampled at the normalised times ``phi (N,)`` (non-decreasing,
+    in ``[0, 1]``), geodesically between frames; ``N`` frames of ``frame_time`` seconds
+    (default: the duration kept)."""
+    phi = np.asarray(phi, dtype=np.float64).reshape(-1)
+    if phi.size < 2 or not np.all(np.isfinite(phi)) or phi.min() < 0 or phi.max() > 1:
+        raise ShellsplineError(f"warp_motion: phi must be >= 2 finite times in [0, 1], got "
+                               f"{phi.size} values")
+    c = motion_curve(motion)
+    R, X, ref = _sample_curve(c, phi * (c.n_frames - 1))
+    if frame_time is None:
+        frame_time = c.duration / (phi.size - 1)
+    return c.with_samples(R, X, frame_time, ref).to_motion()

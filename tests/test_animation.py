@@ -1,0 +1,291 @@
+"""Skeletal animations as curves: BVH <-> SO(3)^d x R^m, resampling, up axis, feet, contacts,
+foot skate, seam gap, and the SRV operations (distance, align, blend, close) on real and
+synthetic clips of several channel layouts."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import data_synth.motion as synth
+from shellspline import animation as A
+from shellspline.errors import ShellsplineError
+from shellspline.groups import so3
+from shellspline.io.bvh import Motion, euler_matrices, forward_kinematics, read_bvh, write_bvh
+
+from conftest import shared_data
+
+REAL = ["dataset-1_walk_normal_001.bvh", "dataset-1_walk_tired_001.bvh",
+        "dataset-1_walk_happy_001.bvh", "dataset-1_run_normal_001.bvh", "sinusoidal.bvh"]
+
+
+def real(name="dataset-1_walk_normal_001.bvh") -> Motion:
+    return read_bvh(shared_data("motion", name))
+
+
+LAYOUTS = [dict(channels=3, order="ZYX", up="y", fps=120.0),
+           dict(channels=3, order="XYZ", up="z", fps=120.0, scale=0.01),
+           dict(channels=6, order="mixed", up="y", fps=30.0),
+           dict(channels=6, order="ZXY", up="z", fps=60.0, names="numbered")]
+
+
+# ----------------------------------------------------------------------------------------
+# Motion <-> curve
+# ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", REAL)
+def test_round_trip_real_files(name):
+    m = real(name)
+    c = A.motion_curve(m)
+    assert c.R.shape == (m.n_frames, m.n_joints, 3, 3)
+    back = c.to_motion()
+    assert back.channels == m.channels and back.frame_time == m.frame_time
+    assert np.abs(back.values - m.values).max() <= 1e-9
+    # the rotations are the file's: forward kinematics agrees
+    assert np.allclose(forward_kinematics(back)[0], forward_kinematics(m)[0], atol=1e-9)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_round_trip_synthetic_layouts_through_files(layout, tmp_path):
+    m = synth.motion(seconds=1.0, **layout)
+    p = write_bvh(m, tmp_path / "w.bvh")
+    r = read_bvh(p)
+    back = A.motion_curve(r).to_motion()
+    assert np.abs(back.values - r.values).max() <= 1e-9
+    write_bvh(back, tmp_path / "back.bvh")
+    assert np.array_equal(read_bvh(tmp_path / "back.bvh").values, back.values)
+
+
+def test_layouts_describe_one_motion():
+    """The same walk in two layouts has the same world joint positions (up axis turned)."""
+    a = synth.motion(seconds=0.5, fps=30, channels=3, order="ZYX", up="y")
+    b = synth.motion(seconds=0.5, fps=30, channels=6, order="mixed", up="z")
+    Pa, Pb = forward_kinematics(a)[0], forward_kinematics(b)[0]
+    Q = Rotation.from_euler("x", 90, degrees=True).as_matrix()
+    assert np.allclose(Pa @ Q.T, Pb, atol=1e-9)
+
+
+@pytest.mark.parametrize("axes", ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX", "ZXZ", "YXY"])
+def test_euler_angles_invert_euler_matrices(axes):
+    rng = np.random.default_rng(1)
+    R = Rotation.random(200, random_state=rng).as_matrix()
+    ang = A.euler_angles(R, axes)
+    assert np.allclose(euler_matrices(ang, axes), R, atol=1e-12)
+    # a reference a few turns away: the same rotations, angles within 180 deg of it
+    ref = ang + 720.0 + rng.uniform(-60, 60, ang.shape)
+    near = A.euler_angles(R, axes, reference=ref)
+    assert np.allclose(euler_matrices(near, axes), R, atol=1e-12)
+    assert np.all(np.abs(near - ref) <= 180.0 + 1e-9)
+
+
+def test_euler_angles_pick_the_second_solution_near_the_reference():
+    a = np.array([[30.0, 120.0, -20.0]])  # beyond 90 deg: not scipy's principal solution
+    R = euler_matrices(a, "ZXY")
+    assert not np.allclose(A.euler_angles(R, "ZXY"), a)
+    assert np.allclose(A.euler_angles(R, "ZXY", reference=a + 1.0), a, atol=1e-9)
+
+
+def test_one_and_two_axis_joints():
+    m = Motion(("r", "c"), [-1, 0], np.zeros((2, 3)),
+               (("Xposition", "Yrotation"), ("Zrotation", "Xrotation")), 0.05,
+               [[0.0, 10.0, 20.0, -30.0], [1.0, 200.0, 25.0, -35.0]])
+    back = A.motion_curve(m).to_motion()
+    assert np.abs(back.values - m.values).max() <= 1e-9
+
+
+# ----------------------------------------------------------------------------------------
+# Resampling
+# ----------------------------------------------------------------------------------------
+def test_resample_keeps_frames_and_interpolates_geodesically():
+    m = real()
+    up = A.resample(m, frame_time=m.frame_time / 4)
+    assert up.n_frames == 4 * (m.n_frames - 1) + 1
+    assert np.abs(up.values[::4] - m.values).max() <= 1e-9
+    Ra, Rm, Rb = (A.motion_curve(up).R[k] for k in (0, 2, 4))
+    half = so3.angle(np.swapaxes(Ra, -1, -2) @ Rb) / 2
+    assert np.allclose(so3.angle(np.swapaxes(Ra, -1, -2) @ Rm), half, atol=1e-9)
+    assert np.allclose(so3.angle(np.swapaxes(Rm, -1, -2) @ Rb), half, atol=1e-9)
+
+
+def test_resample_120hz_to_30hz_gives_the_30hz_clip():
+    hi = synth.motion(fps=120.0, seconds=1.0, channels=3, order="XYZ")
+    lo = synth.motion(fps=30.0, seconds=1.0, channels=3, order="XYZ")
+    r = A.resample(hi, frame_time=1 / 30)
+    assert r.n_frames == lo.n_frames
+    assert np.abs(r.values - lo.values).max() <= 1e-9
+
+
+def test_common_grid_rejects_other_skeletons():
+    a = synth.motion(seconds=0.5, channels=3)
+    b = synth.motion(seconds=0.5, channels=6)
+    with pytest.raises(ShellsplineError, match="different skeletons"):
+        A.common_grid(a, b)
+
+
+# ----------------------------------------------------------------------------------------
+# Up axis, feet, contacts, skate
+# ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_up_axis_and_feet_of_synthetic_layouts(layout):
+    m = synth.motion(seconds=1.0, **layout)
+    assert A.up_axis(m) == ((1 if layout["up"] == "y" else 2), 1.0)
+    toes = {14, 18}  # toe_l, toe_r (the names are not used: "numbered" layouts too)
+    assert set(A.find_feet(m)) == toes
+
+
+def test_up_override_and_bad_up():
+    m = synth.motion(seconds=0.5)
+    assert A.foot_contacts(m, up="+y").up == (1, 1.0)
+    with pytest.raises(ShellsplineError, match="up axis"):
+        A.foot_contacts(m, up="w")
+
+
+def test_real_walk_feet_and_periodic_contacts():
+    m = real()
+    assert A.up_axis(m) == (1, 1.0)
+    c = A.foot_contacts(m)
+    assert sorted(m.names[f] for f in c.feet) == ["Toes_L", "Toes_R"]
+    on = [c.onsets(i) for i in range(2)]
+    assert all(o.size >= 5 for o in on)
+    steps = np.concatenate([np.diff(o) for o in on])
+    period = np.median(steps)
+    assert np.ptp(steps) <= 0.15 * period  # regular gait
+    # the feet alternate: every touch-down of one foot lies between two of the other's
+    merged = np.sort(np.concatenate([on[0], on[1]]))
+    owner = np.isin(merged, on[1]).astype(int)
+    assert np.all(np.diff(owner) != 0)
+    # independent oracle: the period of the toe height from its autocorrelation
+    h = c.heights[:, 0, 0] - c.heights[:, 0, 0].mean()
+    ac = np.correlate(h, h, "full")[h.size - 1:]
+    lag = 10 + np.argmax(ac[10:60])
+    assert abs(lag - period) <= 0.1 * period
+    # every step's lowest foot height is reached while the foot is planted
+    for i in range(2):
+        H = c.heights[:, i].min(axis=1)
+        for a, b in zip(on[i][:-1], on[i][1:]):
+            f = a + np.argmin(H[a:b])
+            assert c.contact[f, i]
+
+
+def test_foot_skate_is_translation_invariant_and_fixed_by_planting():
+    m = real()
+    c = A.foot_contacts(m)
+    s0 = A.foot_skate(m, c)
+    assert s0["contact_frames"] > 100 and s0["drift"] > 0
+    # a constant shift of the whole clip changes nothing
+    v = m.values.copy()
+    v[:, A.motion_curve(m).pos_cols[:3]] += [5.0, 0.0, -7.0]
+    shifted = Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, v, m.end_sites)
+    assert np.isclose(A.foot_skate(shifted, c)["drift"], s0["drift"], rtol=1e-9)
+    # a root drift of 1 unit per frame adds sliding; planting removes it and more
+    v = m.values.copy()
+    root_x = m.channel_columns(0)[0]
+    v[:, root_x] += np.arange(m.n_frames) * 1.0
+    slid = Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, v, m.end_sites)
+    s1 = A.foot_skate(slid, c)
+    assert s1["drift"] > s0["drift"] + 0.5 * s0["contact_frames"] * 0.5
+    fixed = A.plant_feet(slid, c)
+    s2 = A.foot_skate(fixed, c)
+    assert s2["drift"] < 0.25 * s0["drift"]
+    # single support is exact: the planted point of the one planted foot does not move
+    both = c.joint_contact[1:] & c.joint_contact[:-1]  # (T-1, feet, joints)
+    single = both.any(axis=2).sum(axis=1) == 1
+    P = forward_kinematics(fixed)[0][:, np.array(c.joints)][..., [0, 2]]
+    step = np.where(both, np.linalg.norm(np.diff(P, axis=0), axis=-1), np.inf)
+    assert single.sum() > 50
+    assert step[single].min(axis=2).min(axis=1).max() <= 1e-9
+
+
+def test_seam_gap_of_a_periodic_clip_is_zero():
+    m = real()
+    v = np.vstack([m.values[:100], m.values[:1]])
+    loop = Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, v, m.end_sites)
+    g = A.seam_gap(loop)
+    assert g["rotation_max"] <= 1e-9 and g["position_max"] <= 1e-9 and g["energy"] <= 1e-20
+    g = A.seam_gap(m)
+    assert g["rotation_max"] > 5 and g["energy"] > 0.01
+
+
+# ----------------------------------------------------------------------------------------
+# Distance, alignment, blending
+# ----------------------------------------------------------------------------------------
+def test_distance_zero_and_symmetric():
+    a = real()
+    b = real("dataset-1_walk_tired_001.bvh")
+    assert A.distance(a, a, align="none") == 0.0
+    assert A.distance(a, a) <= 1e-9
+    for how in ("none", "dp"):
+        dab, dba = A.distance(a, b, align=how), A.distance(b, a, align=how)
+        assert dab > 0.1 and np.isclose(dab, dba, rtol=1e-9)
+    assert A.distance(a, b) < A.distance(a, b, align="none")
+
+
+def test_distance_between_frame_rates():
+    """A 120 Hz clip and the same walk at 30 Hz are at distance ~0; another cadence is not."""
+    hi = synth.motion(fps=120.0, seconds=1.0, channels=3, order="ZYX")
+    lo = synth.motion(fps=30.0, seconds=1.0, channels=3, order="ZYX")
+    other = synth.motion(fps=120.0, seconds=1.0, channels=3, order="ZYX", cadence=1.3)
+    d_same = A.distance(hi, lo, align="none")  # on the 120 Hz grid: chords against arcs
+    assert d_same < 0.2 * A.distance(hi, other, align="none")
+    assert A.distance(A.resample(hi, frame_time=1 / 30), lo, align="none") <= 1e-9
+
+
+def test_align_recovers_a_known_warp():
+    a = real()
+    t = np.linspace(0, 1, a.n_frames)
+    b = A.warp_motion(a, t ** 1.5)  # b(u) = a(u^1.5)
+    r = A.align(b, a)  # a(phi(t)) = b(t): phi = t^1.5
+    assert np.abs(r.phi - r.t ** 1.5).max() <= 0.005
+    assert r.distance_after < 0.2 * r.distance_before
+    assert np.allclose(r.seconds[:, 1], r.phi * (a.n_frames - 1) * a.frame_time)
+
+
+def test_contact_features_pair_touchdowns():
+    a = real()
+    b = real("dataset-1_walk_tired_001.bvh")
+    F = A.contact_features(a, b)
+    assert F.shape[0] >= 8 and np.all(np.diff(F[:, 0]) > 0) and np.all(np.diff(F[:, 1]) > 0)
+    r = A.align(a, b, features="contacts", lam=50.0)
+    free = A.align(a, b)
+    # the feature term pulls the paired touch-downs together
+    def miss(rep):
+        return np.abs(np.interp(F[:, 0], rep.t, rep.phi) - F[:, 1]).mean()
+    assert miss(r) <= miss(free) + 1e-12
+    with pytest.raises(ShellsplineError, match="features"):
+        A.align(a, b, features="feet")
+    with pytest.raises(ShellsplineError, match="within the clips"):
+        A.align(a, b, features=[[0.0, 100.0]])
+
+
+def test_blend_of_a_motion_with_itself_is_the_motion():
+    a = real()
+    for how in ("none", "dp"):
+        m, _ = A.blend(a, a, 0.5, align=how)
+        assert m.n_frames == a.n_frames and m.frame_time == a.frame_time
+        assert np.abs(m.values - a.values).max() <= 1e-9
+
+
+def test_blend_ends_and_timing():
+    a = real()
+    b = real("dataset-1_walk_happy_001.bvh")
+    m0, _ = A.blend(a, b, 0.0, align="none")
+    assert m0.n_frames == a.n_frames
+    # s = 0 is a (resampled to the common grid and back)
+    Pa, P0 = forward_kinematics(a)[0], forward_kinematics(m0)[0]
+    assert np.abs(Pa - P0).max() < 0.02 * A.body_height(a)
+    m1, _ = A.blend(a, b, 1.0, align="dp")
+    assert m1.n_frames == b.n_frames
+    mh, rep = A.blend(a, b, 0.5)
+    dur = (mh.n_frames - 1) * mh.frame_time
+    da, db = ((x.n_frames - 1) * x.frame_time for x in (a, b))
+    assert abs(dur - 0.5 * (da + db)) <= mh.frame_time
+    assert rep.distance_after < rep.distance_before
+
+
+def test_blend_across_frame_rates_and_layouts():
+    a = synth.motion(fps=120.0, seconds=1.0, channels=3, order="mixed", up="z")
+    b = synth.motion(fps=30.0, seconds=1.5, channels=3, order="mixed", up="z", cadence=0.7)
+    m, _ = A.blend(a, b, 0.5)
+    assert m.frame_time == a.frame_time and m.channels == a.channels
+    assert abs((m.n_frames - 1) * m.frame_time - 1.25) <= m.frame_time
+    with pytest.raises(ShellsplineError, match="align must be"):
+        A.blend(a, b, 0.5, align="dtw")
