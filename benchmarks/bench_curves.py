@@ -104,7 +104,7 @@ def camera(every=10):
 
     from shellspline.curves import cubic_spline, hermite_spline
     from shellspline.groups import SE3, SO3xR3, so3
-    from shellspline.posefiles import read_poses
+    from shellspline.io.posefiles import read_poses
 
     if not CAMERA.exists():
         print(f"  (skipped: {CAMERA} not present)")

@@ -28,7 +28,7 @@ Cheap cases are repeated (``--repeat``) and the run with the smallest total is s
 run is in the JSON.
 
 **Accuracy cases** (unchanged from earlier versions) compare decimation methods on all
-poses: ``summed`` (:func:`shellspline.decimate.decimate`, summed per-pose quadrics, the
+poses: ``summed`` (:func:`shellspline.mesh.decimate.decimate`, summed per-pose quadrics, the
 method), ``pose0`` (the same decimation on pose 0 alone, restricted to every pose) and
 ``replay`` (``fast-simplification`` on pose 0, collapse sequence replayed on the other poses;
 skipped when not installed): wall time and the worst (over poses) one-sided Hausdorff
@@ -338,10 +338,10 @@ def measure_accuracy(case: Case) -> dict:
     """Decimation methods compared on all poses, then prolongation of a linear coarse path."""
     import numpy as np
 
-    from shellspline.decimate import decimate, decimate_replay, hausdorff_fine_to_coarse
-    from shellspline.pipeline import linear_blend, sequence_quality
-    from shellspline.prolong import Prolongation
-    from shellspline.topology import topology
+    from shellspline.mesh.decimate import decimate, decimate_replay, hausdorff_fine_to_coarse
+    from shellspline.pipeline.interpolation import linear_blend, sequence_quality
+    from shellspline.shells.prolong import Prolongation
+    from shellspline.mesh.topology import topology
 
     Vs, F, pinned, target, frames = _accuracy_input(case.name)
     J, n, _ = Vs.shape

@@ -48,9 +48,9 @@ sys.path.insert(0, str(REPO))
 import data_synth  # noqa: E402
 import shellspline as ss  # noqa: E402
 from shellspline import metrics  # noqa: E402
-from shellspline.descriptors import edge_lengths  # noqa: E402
-from shellspline.geodesic import geodesic_interpolation  # noqa: E402
-from shellspline.nonlinear_spline import FTOL_WINDOW, nonlinear_spline  # noqa: E402
+from shellspline.shells.descriptors import edge_lengths  # noqa: E402
+from shellspline.shells.geodesic import geodesic_interpolation  # noqa: E402
+from shellspline.shells.nonlinear import FTOL_WINDOW, nonlinear_spline  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data" / "unit_sphere"
 

@@ -138,7 +138,7 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
     from scipy.interpolate import CubicSpline
 
     from data_synth.skinned import linear_blend_skinning, skinned_body
-    from shellspline.bvh import read_bvh
+    from shellspline.io.bvh import read_bvh
 
     motion = read_bvh(path)
     K = (min(window, motion.n_frames - 1) // 6) * 6

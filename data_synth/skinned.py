@@ -9,7 +9,7 @@ joints), a body that travels and turns (root motion), several bones per vertex.
 
 Construction (deterministic, no dependency beyond numpy/scipy and shellspline):
 
-1. Forward kinematics of the clip (:mod:`shellspline.bvh`). Bones are the segments from a
+1. Forward kinematics of the clip (:mod:`shellspline.io.bvh`). Bones are the segments from a
    joint to each child joint (and to non-zero ``End Site`` offsets); a bone moves rigidly
    with its *parent* joint. Zero-length bones are dropped, and so is the segment from a root
    to a child whose position channels move (a ground-reference root such as the Bandai
@@ -23,7 +23,7 @@ Construction (deterministic, no dependency beyond numpy/scipy and shellspline):
    regular grid and extracted by *marching tetrahedra* (six Kuhn tetrahedra per cube: the
    zero set of the piecewise-linear interpolant is a closed 2-manifold, oriented by the
    side of the inside nodes), then decimated to ``n_vertices`` by
-   :func:`shellspline.decimate` (which removes the slivers marching tetrahedra leaves).
+   :func:`shellspline.mesh.decimate` (which removes the slivers marching tetrahedra leaves).
 4. Weights: per vertex, inverse distance to the bones of each joint, ``((d_min + s) / (d_j
    + s))**4``, the ``max_influences`` largest kept and normalised.
 5. Pose: ``v(t) = Σ_j w_j (R_j(t) R_j(b)ᵀ (v − p_j(b)) + p_j(t))`` with ``b`` the bind frame.
@@ -47,9 +47,9 @@ def skeleton_bones(motion, P, R):
 
     Parameters
     ----------
-    motion : shellspline.bvh.Motion
+    motion : shellspline.io.bvh.Motion
     P : (T,J,3) float array
-        Joint positions (from :func:`shellspline.bvh.forward_kinematics`).
+        Joint positions (from :func:`shellspline.io.bvh.forward_kinematics`).
     R : (T,J,3,3) float array
         Joint rotations.
 
@@ -93,7 +93,7 @@ def skeleton_bones(motion, P, R):
         driver.append(p)
         subtree.append(1)
     if not starts:
-        from shellspline._errors import ShellsplineError
+        from shellspline.errors import ShellsplineError
 
         raise ShellsplineError(f"skeleton_bones: the skeleton ({', '.join(motion.names)}) has "
                                "no bone to build a body around")
@@ -334,7 +334,7 @@ def skinned_body(motion, *, n_vertices: int = 5000, radius: float = 0.03,
 
     Parameters
     ----------
-    motion : shellspline.bvh.Motion
+    motion : shellspline.io.bvh.Motion
         The clip (the bind pose is chosen among its frames).
     n_vertices : int
         Vertex count after decimation (the marching-tetrahedra surface is decimated to it).
@@ -357,8 +357,8 @@ def skinned_body(motion, *, n_vertices: int = 5000, radius: float = 0.03,
         weights (rows sum to 1, at most ``max_influences`` non-zeros), ``bind_frame`` int,
         ``P`` (T,J,3) and ``R`` (T,J,3,3) the forward kinematics of ``motion``.
     """
-    from shellspline.bvh import forward_kinematics
-    from shellspline.decimate import decimate
+    from shellspline.io.bvh import forward_kinematics
+    from shellspline.mesh.decimate import decimate
 
     P, R = forward_kinematics(motion)
     A, B, driver, subtree, leaf = skeleton_bones(motion, P, R)
@@ -464,7 +464,7 @@ def skinned_sequence(bvh_path, *, start: int = 0, stop: int | None = None, step:
     Parameters
     ----------
     bvh_path : str or path-like
-        BVH file (any skeleton, see :mod:`shellspline.bvh`).
+        BVH file (any skeleton, see :mod:`shellspline.io.bvh`).
     start, stop, step : int
         Window of frames ``start:stop:step`` of the clip.
     n_vertices : int
@@ -488,8 +488,8 @@ def skinned_sequence(bvh_path, *, start: int = 0, stop: int | None = None, step:
     >>> Vs, F, fps = skinned_sequence("../shared/data/motion/sinusoidal.bvh",
     ...                               n_vertices=800)  # doctest: +SKIP
     """
-    from shellspline._errors import ShellsplineError
-    from shellspline.bvh import read_bvh
+    from shellspline.errors import ShellsplineError
+    from shellspline.io.bvh import read_bvh
 
     if not (isinstance(step, (int, np.integer)) and step >= 1):
         raise ShellsplineError(f"step must be a positive integer, got {step!r}")

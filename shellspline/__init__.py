@@ -5,23 +5,23 @@ Turn a handful of keyframe poses of one triangle mesh into a smooth in-between s
 """
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from .version import __version__
 
-from ._errors import MeshError, ShellsplineError
 from .batch import BatchSummary, Job, load_job, run_batch
-from .decimate import Decimation, decimate
-from .descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
-                          lta_jacobian, lta_weights)
-from .geodesic import discrete_geodesic, geodesic_interpolation
+from .errors import MeshError, ShellsplineError
 from .io import (Keyframes, check_output_dir, keyframes_from_arrays, read_frames, read_indices,
                  read_keyframes, read_mesh, read_sequence, write_sequence)
-from .lta_spline import LTASpline, lta_spline
-from .nonlinear_spline import nonlinear_spline
+from .mesh.decimate import Decimation, decimate
+from .mesh.topology import Topology, topology
 from .pipeline import InterpolationResult, interpolate, linear_blend
-from .prolong import Prolongation
-from .reconstruct import GaussNewton, ReconstructionResult, reconstruct, rigid_placement
-from .shell_energy import DiscreteShells, shell_energy
-from .topology import Topology, topology
+from .shells.descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
+                                 lta_jacobian, lta_weights)
+from .shells.energy import DiscreteShells, shell_energy
+from .shells.geodesic import discrete_geodesic, geodesic_interpolation
+from .shells.lta_spline import LTASpline, lta_spline
+from .shells.nonlinear import nonlinear_spline
+from .shells.prolong import Prolongation
+from .shells.reconstruct import GaussNewton, ReconstructionResult, reconstruct, rigid_placement
 from .viz import (SequenceViewer, export_glb, plot, plot_half_axes, preview, render_animation,
                   render_strip)
 

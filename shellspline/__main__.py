@@ -1,6 +1,6 @@
 """``python -m shellspline`` runs the command-line interface."""
 import sys
 
-from .cli import main
+from .cli.main import main
 
 sys.exit(main())

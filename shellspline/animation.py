@@ -35,7 +35,8 @@ from .io.bvh import Motion, euler_matrices, forward_kinematics
 __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_grid",
            "warp_motion", "up_axis", "body_height", "translation_root", "find_feet",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
-           "contact_features", "AlignReport", "align", "distance", "blend"]
+           "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
+           "close"]
 
 # Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
 # a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
@@ -342,7 +343,7 @@ def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Moti
 # Up axis, feet, contacts
 # ----------------------------------------------------------------------------------------
 def _parse_up(up) -> tuple[int, float]:
-    if isinstance(up, tuple):
+    if isinstance(up, tuple) and len(up) == 2:
         return int(up[0]), float(up[1])
     s = str(up).strip().lower()
     sign = -1.0 if s.startswith("-") else 1.0
@@ -989,3 +990,116 @@ def warp_motion(motion: Motion, phi, frame_time: float | None = None) -> Motion:
     if frame_time is None:
         frame_time = c.duration / (phi.size - 1)
     return c.with_samples(R, X, frame_time, ref).to_motion()
+
+
+@dataclass(frozen=True, eq=False)
+class CloseReport:
+    """What closing a clip did.
+
+    Attributes
+    ----------
+    history : (k+1,) float64 numpy array
+        Seam gap ``|log c(1) c(0)^-1|`` of the analysis curve (radians; position channels
+        in body heights) before each iteration and after the last.
+    velocity_jump : (k+1,) float64 numpy array
+        Jump of the velocity across the seam at the same moments.
+    gap_before, gap_after : dict
+        :func:`seam_gap` of the input and of the result.
+    skate_before, skate_closed, skate_after : dict
+        :func:`foot_skate` (with the input's contacts) of the input, of the closed clip
+        before planting the feet, and of the result.
+    iterations : int
+    status : str
+        The closing solver's: ``"converged"``, ``"limit"`` or ``"stalled"``.
+    message : str
+    """
+
+    history: np.ndarray
+    velocity_jump: np.ndarray
+    gap_before: dict
+    gap_after: dict
+    skate_before: dict
+    skate_closed: dict
+    skate_after: dict
+    iterations: int
+    status: str
+    message: str
+
+    @property
+    def success(self) -> bool:
+        """The seam closed to the solver's tolerance."""
+        return self.status == "converged"
+
+
+def close(motion: Motion, *, iterations: int = 10, c1: bool = False,
+          root_motion: str = "keep", plant: bool = True, up=None,
+          **kw) -> tuple[Motion, CloseReport]:
+    """Make a clip loop: close its curve on SO(3)^d x R^m, then keep planted feet planted.
+
+    Parameters
+    ----------
+    motion : Motion
+        At least 3 frames; any skeleton and layout.
+    iterations : int
+        Closing iterations (:func:`shellspline.curves.closing.close`).
+    c1 : bool
+        Also remove the velocity jump at the seam.
+    root_motion : {"keep", "close"}
+        ``"keep"``: the straight line from the first to the last horizontal position of
+        every position channel is taken out before closing and put back after, so that a
+        walk loops forward (its root motion); ``"close"``: the root returns to its start.
+    plant : bool
+        After closing, correct the root's horizontal translation where the input's feet were
+        planted (:func:`plant_feet`); with ``root_motion="close"`` the correction's drift is
+        spread linearly so that the loop stays closed.
+    up : str, optional
+        Up axis override.
+    **kw
+        Passed to the curve closing (``method``, ``kappa``, ``tol``).
+
+    Returns
+    -------
+    motion : Motion
+        The same layout and frame count; the last frame matches the first (drop it when
+        playing the clip in a loop).
+    report : CloseReport
+    """
+    from .curves.closing import close as close_curve
+
+    if root_motion not in ("keep", "close"):
+        raise ShellsplineError(f"root_motion must be 'keep' or 'close', got {root_motion!r}")
+    if motion.n_frames < 3:
+        raise ShellsplineError(f"close: need at least 3 frames, got {motion.n_frames}")
+    contacts = foot_contacts(motion, up=up)
+    ax = contacts.up[0]
+    c = motion_curve(motion)
+    H = body_height(motion, contacts.positions, ax)
+    trend = []
+    X = _detrend(c, ax, trend) if root_motion == "keep" else c.X
+    res = close_curve(_product_curve(c, H, X), iterations=iterations, c1=c1, **kw)
+    Xc = res.curve.X * H
+    for cols, tr in trend:
+        Xc[:, cols] += tr
+    closed = c.with_samples(res.curve.R, Xc).to_motion()
+    out = closed
+    if plant:
+        out = plant_feet(closed, contacts)
+        if root_motion == "close":
+            out = _spread_drift(out, closed)
+    report = CloseReport(np.asarray(res.seam_gap), np.asarray(res.velocity_jump),
+                         seam_gap(motion, up=contacts.up, root_motion=root_motion),
+                         seam_gap(out, up=contacts.up, root_motion=root_motion),
+                         foot_skate(motion, contacts), foot_skate(closed, contacts),
+                         foot_skate(out, contacts), int(res.iterations), res.status,
+                         res.message)
+    return out, report
+
+
+def _spread_drift(planted: Motion, closed: Motion) -> Motion:
+    """``planted`` with the change from ``closed`` made periodic: its end value spread
+    linearly over the clip (a closed loop stays closed)."""
+    dv = planted.values - closed.values
+    s = np.linspace(0.0, 1.0, planted.n_frames)[:, None]
+    values = closed.values + dv - s * dv[-1]
+    return Motion(planted.names, planted.parents, planted.offsets, planted.channels,
+                  planted.frame_time, values, planted.end_sites)

@@ -53,7 +53,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ._errors import ShellsplineError
+from .errors import ShellsplineError, one_line
+from .version import __version__
 
 __all__ = ["Job", "SequenceSpec", "BatchSummary", "load_job", "run_batch", "sequence_metrics",
            "REGRESSION_METRICS"]
@@ -225,7 +226,7 @@ def _check_param(where: str, key: str, v):
             raise _err(w, f"must be an integer >= 1, got {v!r}")
         return int(v)
     if key in ("bc", "method"):
-        from .pipeline import BOUNDARY_CONDITIONS, METHODS
+        from .pipeline.interpolation import BOUNDARY_CONDITIONS, METHODS
 
         choices = BOUNDARY_CONDITIONS if key == "bc" else METHODS
         if not isinstance(v, str) or v.strip().lower() not in choices:
@@ -697,7 +698,6 @@ def _input_digest(spec: SequenceSpec) -> dict:
 
 
 def _sequence_key(spec: SequenceSpec, digest: dict) -> str:
-    from . import __version__
 
     hashes = {"synth": digest.get("sha256")} if spec.source == "synth" else {
         "keyframes": [x["sha256"] for x in digest["keyframes"]],
@@ -759,12 +759,7 @@ def _write_json_atomic(path: Path, obj) -> None:
 # One sequence (runs in a worker process or a Dask task)
 # --------------------------------------------------------------------------------------
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    if len(text) > 300:
-        text = text[:297] + "..."
-    if isinstance(exc, (ShellsplineError, OSError)) and text:
-        return text
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+    return one_line(exc, limit=300, bare=(ShellsplineError, OSError))
 
 
 def sequence_metrics(V, keyframes_V, frames, report) -> dict:
@@ -843,7 +838,7 @@ def _keyframes_of(spec: SequenceSpec):
     """Read or generate the keyframes (public API only) -> (Keyframes, pinned or None)."""
     import numpy as np
 
-    import shellspline as ss
+    from .io import keyframes_from_arrays, read_frames, read_indices, read_keyframes
 
     if spec.source == "synth":
         import data_synth
@@ -851,7 +846,7 @@ def _keyframes_of(spec: SequenceSpec):
         syn = spec.synth
         data = data_synth.generate(syn["name"], syn["vertices"], **_json_roundtrip(syn["params"]))
         names = [f"{syn['name']}#{j}" for j in range(data["V"].shape[0])]
-        kf = ss.keyframes_from_arrays(data["V"], data["F"], frames=spec.frames, names=names)
+        kf = keyframes_from_arrays(data["V"], data["F"], frames=spec.frames, names=names)
     else:
         if len(spec.keyframes) < 2:
             where = spec.directory or spec.name
@@ -859,13 +854,13 @@ def _keyframes_of(spec: SequenceSpec):
                                    f"'{spec.keyframe_pattern}' (need at least 2 keyframes)")
         frames = spec.frames
         if frames is None and spec.frames_path is not None:
-            frames = ss.read_frames(Path(spec.frames_path))
-        kf = ss.read_keyframes(spec.keyframes, frames=frames)
+            frames = read_frames(Path(spec.frames_path))
+        kf = read_keyframes(spec.keyframes, frames=frames)
     pinned = None
     if spec.pinned is not None:
         pinned = np.asarray(spec.pinned, dtype=np.int64)
     elif spec.pinned_path is not None:
-        pinned = ss.read_indices(spec.pinned_path)
+        pinned = read_indices(spec.pinned_path)
     if pinned is not None and kf.source is not None:  # pins number the files' vertices
         pinned = kf.source.solve_vertices(pinned, str(spec.pinned_path or spec.name))
     if spec.params.get("fix_boundary"):
@@ -908,9 +903,9 @@ def _publish(staging: Path, final: Path, key: str, keep: Callable[[dict], bool])
         shutil.rmtree(staging, ignore_errors=True)
         raise ShellsplineError(f"refusing to replace '{final}': it does not look like an "
                                "earlier output (no manifest.json or report.json)")
-    from .io import _move_into_place
+    from .io.sequences import move_into_place
 
-    _move_into_place(staging, final, overwrite=True)  # old output set aside, then removed
+    move_into_place(staging, final, overwrite=True)  # old output set aside, then removed
     return "published"
 
 
@@ -926,7 +921,8 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
     Returns the outcome record (``status`` 'done' or 'failed', ``reason``, ``warning``,
     ``seconds``, ``frames``, ``vertices``, ``metrics``...).
     """
-    import shellspline as ss
+    from .io import write_sequence
+    from .pipeline import interpolate
 
     from .parallel import parent_alive
 
@@ -965,7 +961,7 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
                 emit(dict(ev))
 
         t_read = time.perf_counter() - t0
-        res = ss.interpolate(kf, K=p["K"], method=p["method"], bc=p["bc"], eta=p["eta"],
+        res = interpolate(kf, K=p["K"], method=p["method"], bc=p["bc"], eta=p["eta"],
                              mu=p["mu"], lam=p["lam"], reference=p["reference"],
                              pinned=pinned, workers=inner_workers, gn_options=gn_options,
                              solver_options=solver_options, coarse=p["coarse"],
@@ -982,10 +978,10 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
         # the input's polygons and vertex numbering written back (real exports)
         V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K,
                                                                    p["bc"])
-        ss.write_sequence(staging, V_out, res.F, report, fmt=spec.formats[0],
+        write_sequence(staging, V_out, res.F, report, fmt=spec.formats[0],
                           protect=protect, workers=inner_workers, source=res.source)
         for fmt in spec.formats[1:]:
-            ss.write_sequence(staging / fmt, V_out, res.F, report, fmt=fmt, protect=protect,
+            write_sequence(staging / fmt, V_out, res.F, report, fmt=fmt, protect=protect,
                               workers=inner_workers, source=res.source)
         _write_json_atomic(staging / "metrics.json",
                            {**metrics, "keyframe_frames": [int(f) for f in res.frames]})
@@ -1000,7 +996,7 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
         warning = _quality_warning(report)
         manifest = {
             "format": MANIFEST_FORMAT, "key": my_key, "sequence": spec.name, "run": run_id,
-            "shellspline_version": ss.__version__, "created": _now(),
+            "shellspline_version": __version__, "created": _now(),
             "inputs": digest, "parameters": spec.key_parameters(),
             "frames": int(res.K + 1), "vertices": int(res.V.shape[1]),
             "warning": warning, "worker": outcome["worker"],
@@ -1305,7 +1301,6 @@ class BatchSummary:
         return EXIT_OK
 
     def to_dict(self) -> dict:
-        from . import __version__
 
         frames = sum(o["frames"] or 0 for o in self.sequences if o["status"] == "done")
         return {

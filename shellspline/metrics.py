@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .descriptors import edge_lengths
-from .topology import Topology
+from .shells.descriptors import edge_lengths
+from .mesh.topology import Topology
 
 __all__ = ["half_axes", "keyframe_kinks", "edge_strain", "speed", "lta_energies", "sequence_defects",
            "shell_energies"]
@@ -105,7 +105,7 @@ def lta_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam: f
     V : (K+1, n, 3) array
     T : Topology
     bc : {"natural", "periodic", "hermite"}
-        Decides which frames have a term (see :func:`~shellspline.lta_spline.lta_energy_per_frame`).
+        Decides which frames have a term (see :func:`~shellspline.shells.lta_spline.lta_energy_per_frame`).
     mu, lam, eta : float
         LΘA weights (membrane lengths, areas, bending).
     reference : (n, 3) array, optional
@@ -118,8 +118,8 @@ def lta_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam: f
     (K+1,) array
         Zero where no term is defined (the end frames for natural/hermite).
     """
-    from .descriptors import lta_descriptors, lta_weights, unwrap_angles
-    from .lta_spline import lta_energy_per_frame
+    from .shells.descriptors import lta_descriptors, lta_weights, unwrap_angles
+    from .shells.lta_spline import lta_energy_per_frame
 
     V = np.asarray(V, dtype=np.float64)
     ref = V[0] if reference is None else np.asarray(reference, dtype=np.float64)
@@ -157,13 +157,13 @@ def shell_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam:
     (K+1,) array
         Zero where no term is defined.
     """
-    from .geodesic import PathSolver
-    from .lta_spline import _canonical_bc
-    from .shell_energy import DiscreteShells
+    from .shells.geodesic import PathSolver
+    from .timeline import canonical_bc
+    from .shells.energy import DiscreteShells
 
     V = np.asarray(V, dtype=np.float64)
     K = V.shape[0] - 1
-    bc = _canonical_bc(bc)
+    bc = canonical_bc(bc)
     W = DiscreteShells(T, mu=mu, lam=lam, eta=eta)
     out = np.zeros(K + 1)
     if not midpoints:
@@ -199,11 +199,11 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
       :data:`COLLAPSE_RATIO` of its smallest keyframe area;
     - **folded edges**: step ``k−1 → k`` takes an interior edge's signed dihedral angle
       through ±π (its two triangles pass through each other), unless the keyframes around the
-      step hold it within :data:`~shellspline.descriptors.FOLD_BAND` of ±π at one end and the
+      step hold it within :data:`~shellspline.shells.descriptors.FOLD_BAND` of ±π at one end and the
       shorter way between them crosses ±π (a fold the keyframes themselves hold a little past
       the touching point: skin folding at a joint); an edge that turns by more than π between
       keyframes away from ±π is expected to turn the direct way, through 0 (see
-      :func:`~shellspline.descriptors.consistent_angles`);
+      :func:`~shellspline.shells.descriptors.consistent_angles`);
     - **pop**: the largest vertex displacement of a step over the typical one around it,
       ``max_i |V[k+1,i] − V[k,i]|`` divided by the mean of the same quantity over the up to
       four neighbouring steps (``k−2..k+2`` without ``k``; not wrapped around a periodic
@@ -237,7 +237,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     Examples
     --------
     >>> import numpy as np
-    >>> from shellspline.topology import topology
+    >>> from shellspline.mesh.topology import topology
     >>> F = np.array([[0, 1, 2], [1, 0, 3]])
     >>> V0 = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0]])
     >>> Vs = np.stack([V0 + 0.1 * k * np.array([0, 0, 1.0]) for k in range(5)])
@@ -245,7 +245,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     >>> d["flipped_faces"], d["collapsed_faces"], d["folded_edges"], round(d["pop"], 6)
     (0, 0, 0, 1.0)
     """
-    from .descriptors import FOLD_BAND, dihedral_angles, face_normals
+    from .shells.descriptors import FOLD_BAND, dihedral_angles, face_normals
     from .timeline import keyframe_bracket, keyframe_gap
 
     V = np.asarray(V, dtype=np.float64)

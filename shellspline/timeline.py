@@ -4,9 +4,81 @@ Every stage that asks "which keyframes bracket frame k" asks :func:`keyframe_bra
 """
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
-__all__ = ["keyframe_bracket", "keyframe_gap"]
+from .errors import ShellsplineError
+
+__all__ = ["keyframe_bracket", "keyframe_gap", "canonical_bc", "checked_K", "checked_frames",
+           "BOUNDARY_CONDITIONS"]
+
+BOUNDARY_CONDITIONS = ("natural", "periodic", "hermite")
+"""Time boundary conditions of every spline over frames (paper 001 §4, §8)."""
+
+
+def canonical_bc(bc) -> str:
+    """Return ``bc`` as one of ``'natural'``, ``'periodic'``, ``'hermite'``."""
+    if isinstance(bc, str):
+        key = bc.strip().lower()
+        if key in BOUNDARY_CONDITIONS:
+            return key
+    raise ShellsplineError(
+        f"`bc` must be one of {', '.join(repr(b) for b in BOUNDARY_CONDITIONS)} (case-insensitive), got {bc!r}"
+    )
+
+
+def checked_K(K) -> int:
+    """``K`` (the last frame) as a Python int >= 1; integral floats are accepted."""
+    if isinstance(K, (bool, np.bool_)) or not isinstance(K, (numbers.Integral, numbers.Real)):
+        raise ShellsplineError(f"`K` must be an integer >= 1, got {K!r}")
+    if isinstance(K, numbers.Integral):
+        Ki = int(K)
+    else:
+        if not np.isfinite(K) or float(K) != int(K):
+            raise ShellsplineError(f"`K` must be an integer >= 1, got {K!r}")
+        Ki = int(K)
+    if Ki < 1:
+        raise ShellsplineError(f"`K` must be an integer >= 1, got {K!r}")
+    return Ki
+
+
+def checked_frames(frames, K: int, bc: str) -> np.ndarray:
+    """Validate keyframe indices against ``K`` and the boundary condition; return int64."""
+    f = np.asarray(frames)
+    shown = np.array2string(f.ravel()[:20], separator=", ") if f.size else "[]"
+    if f.ndim != 1:
+        raise ShellsplineError(f"`frames` must be a 1-D array of frame indices, got shape {f.shape}")
+    if f.dtype == bool or not (np.issubdtype(f.dtype, np.integer) or np.issubdtype(f.dtype, np.floating)):
+        raise ShellsplineError(f"`frames` must hold integer frame indices, got dtype {f.dtype}")
+    if f.shape[0] < 2:
+        raise ShellsplineError(f"`frames` must hold at least 2 keyframes, got {shown}")
+    if np.issubdtype(f.dtype, np.floating):
+        if not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
+            raise ShellsplineError(f"`frames` must be integer-valued, got {shown}")
+    fi = f.astype(np.int64)
+    if np.any(np.diff(fi) <= 0):
+        raise ShellsplineError(f"`frames` must be strictly increasing, got {shown}")
+    if fi[0] < 0 or fi[-1] > K:
+        raise ShellsplineError(f"`frames` must lie in [0, K] = [0, {K}], got {shown}")
+    if fi[0] != 0:
+        raise ShellsplineError(
+            f"`frames` must start with frame 0 (the first keyframe sits at the start of the "
+            f"path), got {shown}"
+        )
+    if bc == "periodic" and fi[-1] >= K:
+        raise ShellsplineError(
+            f"`frames` must end before K = {K} for bc='periodic' (frame K is frame 0), got {shown}"
+        )
+    if bc == "hermite":
+        missing = [k for k in (1, K - 1, K) if k not in set(fi.tolist())]
+        if missing:
+            raise ShellsplineError(
+                f"`frames` must contain frames 0, 1, K-1 and K (= 0, 1, {K - 1}, {K}) for "
+                f"bc='hermite' (the end velocities are fixed by the poses at 0, 1 and K-1, K); "
+                f"missing {missing}, got {shown}"
+            )
+    return fi
 
 
 def keyframe_bracket(frames, K: int, periodic: bool = False):

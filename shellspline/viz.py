@@ -8,7 +8,7 @@ A *source* is anything that holds a sequence:
 
 * an output directory written by ``interpolate`` (read with
   :func:`~shellspline.io.read_sequence`; keyframes from ``report.json``),
-* an :class:`~shellspline.pipeline.InterpolationResult` (``.V``, ``.F``, ``.frames``,
+* an :class:`~shellspline.pipeline.interpolation.InterpolationResult` (``.V``, ``.F``, ``.frames``,
   ``.report``),
 * a tuple ``(V, F)`` or ``(V, F, frames)`` with ``V (K+1,n,3)``, ``F (m,3)``.
 
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import ShellsplineError
+from .errors import ShellsplineError
 
 __all__ = ["SequenceViewer", "load_source", "preview", "render_frames", "render_animation",
            "render_strip", "plot", "plot_figure", "plot_half_axes", "half_axes_figure",
@@ -109,13 +109,13 @@ def load_source(source, label: str | None = None) -> _Sequence:
         return source
     path, inputs = None, []
     if isinstance(source, (str, os.PathLike)):
-        from .io import _FRAME_RE, read_sequence
+        from .io.sequences import FRAME_RE, read_sequence
 
         path = Path(source)
         V, F, report = read_sequence(path)
         frames = (report.get("parameters") or {}).get("frames")
         inputs = [p for p in path.iterdir()
-                  if _FRAME_RE.match(p.name) or p.name in _FRAME_FILE_NAMES]
+                  if FRAME_RE.match(p.name) or p.name in _FRAME_FILE_NAMES]
         default_label = path.resolve().name
     elif hasattr(source, "V") and hasattr(source, "F"):
         V, F = source.V, source.F
@@ -206,7 +206,7 @@ def _is_keyframe(seq: _Sequence, k: int) -> bool:
 # ----------------------------------------------------------------------------------------
 # Output files: atomic, never over an input
 # ----------------------------------------------------------------------------------------
-def _checked_output(path, suffixes, seqs=(), what: str = "output") -> Path:
+def checked_output(path, suffixes, seqs=(), what: str = "output") -> Path:
     """The absolute target of an output file, checked before any work is done.
 
     Parameters
@@ -255,7 +255,7 @@ def _temporary_sibling(target: Path) -> Path:
 
 def _write_atomically(path, write, seqs=(), suffixes=None, what: str = "output") -> Path:
     """Call ``write(tmp)`` for a temporary sibling of ``path`` and rename it into place."""
-    target = _checked_output(path, suffixes or (Path(path).suffix.lower(),), seqs, what)
+    target = checked_output(path, suffixes or (Path(path).suffix.lower(),), seqs, what)
     tmp = _temporary_sibling(target)
     try:
         write(tmp)
@@ -293,7 +293,7 @@ def _pyvista(what: str, off_screen: bool):
 
 
 def _polydata(pv, V: np.ndarray, F: np.ndarray):
-    from .gltf import vertex_normals
+    from .io.gltf import vertex_normals
 
     faces = np.hstack([np.full((F.shape[0], 1), 3, dtype=np.int64), F]).ravel()
     mesh = pv.PolyData(np.array(V, dtype=np.float64), faces)
@@ -302,7 +302,7 @@ def _polydata(pv, V: np.ndarray, F: np.ndarray):
     return mesh
 
 
-def _view_vectors(view):
+def view_vectors(view):
     if isinstance(view, str):
         key = view.strip().lower()
         if key not in _VIEWS:
@@ -344,7 +344,7 @@ def fitted_camera(points, aspect: float, view="iso", margin: float = 1.06):
         For ``plotter.camera_position``; perspective with a 30° vertical view angle.
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    d, up = _view_vectors(view)
+    d, up = view_vectors(view)
     right = np.cross(d, up)
     c = 0.5 * (P.min(axis=0) + P.max(axis=0))
     R = P - c
@@ -489,7 +489,7 @@ class SequenceViewer:
     # -- frame logic ---------------------------------------------------------------------------
     def set_frame(self, k) -> int:
         """Show frame ``k`` (clamped to ``0..K``) in every view; returns the frame shown."""
-        from .gltf import vertex_normals
+        from .io.gltf import vertex_normals
 
         k = int(min(max(int(round(float(k))), 0), self.K))
         self.k = k
@@ -662,7 +662,7 @@ def preview(*sources, track=None, fps: float = 24.0, loop: bool = True, labels=N
 # ----------------------------------------------------------------------------------------
 # Off-screen renders
 # ----------------------------------------------------------------------------------------
-def _checked_frames(frames, K: int) -> np.ndarray:
+def checked_frames(frames, K: int) -> np.ndarray:
     f = _int_list(frames, "frames", "0,5,10")
     if f.size == 0:
         raise ShellsplineError("frames: no frame given")
@@ -672,7 +672,7 @@ def _checked_frames(frames, K: int) -> np.ndarray:
     return f
 
 
-def _checked_size(window_size, default):
+def checked_size(window_size, default):
     if window_size is None:
         return default
     given = window_size
@@ -713,8 +713,8 @@ def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
 
 def _iter_frames(seq, frames, window_size, view, annotate):
     """Yield rendered frames one at a time (the viewer is closed at the end)."""
-    frames = np.arange(seq.K + 1) if frames is None else _checked_frames(frames, seq.K)
-    size = _checked_size(window_size, (640, 480))
+    frames = np.arange(seq.K + 1) if frames is None else checked_frames(frames, seq.K)
+    size = checked_size(window_size, (640, 480))
     viewer = SequenceViewer(seq, off_screen=True, window_size=size, view=view, widgets=False,
                             annotate=annotate, titles=False)
     try:
@@ -753,8 +753,8 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
     fps = float(fps)
     if not (np.isfinite(fps) and fps > 0):
         raise ShellsplineError(f"fps must be a positive number, got {fps!r}")
-    suffix = _checked_output(path, _ANIMATION_SUFFIXES, [seq], "animation").suffix.lower()
-    size = _checked_size(window_size, (640, 480))
+    suffix = checked_output(path, _ANIMATION_SUFFIXES, [seq], "animation").suffix.lower()
+    size = checked_size(window_size, (640, 480))
     if suffix == ".mp4":
         size = (size[0] + size[0] % 2, size[1] + size[1] % 2)
     try:
@@ -762,7 +762,7 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
         import imageio.v3 as iio
     except ImportError:
         raise ShellsplineError(f"render_animation needs the viz extra: {_EXTRA}") from None
-    frames = None if frames is None else _checked_frames(frames, seq.K)
+    frames = None if frames is None else checked_frames(frames, seq.K)
 
     def write(tmp):
         imgs = _iter_frames(seq, frames, size, view, annotate)
@@ -848,9 +848,9 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
         ``rows × h + (rows−1) × gap`` by ``columns × w + (columns−1) × gap`` pixels.
     """
     seq = load_source(source)
-    _checked_output(path, (".png",), [seq], "filmstrip")
+    checked_output(path, (".png",), [seq], "filmstrip")
     frames = default_strip_frames(seq.K, seq.frames) if frames is None else \
-        _checked_frames(frames, seq.K)
+        checked_frames(frames, seq.K)
     if columns is None:
         columns = min(len(frames), 8)
     columns = int(columns)
@@ -859,7 +859,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
     gap = int(gap)
     if gap < 0:
         raise ShellsplineError(f"gap must be >= 0, got {gap}")
-    size = _checked_size(window_size, (240, 240))
+    size = checked_size(window_size, (240, 240))
     try:
         import imageio.v3 as iio
     except ImportError:
@@ -872,7 +872,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
 
 def export_glb(source, path, *, fps: float = 24.0, frames=None,
                interpolation: str = "LINEAR") -> Path:
-    """Write a source as a GLB morph-target animation (see :mod:`shellspline.gltf`).
+    """Write a source as a GLB morph-target animation (see :mod:`shellspline.io.gltf`).
 
     Parameters
     ----------
@@ -888,11 +888,11 @@ def export_glb(source, path, *, fps: float = 24.0, frames=None,
     -------
     pathlib.Path
     """
-    from .gltf import glb_bytes
+    from .io.gltf import glb_bytes
 
     seq = load_source(source)
-    _checked_output(path, (".glb",), [seq], "GLB")
-    V = seq.V if frames is None else seq.V[_checked_frames(frames, seq.K)]
+    checked_output(path, (".glb",), [seq], "GLB")
+    V = seq.V if frames is None else seq.V[checked_frames(frames, seq.K)]
     data = glb_bytes(V, seq.F, fps=fps, interpolation=interpolation)
     return _write_atomically(path, lambda tmp: tmp.write_bytes(data), [seq], (".glb",), "GLB")
 
@@ -918,7 +918,7 @@ def _lta_energy(seq: _Sequence) -> tuple[np.ndarray, str]:
     if e is not None and en.get("resolution", "full") == "full" and len(e) == seq.K + 1:
         return np.asarray(e, dtype=np.float64), "report"
     from .metrics import lta_energies
-    from .topology import topology
+    from .mesh.topology import topology
 
     p = seq.parameters
     T = topology(seq.F, seq.V.shape[1], name=seq.label)
@@ -928,7 +928,7 @@ def _lta_energy(seq: _Sequence) -> tuple[np.ndarray, str]:
 
 def _shell_energy(seq: _Sequence, mode: str) -> np.ndarray:
     from .metrics import shell_energies
-    from .topology import topology
+    from .mesh.topology import topology
 
     p = seq.parameters
     T = topology(seq.F, seq.V.shape[1], name=seq.label)
@@ -1080,7 +1080,7 @@ def _trajectory_panel(ax, seqs, idx, colors):
 
 
 def _save_figure(fig, path, seqs=()) -> Path:
-    suffix = _checked_output(path, _PLOT_SUFFIXES, seqs, "plot").suffix.lower()
+    suffix = checked_output(path, _PLOT_SUFFIXES, seqs, "plot").suffix.lower()
     return _write_atomically(path, lambda tmp: fig.savefig(tmp, format=suffix[1:], dpi=120),
                              seqs, _PLOT_SUFFIXES, "plot")
 
@@ -1100,7 +1100,7 @@ def plot(sources, path, what=("energy", "speed"), track=None, labels=None, *,
     with a piecewise geodesic as in the paper's Fig. 11.
     """
     seqs = _load_all(sources, labels)
-    _checked_output(path, _PLOT_SUFFIXES, seqs, "plot")  # before the (slow) energies
+    checked_output(path, _PLOT_SUFFIXES, seqs, "plot")  # before the (slow) energies
     fig = plot_figure(seqs, what, track=track, shell_energy=shell_energy)
     return _save_figure(fig, path, seqs)
 
@@ -1165,6 +1165,6 @@ def plot_half_axes(curves: dict, path, *, frames=None) -> Path:
     -------
     pathlib.Path
     """
-    _checked_output(path, _PLOT_SUFFIXES, (), "plot")
+    checked_output(path, _PLOT_SUFFIXES, (), "plot")
     fig = half_axes_figure(curves, frames=frames)
     return _save_figure(fig, path, fig._shellspline_sources)

@@ -30,9 +30,9 @@ def cactus_sequence_problem(n_vertices: int = 700, K: int = 8):
     """Synthetic cactus keyframes (base pinned) at frames 0, K/2, K and their LΘA spline
     targets: ``(Vs, T, pinned, Z (K+1, d), weights, frames)``."""
     import data_synth
-    from shellspline.descriptors import lta_descriptors, lta_weights, unwrap_angles
-    from shellspline.lta_spline import lta_spline
-    from shellspline.topology import topology
+    from shellspline.shells.descriptors import lta_descriptors, lta_weights, unwrap_angles
+    from shellspline.shells.lta_spline import lta_spline
+    from shellspline.mesh.topology import topology
 
     d = data_synth.generate("cactus", n_vertices=n_vertices)
     Vs, F, pinned = d["V"], d["F"], d["pinned"]

@@ -18,7 +18,7 @@ import pytest
 import data_synth
 import shellspline as ss
 from shellspline import batch
-from shellspline.cli import main
+from shellspline.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
 PIPELINES = REPO / "pipelines"

@@ -1,4 +1,4 @@
-"""BVH reading/writing and forward kinematics (shellspline.bvh)."""
+"""BVH reading/writing and forward kinematics (shellspline.io.bvh)."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from shellspline import ShellsplineError
-from shellspline.bvh import Motion, euler_matrices, forward_kinematics, read_bvh, write_bvh
+from shellspline.io.bvh import Motion, euler_matrices, forward_kinematics, read_bvh, write_bvh
 
 from conftest import shared_data
 

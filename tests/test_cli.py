@@ -9,7 +9,7 @@ import pytest
 
 import data_synth
 import shellspline as ss
-from shellspline.cli import main
+from shellspline.cli.main import main
 from conftest import shared_data
 
 REPO = Path(__file__).resolve().parents[1]
@@ -176,7 +176,7 @@ def test_nonlinear_progress_lines_and_summary(ell_dir, tmp_path, capsys):
 def test_progress_bar_on_a_terminal_draws_the_described_state():
     import io
 
-    from shellspline.cli import _Bar
+    from shellspline.cli.main import _Bar
 
     class Tty(io.StringIO):
         def isatty(self):

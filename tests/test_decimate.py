@@ -6,7 +6,7 @@ import pytest
 
 import data_synth
 from shellspline import MeshError, topology
-from shellspline.decimate import (Decimation, canonical_target, decimate, decimate_replay,
+from shellspline.mesh.decimate import (Decimation, canonical_target, decimate, decimate_replay,
                                   hausdorff_fine_to_coarse)
 
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from shellspline import topology
-from shellspline.descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
+from shellspline.shells.descriptors import (dihedral_angles, edge_lengths, face_areas, lta_descriptors,
                                      lta_jacobian, lta_weights, unwrap_angles, wrap_angle)
 from conftest import grid_sheet, icosphere
 

@@ -6,7 +6,7 @@ import pytest
 import scipy.sparse as sp
 
 from shellspline import GaussNewton, topology
-from shellspline._linalg import SparseCholesky, available_backends, nested_dissection
+from shellspline.numerics.linalg import SparseCholesky, available_backends, nested_dissection
 from conftest import cactus_sequence_problem, grid_sheet, icosphere
 
 needs_cholmod = pytest.mark.skipif("cholmod" not in available_backends(),
@@ -138,7 +138,7 @@ def test_small_meshes_keep_the_small_mesh_path():
 
 @needs_cholmod
 def test_amortized_refresh_refactors_when_a_frame_costs_more_than_the_average():
-    from shellspline.descriptors import lta_descriptors, lta_weights
+    from shellspline.shells.descriptors import lta_descriptors, lta_weights
 
     V, F = icosphere(3)
     T = topology(F)
@@ -162,10 +162,10 @@ def test_rotations_fitted_once_per_frame_unless_the_pose_moves(monkeypatch):
     # small Gauss–Newton corrections inside a frame: the rotations from the frame's start are
     # kept (refitting them to such corrections made CG slower at 150k vertices); a large
     # move (here: a start far from the solution) refits them
-    from shellspline.descriptors import lta_descriptors, lta_weights
+    from shellspline.shells.descriptors import lta_descriptors, lta_weights
     import importlib
 
-    rc = importlib.import_module("shellspline.reconstruct")
+    rc = importlib.import_module("shellspline.shells.reconstruct")
 
     calls = []
     orig = rc.GaussNewton._rotations
@@ -201,8 +201,8 @@ def test_rotations_fitted_once_per_frame_unless_the_pose_moves(monkeypatch):
 
 
 def test_spline_rows_equal_the_spline():
-    from shellspline.lta_spline import lta_spline
-    from shellspline.pipeline import _SplineRows
+    from shellspline.shells.lta_spline import lta_spline
+    from shellspline.pipeline.interpolation import _SplineRows
 
     Zk = np.random.default_rng(3).standard_normal((3, 50))
     for bc, frames, K in (("natural", [0, 4, 9], 11), ("periodic", [0, 3, 7], 10)):

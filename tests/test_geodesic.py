@@ -6,10 +6,10 @@ import pytest
 from conftest import icosphere
 
 import data_synth
-from shellspline.descriptors import edge_lengths
-from shellspline.geodesic import PathSolver, discrete_geodesic, geodesic_interpolation
-from shellspline.shell_energy import DiscreteShells, EuclideanEnergy
-from shellspline.topology import topology
+from shellspline.shells.descriptors import edge_lengths
+from shellspline.shells.geodesic import PathSolver, discrete_geodesic, geodesic_interpolation
+from shellspline.shells.energy import DiscreteShells, EuclideanEnergy
+from shellspline.mesh.topology import topology
 
 
 @pytest.fixture(scope="module")
@@ -209,7 +209,7 @@ def test_time_limit_keeps_the_path_so_far_and_reports_it_unconverged(ellipsoids,
     segments keep their blend, and every one of them is reported unconverged."""
     import importlib
 
-    geo = importlib.import_module("shellspline.geodesic")
+    geo = importlib.import_module("shellspline.shells.geodesic")
     d = ellipsoids
     T = topology(d["F"])
     V = d["V"]

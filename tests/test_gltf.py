@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import shellspline as ss
-from shellspline._errors import ShellsplineError
-from shellspline.gltf import glb_bytes, read_glb, vertex_normals, write_glb
+from shellspline.errors import ShellsplineError
+from shellspline.io.gltf import glb_bytes, read_glb, vertex_normals, write_glb
 
 from conftest import icosphere
 
@@ -195,7 +195,7 @@ def test_write_sequence_glb_and_read_back(tmp_path):
 
 
 def test_cli_interpolate_format_glb(tmp_path):
-    from shellspline.cli import main
+    from shellspline.cli.main import main
 
     V0, F = icosphere(1)
     paths = []

@@ -6,7 +6,7 @@ import pytest
 from scipy.linalg import expm, logm
 from scipy.spatial.transform import Rotation
 
-from shellspline._errors import ShellsplineError
+from shellspline.errors import ShellsplineError
 from shellspline.groups import SE3, SO3, SO3dR3, SO3xR3, group, karcher_mean, se3, so3
 
 GROUPS = [SO3, SE3, SO3xR3, SO3dR3(3)]

@@ -25,8 +25,8 @@ import pytest
 import data_synth
 import shellspline as ss
 import shellspline.io as ssio
-import shellspline.pipeline as sspipeline
-from shellspline.cli import main
+import shellspline.pipeline.interpolation as sspipeline
+from shellspline.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -123,7 +123,7 @@ def test_unwritable_output_directory_is_refused_before_computing(ell, tmp_path, 
 
 def test_too_little_free_space_is_refused_before_computing(ell, tmp_path, capsys, monkeypatch):
     usage = namedtuple("usage", "total used free")
-    monkeypatch.setattr(ssio.shutil, "disk_usage", lambda p: usage(10**6, 10**6 - 1000, 1000))
+    monkeypatch.setattr(ssio.sequences.shutil, "disk_usage", lambda p: usage(10**6, 10**6 - 1000, 1000))
     out = tmp_path / "new" / "out"
     rc, err = _run(capsys, "interpolate", *_poses(ell), "-o", out)
     line = _assert_one_line_error(err, out)
@@ -141,9 +141,9 @@ def test_space_estimate_never_exceeds_the_real_output(tmp_path, monkeypatch, fmt
     out = ss.write_sequence(tmp_path / "real", V, F, fmt=fmt)
     real = sum(p.stat().st_size for p in out.iterdir() if p.name != "report.json")
     usage = namedtuple("usage", "total used free")
-    monkeypatch.setattr(ssio.shutil, "disk_usage", lambda p: usage(real, 0, real))
+    monkeypatch.setattr(ssio.sequences.shutil, "disk_usage", lambda p: usage(real, 0, real))
     ss.check_output_dir(tmp_path / "other", n_frames=7, n_vertices=300, n_faces=596, fmt=fmt)
-    monkeypatch.setattr(ssio.shutil, "disk_usage", lambda p: usage(real, 0, real // 100))
+    monkeypatch.setattr(ssio.sequences.shutil, "disk_usage", lambda p: usage(real, 0, real // 100))
     with pytest.raises(ss.ShellsplineError, match="not enough space"):
         ss.check_output_dir(tmp_path / "other", n_frames=7, n_vertices=300, n_faces=596,
                             fmt=fmt)
@@ -156,14 +156,14 @@ def test_check_output_dir_creates_nothing(tmp_path):
 
 
 def test_full_disk_while_writing_names_the_file_in_out(ell, tmp_path, capsys, monkeypatch):
-    real = ssio._write_obj_frame
+    real = ssio.sequences._write_obj_frame
 
     def full_disk(path, V, faces_block):
         if Path(path).name == "frame_0003.obj":
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         return real(path, V, faces_block)
 
-    monkeypatch.setattr(ssio, "_write_obj_frame", full_disk)
+    monkeypatch.setattr(ssio.sequences, "_write_obj_frame", full_disk)
     out = tmp_path / "out"
     rc, err = _run(capsys, "interpolate", *_poses(ell), "-o", out, "-q", "--method", "linear")
     line = _assert_one_line_error(err, out / "frame_0003.obj")
@@ -180,7 +180,7 @@ def test_full_disk_while_writing_names_the_file_in_out(ell, tmp_path, capsys, mo
 
 def test_full_disk_while_updating_the_report_names_report_json(ell, tmp_path, capsys,
                                                              monkeypatch):
-    import shellspline.cli as sscli
+    import shellspline.cli.main as sscli
 
     def full_disk(*args, **kwargs):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))

@@ -12,7 +12,7 @@ import pytest
 import shellspline.io as sio
 from data_synth.dcc import dcc_tube, write_dcc_obj, write_polygon_mesh
 from shellspline import MeshError
-from shellspline.source_mesh import triangulate_polygons
+from shellspline.mesh.source_mesh import triangulate_polygons
 
 
 def raises_mesh_error(fn, *phrases):
@@ -86,7 +86,7 @@ def test_dcc_obj_read_like_the_generator(tmp_path, tube):
     the polygons and coordinates read are exactly the generator's."""
     paths = write_set(tmp_path, tube, bom=True, crlf=True)
     for j, p in enumerate(paths):
-        V, off, idx, (uv, corner_uv) = sio._read_polygons(p)
+        V, off, idx, (uv, corner_uv) = sio.meshes.read_polygons(p)
         assert np.array_equal(V, tube["V"][j])
         assert np.array_equal(off, tube["offsets"]) and np.array_equal(idx, tube["indices"])
         # every corner names the texture coordinate written for its vertex (%.6f in the file)
@@ -301,7 +301,7 @@ def test_binary_ply_with_mixed_polygons(tmp_path, tube, extra):
     f.write_bytes(head.encode() + body)
     V2, F2 = sio.read_mesh(f)
     assert np.array_equal(V2, V.astype(np.float32).astype(np.float64))
-    _, o2, i2, _ = sio._read_polygons(f)
+    _, o2, i2, _ = sio.meshes.read_polygons(f)
     assert np.array_equal(o2, o) and np.array_equal(i2, i)
     f.write_bytes(head.encode() + body[:-3])
     raises_mesh_error(lambda: sio.read_mesh(f), "blender.ply", "does not match the header")
@@ -339,7 +339,7 @@ def test_expand_carries_set_aside_vertices_rigidly(tube):
     K, frames = 8, np.array([0, 8])
     keys = np.stack([V0, V0 @ _rotation(0.8).T])
     o, i = tube["offsets"], tube["indices"]
-    from shellspline.source_mesh import solve_mesh
+    from shellspline.mesh.source_mesh import solve_mesh
 
     Vs, F, src, _ = solve_mesh(keys, o, i)
     seq = np.stack([Vs[0] @ _rotation(0.1 * k).T for k in range(K + 1)])
@@ -354,7 +354,7 @@ def test_expand_carries_set_aside_vertices_rigidly(tube):
 def test_expand_blends_isolated_vertices_linearly(tube):
     """An isolated vertex has no face to ride on: it follows the per-vertex linear blend of its
     keyframe positions (keyframes 0, 10, 20), whatever the solve mesh does."""
-    from shellspline.source_mesh import solve_mesh
+    from shellspline.mesh.source_mesh import solve_mesh
 
     Vs, F, src, _ = solve_mesh(tube["V"], tube["offsets"], tube["indices"])
     frames, K = np.array([0, 10, 20]), 20
@@ -373,7 +373,7 @@ def test_expand_blends_isolated_vertices_linearly(tube):
 def test_write_back_polygons_obj_and_ply(tmp_path, tube):
     kf = sio.read_keyframes(write_set(tmp_path, tube), frames=tube["frames"])
     K = int(kf.frames[-1])
-    from shellspline.pipeline import linear_blend
+    from shellspline.pipeline.interpolation import linear_blend
 
     seq = kf.source.expand(linear_blend(kf.V, kf.frames, K), kf.frames, K)
     out = sio.write_sequence(tmp_path / "o", seq, None, fmt="obj", source=kf.source)
@@ -381,7 +381,7 @@ def test_write_back_polygons_obj_and_ply(tmp_path, tube):
     assert [[c - 1 for c in f] for f in faces] == polygon_list(tube)
     assert np.array_equal(V5, seq[5])
     outp = sio.write_sequence(tmp_path / "p", seq, None, fmt="ply", source=kf.source)
-    Vr, offr, idxr, _ = sio._read_polygons(outp / "frame_0010.ply")
+    Vr, offr, idxr, _ = sio.meshes.read_polygons(outp / "frame_0010.ply")
     assert np.array_equal(Vr, tube["V"][1])
     assert np.array_equal(offr, tube["offsets"]) and np.array_equal(idxr, tube["indices"])
     # read_sequence triangulates the polygons once for the whole sequence
@@ -395,7 +395,7 @@ def test_write_back_polygons_obj_and_ply(tmp_path, tube):
 def test_cli_end_to_end_on_seamed_quad_obj(tmp_path, tube):
     """The seamed quad OBJ through ``shellspline interpolate``: exit 0, the input's polygons
     and vertex count written back, seams not torn, keyframes exact."""
-    from shellspline.cli import main
+    from shellspline.cli.main import main
 
     paths = write_set(tmp_path, tube, bom=True, crlf=True)
     out = tmp_path / "out"
@@ -425,8 +425,8 @@ def test_cli_end_to_end_on_seamed_quad_obj(tmp_path, tube):
                                   "set_aside_vertices": 2, "fin_polygons": 1,
                                   "reoriented_polygons": 0, "texture_coordinates": 164}
     # texture coordinates carried: the same vt values, every corner naming the input's vt
-    _, _, _, (uv_in, cuv_in) = sio._read_polygons(paths[0])
-    _, _, _, (uv_out, cuv_out) = sio._read_polygons(frames[7])
+    _, _, _, (uv_in, cuv_in) = sio.meshes.read_polygons(paths[0])
+    _, _, _, (uv_out, cuv_out) = sio.meshes.read_polygons(frames[7])
     assert np.array_equal(uv_out, uv_in) and np.array_equal(cuv_out, cuv_in)
 
 
@@ -457,15 +457,15 @@ def test_docstring_examples_run():
     """The examples in the docstrings of the read side and of the source map are doctests."""
     import doctest
 
-    import shellspline.source_mesh as sm
+    import shellspline.mesh.source_mesh as sm
 
-    for mod in (sm, sio):
+    for mod in (sm, sio.meshes, sio.keyframes, sio.sequences):
         result = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
         assert result.attempted > 0 and result.failed == 0, mod.__name__
 
 
 def test_cli_says_what_reading_changed(tmp_path, tube, capsys):
-    from shellspline.cli import main
+    from shellspline.cli.main import main
 
     paths = write_set(tmp_path, tube)
     rc = main(["interpolate", *map(str, paths), "--frames", "0,10,20", "-o",

@@ -1,4 +1,4 @@
-"""Tests of the time-discrete LΘA spline (shellspline.lta_spline).
+"""Tests of the time-discrete LΘA spline (shellspline.shells.lta_spline).
 
 Oracles: scipy.interpolate.CubicSpline (convergence as K grows), and a dense per-column
 solve of the normal equations whose matrix is read off a plain-loop evaluation of the energy.
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from shellspline.lta_spline import LTASpline, lta_energy_per_frame, lta_spline, spline_energy
+from shellspline.shells.lta_spline import LTASpline, lta_energy_per_frame, lta_spline, spline_energy
 
 # the module itself (the package re-exports the function under the same name)
-lta = importlib.import_module("shellspline.lta_spline")
+lta = importlib.import_module("shellspline.shells.lta_spline")
 
 BCS = ("natural", "periodic", "hermite")
 

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 from conftest import icosphere
 
-from shellspline.geodesic import geodesic_interpolation
-from shellspline.lta_spline import lta_spline
-from shellspline.nonlinear_spline import (GaussNewtonModel, NonlinearSplineProblem, _blend,
+from shellspline.shells.geodesic import geodesic_interpolation
+from shellspline.shells.lta_spline import lta_spline
+from shellspline.shells.nonlinear import (GaussNewtonModel, NonlinearSplineProblem, _blend,
                                           _pcg, _Preconditioner, _project, nonlinear_spline)
-from shellspline.shell_energy import DiscreteShells, EuclideanEnergy
-from shellspline.topology import topology
+from shellspline.shells.energy import DiscreteShells, EuclideanEnergy
+from shellspline.mesh.topology import topology
 
 
 def _kink(V, f):
@@ -179,7 +179,7 @@ def test_folded_hexagon_large_eta_converges_and_leaves_the_isometries():
     # only); with the exact Hessian products of hessian="auto" it converges in ~7.
     import data_synth
     from shellspline import interpolate
-    from shellspline.descriptors import edge_lengths
+    from shellspline.shells.descriptors import edge_lengths
 
     h = data_synth.generate("hexagon", n_vertices=61, frames=(0, 2, 4))
     T = topology(h["F"])
@@ -241,7 +241,7 @@ def test_trust_region_and_line_search_reach_the_same_minimiser(tiny):
 def test_retraction_is_first_order_and_keeps_pins(tiny):
     """R(s, εd) = s + εd + O(ε²) (a valid curve for the trust-region test), R(s, 0) = s, and
     pinned vertices stay where they are."""
-    from shellspline.nonlinear_spline import _Retraction
+    from shellspline.shells.nonlinear import _Retraction
 
     Vkey, T = tiny
     pinned = np.array([0, 1, 2])
@@ -263,7 +263,7 @@ def test_steihaug_solves_stops_on_the_boundary_and_truncates():
     boundary step has P-norm = radius (norm tracked by recurrences, checked with P itself),
     negative curvature goes to the boundary, and the Nash-Sofer truncation stops earlier
     with most of the model decrease."""
-    from shellspline.nonlinear_spline import _steihaug
+    from shellspline.shells.nonlinear import _steihaug
 
     rng = np.random.default_rng(0)
     n = 60
@@ -295,7 +295,7 @@ def test_steihaug_solves_stops_on_the_boundary_and_truncates():
 
 
 def test_ftol_stops_at_the_first_stalled_window(tiny):
-    from shellspline.nonlinear_spline import FTOL_WINDOW
+    from shellspline.shells.nonlinear import FTOL_WINDOW
 
     Vkey, T = tiny
     kw = dict(eta=0.1, gtol=1e-12, max_iter=200)
@@ -319,7 +319,7 @@ def test_ftol_stops_at_the_first_stalled_window(tiny):
 def test_accurate_products_are_symmetric_in_soft_directions(tiny):
     """``accurate_matvec`` differences analytic products once: ``xᵀHy = yᵀHx`` also for
     preconditioned (soft) vectors, and the product does not depend on the difference step."""
-    from shellspline.nonlinear_spline import _SpaceTimePreconditioner
+    from shellspline.shells.nonlinear import _SpaceTimePreconditioner
 
     Vkey, T = tiny
     prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.01), [0, 3, 6], 6, pinned=[0, 5, 9],
@@ -345,8 +345,8 @@ def test_space_time_preconditioner_inverts_the_lta_spline_hessian(tiny):
     """P is the Hessian of E(s) = 4K³ Σ_t ‖z(s_k) − ½(z(s_a) + z(s_b))‖²_w (LΘA weights at
     s_k, held fixed) where the residuals vanish: with u = P⁻¹ v, second differences of E
     along u give uᵀv. E is evaluated from the descriptors alone (no Jacobians)."""
-    from shellspline.descriptors import lta_descriptors, lta_weights, wrap_angle
-    from shellspline.nonlinear_spline import _SpaceTimePreconditioner
+    from shellspline.shells.descriptors import lta_descriptors, lta_weights, wrap_angle
+    from shellspline.shells.nonlinear import _SpaceTimePreconditioner
 
     Vkey, T = tiny
     W = DiscreteShells(T, eta=0.05)
@@ -386,7 +386,7 @@ def test_cg_is_not_solved_beyond_what_meets_gtol(tiny, monkeypatch, hessian, gto
     accurate exact ones)."""
     import importlib
 
-    nls = importlib.import_module("shellspline.nonlinear_spline")
+    nls = importlib.import_module("shellspline.shells.nonlinear")
     Vkey, T = tiny
     steihaug = nls._steihaug
     runs, margin0 = {}, nls._GTOL_MARGIN
@@ -425,7 +425,7 @@ def test_a_solver_that_cannot_decrease_f_returns_its_start_unchanged(tiny, monke
     its own energy, and an honest 'not converged' status."""
     import importlib
 
-    ns = importlib.import_module("shellspline.nonlinear_spline")
+    ns = importlib.import_module("shellspline.shells.nonlinear")
     Vkey, T = tiny
     frames, K = [0, 3, 6], 6
     init = _blend(Vkey, np.array(frames), K, False)

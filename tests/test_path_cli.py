@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from conftest import shared_data
 
-from shellspline._cli_path import build_curve, keyframe_indices
-from shellspline._errors import ShellsplineError
-from shellspline.cli import main
+from shellspline.cli.path import build_curve, keyframe_indices
+from shellspline.errors import ShellsplineError
+from shellspline.cli.main import main
 from shellspline.groups import SE3, se3, so3
-from shellspline.posefiles import FORMATS, detect_format, read_poses, write_poses
+from shellspline.io.posefiles import FORMATS, detect_format, read_poses, write_poses
 
 SUFFIX = {"tum": ".txt", "kitti": ".txt", "euroc": ".csv", "csv": ".csv", "json": ".json"}
 

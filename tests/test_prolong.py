@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 import data_synth
-from shellspline.decimate import decimate
-from shellspline.lta_spline import lta_spline
-from shellspline.pipeline import linear_blend
-from shellspline.prolong import (Prolongation, linear_time_weights, prolong,
+from shellspline.mesh.decimate import decimate
+from shellspline.shells.lta_spline import lta_spline
+from shellspline.pipeline.interpolation import linear_blend
+from shellspline.shells.prolong import (Prolongation, linear_time_weights, prolong,
                                  spline_time_weights)
 
 

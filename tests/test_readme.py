@@ -22,7 +22,7 @@ import pytest
 
 import data_synth
 import shellspline as ss
-from shellspline.cli import _build_parser
+from shellspline.cli.main import _build_parser
 
 REPO = Path(__file__).resolve().parents[1]
 README = (REPO / "README.md").read_text(encoding="utf-8")

@@ -6,10 +6,10 @@ import trimesh
 
 import shellspline as ss
 from data_synth import stress
-from shellspline.descriptors import (FOLD_BAND, consistent_angles, dihedral_angles,
+from shellspline.shells.descriptors import (FOLD_BAND, consistent_angles, dihedral_angles,
                                      lta_descriptors, lta_jacobian, lta_weights)
 from shellspline.metrics import COLLAPSE_RATIO, sequence_defects
-from shellspline.reconstruct import GaussNewton
+from shellspline.shells.reconstruct import GaussNewton
 
 
 # -- angle paths ------------------------------------------------------------------------------
@@ -19,7 +19,7 @@ def test_consistent_angles_take_the_direct_way_away_from_pi():
     T = np.array([[0.63, 0.35, -2.0], [-2.59, 2.2, 2.0]])
     out = consistent_angles(T)
     np.testing.assert_array_equal(out, T)           # never through ±π: no row moves
-    unwrapped = ss.descriptors.unwrap_angles(T)
+    unwrapped = ss.shells.descriptors.unwrap_angles(T)
     assert unwrapped[1, 0] != T[1, 0] and unwrapped[1, 2] != T[1, 2]   # the unwrap crosses
 
 
@@ -50,7 +50,7 @@ def test_consistent_angles_chain_over_keyframes_and_periodic_row():
 def test_periodic_loop_whose_angle_paths_would_wind_closes_directly():
     # 0 -> 2.9 -> (through π) -> -2.9 -> -1.0 -> back to 0: one winding over the loop, which a
     # periodic spline cannot represent (frame K is frame 0); that edge goes the direct way
-    from shellspline.pipeline import _keyframe_angles
+    from shellspline.pipeline.interpolation import _keyframe_angles
 
     T = np.array([[0.0], [2.9], [-2.9], [-1.0]])
     assert consistent_angles(T, periodic=True)[-1, 0] == pytest.approx(2 * np.pi)
@@ -71,7 +71,7 @@ def test_spline_angle_targets_stay_off_pi_between_keyframes():
     assert np.abs(key).max() > np.pi - 0.1                       # the case is what it says
     assert np.abs(Zs).max() < np.pi                              # no target past the fold
     free = np.setdiff1d(np.arange(21), d["frames"])
-    assert np.abs(Zs[free]).max() <= np.pi - ss.pipeline.ANGLE_MARGIN + 1e-12
+    assert np.abs(Zs[free]).max() <= np.pi - ss.pipeline.interpolation.ANGLE_MARGIN + 1e-12
 
 
 # -- reconstruction ----------------------------------------------------------------------------
@@ -109,7 +109,7 @@ def test_merit_is_the_paper_energy_where_no_triangle_is_compressed():
     X = V * 1.01
     z = lta_descriptors(X, T)
     r = z - zt
-    r[T.descriptor_slices()[1]] = ss.descriptors.wrap_angle(r[T.descriptor_slices()[1]])
+    r[T.descriptor_slices()[1]] = ss.shells.descriptors.wrap_angle(r[T.descriptor_slices()[1]])
     f = GaussNewton(T).merit(z, zt, w)[0]
     assert f == pytest.approx(float(w @ (r * r)), rel=1e-13)
 
@@ -237,10 +237,10 @@ def test_report_quality_has_per_frame_records_that_add_up():
     assert max(q["per_frame"]["pop"]) == pytest.approx(q["pop"])
     clean = {"keyframes_exact": True, "flipped_faces": 0, "collapsed_faces": 0,
              "folded_edges": 0, "degenerate_faces": 0, "pop": 1.0, "pop_limit": 2.0}
-    assert ss.pipeline.quality_ok(clean)
+    assert ss.pipeline.interpolation.quality_ok(clean)
     for key, bad in (("keyframes_exact", False), ("flipped_faces", 1), ("collapsed_faces", 2),
                      ("folded_edges", 1), ("degenerate_faces", 1), ("pop", 2.5)):
-        assert not ss.pipeline.quality_ok(dict(clean, **{key: bad}))
+        assert not ss.pipeline.interpolation.quality_ok(dict(clean, **{key: bad}))
 
 
 def test_each_connected_component_is_placed_on_its_own():
@@ -259,13 +259,13 @@ def test_each_connected_component_is_placed_on_its_own():
     q = res.report["quality"]
     assert q["pop"] < 1.5 and q["flipped_faces"] == 0
     # the rigid second sphere follows the cubic track through its keyframe positions exactly
-    track = ss.pipeline.placement_track(keys, [0, 10, 20], 20)
+    track = ss.pipeline.interpolation.placement_track(keys, [0, 10, 20], 20)
     np.testing.assert_allclose(res.V[:, n:], track[:, n:], atol=1e-6)
 
 
 def test_reconstruction_prints_one_line_per_frame_in_logs(tmp_path, capsys):
     # off a terminal (a log, a pipe) a long reconstruction says what it is doing frame by frame
-    from shellspline.cli import main
+    from shellspline.cli.main import main
 
     d = stress.joint(angles=(0.0, 60.0, 0.0), frames=(0, 4, 8))
     paths = []

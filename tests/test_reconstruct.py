@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from shellspline import GaussNewton, reconstruct, rigid_placement, topology
-from shellspline._linalg import SparseCholesky, available_backends
-from shellspline.descriptors import face_areas, lta_descriptors, lta_weights
+from shellspline.numerics.linalg import SparseCholesky, available_backends
+from shellspline.shells.descriptors import face_areas, lta_descriptors, lta_weights
 from conftest import cactus_sequence_problem, grid_sheet, icosphere
 
 
@@ -150,7 +150,7 @@ def test_partial_pins_leave_no_free_spin():
 
 # -- preconditioner reuse: rotated factorizations, lean assembly ------------------------------
 def test_vertex_rotations_recover_a_rigid_rotation():
-    from shellspline.reconstruct import _vertex_rotations
+    from shellspline.shells.reconstruct import _vertex_rotations
 
     V, F = icosphere(2)
     T = topology(F)
@@ -165,7 +165,7 @@ def test_vertex_rotations_are_the_rotation_part_of_an_affine_map():
     # an in-plane stretch + shear of a flat sheet: every one-ring sees the same gradient A, whose
     # rotation part is polar(A); the plain Procrustes fit polar(Σ e_b e_aᵀ) misses it at the
     # anisotropic boundary one-rings
-    from shellspline.reconstruct import _vertex_rotations
+    from shellspline.shells.reconstruct import _vertex_rotations
 
     V, F = grid_sheet(7, 6)
     T = topology(F)
@@ -178,7 +178,7 @@ def test_vertex_rotations_are_the_rotation_part_of_an_affine_map():
 def test_rotated_factorization_is_exact_for_a_rotated_pose():
     # descriptors are rotation invariant: J(Qx) = J(x) Qᵀ, so the factor of JᵀWJ at x, rotated
     # by Q, is the exact inverse at Qx and CG needs one iteration; unrotated it needs many
-    from shellspline.descriptors import lta_jacobian
+    from shellspline.shells.descriptors import lta_jacobian
 
     V, F = icosphere(2)
     V = V * [1, 1.4, 0.7]
@@ -204,8 +204,8 @@ def test_rotated_factorization_is_exact_for_a_rotated_pose():
 def test_lower_assembler_matches_sparse_product(chunk, monkeypatch):
     import scipy.sparse as sp
 
-    from shellspline.descriptors import lta_jacobian
-    from shellspline.reconstruct import _LowerAssembler
+    from shellspline.shells.descriptors import lta_jacobian
+    from shellspline.shells.reconstruct import _LowerAssembler
 
     if chunk:  # many small chunks: the chunk boundaries must not lose or repeat pairs
         monkeypatch.setattr(_LowerAssembler, "CHUNK", chunk)
@@ -251,13 +251,13 @@ def test_rigid_modes_left_free_by_pins(pins, r):
     """One pin leaves the three rotations about it, two the rotation about their line, three
     non-collinear none; every mode is an infinitesimal rigid motion (zero edge-length change)
     that keeps the pins fixed."""
-    from shellspline.reconstruct import _rigid_modes
+    from shellspline.mesh.rigid import rigid_modes
 
     V = np.random.default_rng(1).standard_normal((30, 3))
     pins = np.asarray(pins, dtype=np.int64)
     pd = (3 * pins[:, None] + np.arange(3)).ravel() if len(pins) else np.zeros(0, np.int64)
     free = np.setdiff1d(np.arange(90), pd)
-    Q = _rigid_modes(V, free, pd)
+    Q = rigid_modes(V, free, pd)
     assert Q.shape == (len(free), r)
     assert np.allclose(Q.T @ Q, np.eye(r))
     i, j = np.triu_indices(30, 1)

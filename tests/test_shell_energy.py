@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from conftest import grid_sheet, icosphere
 
-from shellspline.descriptors import dihedral_angles, face_areas, edge_lengths
-from shellspline.shell_energy import (DiscreteShells, EuclideanEnergy, dihedral_angle_hessians,
+from shellspline.shells.descriptors import dihedral_angles, face_areas, edge_lengths
+from shellspline.shells.energy import (DiscreteShells, EuclideanEnergy, dihedral_angle_hessians,
                                       edge_length_hessians, face_area_hessians, shell_energy,
                                       shell_energy_gradient, shell_energy_hessian)
-from shellspline.topology import topology
+from shellspline.mesh.topology import topology
 
 H = 1e-6
 
@@ -112,7 +112,7 @@ def test_element_hessians_match_central_differences(name, V, Vt, T):
 
 def _fd_free_grad(fun, V, T, c):
     """Analytic gradient of Σ c_i q_i via the verified descriptor Jacobian."""
-    from shellspline.descriptors import lta_jacobian
+    from shellspline.shells.descriptors import lta_jacobian
 
     J = lta_jacobian(V, T)
     sL, sT, sA = T.descriptor_slices()
@@ -198,7 +198,7 @@ def test_elementwise_assembly_equals_sparse_chain_rule(name, V, Vt, T):
     """W,11 / W,22 are assembled element by element (flap blocks, boundary-edge face blocks);
     they must equal the chain rule J^T Phi J + sum_i (Phi_z)_i hess z_i through sparse products
     to round-off (sheet: boundary edges; sphere: none)."""
-    from shellspline.descriptors import lta_descriptors, lta_jacobian
+    from shellspline.shells.descriptors import lta_descriptors, lta_jacobian
 
     W = DiscreteShells(T, mu=1.0, lam=0.7, eta=0.3)
     zX, zY = lta_descriptors(V, T), lta_descriptors(Vt, T)

@@ -7,7 +7,7 @@ import pytest
 import shellspline
 from data_synth.skinned import (linear_blend_skinning, marching_tetrahedra, skinned_body,
                                 skinned_sequence)
-from shellspline.bvh import read_bvh
+from shellspline.io.bvh import read_bvh
 
 from conftest import shared_data
 
@@ -160,7 +160,7 @@ def test_bad_window_raises():
 
 
 def test_skeleton_without_bones_raises(tmp_path):
-    from shellspline.bvh import Motion, write_bvh
+    from shellspline.io.bvh import Motion, write_bvh
 
     m = Motion(("root",), [-1], np.zeros((1, 3)), (("Xposition", "Yposition", "Zposition"),),
                0.1, np.zeros((3, 3)))

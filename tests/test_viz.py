@@ -10,7 +10,7 @@ import pytest
 
 import shellspline as ss
 from shellspline import viz
-from shellspline._errors import ShellsplineError
+from shellspline.errors import ShellsplineError
 from shellspline.metrics import lta_energies, shell_energies, speed
 
 from conftest import REPO, icosphere
@@ -399,7 +399,7 @@ def test_half_axes_plot(seq, outdir, tmp_path):
 # GLB export from an output directory, CLI
 # ----------------------------------------------------------------------------------------
 def test_export_glb_from_outdir(seq, outdir, tmp_path):
-    from shellspline.gltf import read_glb
+    from shellspline.io.gltf import read_glb
 
     V, F = seq
     p = ss.export_glb(outdir, tmp_path / "a.glb", fps=8, frames=[0, 3, 6])
@@ -410,7 +410,7 @@ def test_export_glb_from_outdir(seq, outdir, tmp_path):
 
 
 def test_cli_render_plot_preview(outdir, tmp_path, capsys):
-    from shellspline.cli import main
+    from shellspline.cli.main import main
 
     gif, strip, glb = tmp_path / "a.gif", tmp_path / "s.png", tmp_path / "a.glb"
     assert main(["render", str(outdir), "--gif", str(gif), "--strip", str(strip), "--glb",
@@ -447,7 +447,7 @@ def test_cli_render_plot_preview(outdir, tmp_path, capsys):
 ])
 def test_cli_render_checks_every_output_before_rendering(outdir, tmp_path, capsys, args,
                                                           needle):
-    from shellspline.cli import main
+    from shellspline.cli.main import main
 
     (tmp_path / "blocker").write_text("a file, not a directory")
     gif = tmp_path / "a.gif"

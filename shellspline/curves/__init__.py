@@ -3,7 +3,7 @@ knot insertion, and interpolating splines through poses (C¹ quadratic, C² cubi
 natural, clamped and periodic ends.
 
 Layer rule: imports only numpy, scipy, :mod:`shellspline.groups` and
-:mod:`shellspline._errors` (never the shell modules).
+:mod:`shellspline.errors` (never the shell modules).
 """
 from .bezier import bezier, bezier_ckl, bezier_velocity, de_casteljau, geodesic
 from .bspline import BSpline, clamped_knots

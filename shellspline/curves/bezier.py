@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import ShellsplineError
+from ..errors import ShellsplineError
 from ..groups.lie import group
 
 __all__ = ["geodesic", "de_casteljau", "bezier", "bezier_velocity", "bezier_ckl"]

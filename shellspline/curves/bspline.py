@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import ShellsplineError
+from ..errors import ShellsplineError
 from ..groups.lie import group
 
 __all__ = ["BSpline", "clamped_knots"]

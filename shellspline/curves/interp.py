@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._errors import ShellsplineError
+from ..errors import ShellsplineError
 from ..groups.lie import group
 from .bezier import de_casteljau
 

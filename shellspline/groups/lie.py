@@ -30,7 +30,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from .._errors import ShellsplineError
+from ..errors import ShellsplineError
 from . import kernel as _kernel
 from . import se3, so3
 

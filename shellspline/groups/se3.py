@@ -57,7 +57,7 @@ def vee(X):
 def _lmat(w):
     """The seed's ``A(w) = J_l(w)`` as ``(..., 3, 3)`` matrices."""
     th = np.sqrt(np.einsum("...i,...i->...", w, w))
-    _, b, c = so3._coeffs_exp(th)
+    _, b, c = so3.exp_coefficients(th)
     W = so3.hat(w)
     return np.eye(3) + b[..., None, None] * W + c[..., None, None] * (W @ W)
 
@@ -137,16 +137,16 @@ def _qapply(w, v, a):
     by cross products: ``W a = w x a``, ``P a = v x a``."""
     th = np.sqrt(np.einsum("...i,...i->...", w, w))
     c1, c2, c3 = (c[..., None] for c in _q_coeffs(th))
-    _cross = so3._cross
-    Wa = _cross(w, a)
-    Pa = _cross(v, a)
-    WPa = _cross(w, Pa)
-    PWa = _cross(v, Wa)
-    WPWa = _cross(w, PWa)
-    WWPa = _cross(w, WPa)
-    PWWa = _cross(v, _cross(w, Wa))
-    WPWWa = _cross(w, PWWa)
-    WWPWa = _cross(w, WPWa)
+    cross = so3.cross
+    Wa = cross(w, a)
+    Pa = cross(v, a)
+    WPa = cross(w, Pa)
+    PWa = cross(v, Wa)
+    WPWa = cross(w, PWa)
+    WWPa = cross(w, WPa)
+    PWWa = cross(v, cross(w, Wa))
+    WPWWa = cross(w, PWWa)
+    WWPWa = cross(w, WPWa)
     return (0.5 * Pa + c1 * (WPa + PWa + WPWa) + c2 * (WWPa + PWWa - 3 * WPWa)
             + c3 * (WPWWa + WWPWa))
 

@@ -50,7 +50,7 @@ def vee(W):
                            W[..., 1, 0] - W[..., 0, 1]], axis=-1)
 
 
-def _cross(a, b):
+def cross(a, b):
     """``cross(a, b)`` over the last axis (broadcasting), faster than ``np.cross``."""
     out = np.empty(np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
@@ -63,7 +63,7 @@ def _sq(w):
     return np.einsum("...i,...i->...", w, w)
 
 
-def _coeffs_exp(th):
+def exp_coefficients(th):
     """``sin(t)/t``, ``(1-cos t)/t^2`` and ``(t - sin t)/t^3``, series near 0."""
     small = th < _SMALL
     ts = np.where(small, 1.0, th)
@@ -96,7 +96,7 @@ def exp(w):
     """
     w = np.asarray(w, dtype=np.float64)
     th = np.sqrt(_sq(w))
-    a, b, _ = _coeffs_exp(th)
+    a, b, _ = exp_coefficients(th)
     W = hat(w)
     return np.eye(3) + a[..., None, None] * W + b[..., None, None] * (W @ W)
 
@@ -189,9 +189,9 @@ def jac_right(w, x):
     w = np.asarray(w, dtype=np.float64)
     x = np.asarray(x, dtype=np.float64)
     th = np.sqrt(_sq(w))
-    _, b, c = _coeffs_exp(th)
-    wx = _cross(w, x)
-    return x - b[..., None] * wx + c[..., None] * _cross(w, wx)
+    _, b, c = exp_coefficients(th)
+    wx = cross(w, x)
+    return x - b[..., None] * wx + c[..., None] * cross(w, wx)
 
 
 def jac_right_inv(w, x):
@@ -207,8 +207,8 @@ def jac_right_inv(w, x):
     ts = np.where(small, 1.0, th)
     d = np.where(small, 1 / 12 + th * th / 720 + th ** 4 / 30240,
                  1 / ts ** 2 - 1 / (2 * ts * np.tan(0.5 * ts)))
-    wx = _cross(w, x)
-    return x + 0.5 * wx + d[..., None] * _cross(w, wx)
+    wx = cross(w, x)
+    return x + 0.5 * wx + d[..., None] * cross(w, wx)
 
 
 def quat_from_matrix(R):

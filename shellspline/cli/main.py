@@ -1,0 +1,504 @@
+"""Command-line front end: ``shellspline interpolate KEYFRAME... -o OUT``.
+
+Uses only the public API. Exit codes: 0 success, 1 finished but some frame did not converge,
+the quality check failed or a time limit was reached, 2 bad input or usage (a
+:class:`~shellspline.ShellsplineError`) or an I/O error on the user's paths (missing file,
+permission, full disk), 3 internal error (a bug: any other exception; ``SHELLSPLINE_DEBUG=1``
+prints its traceback), 130/143 interrupted by SIGINT/SIGTERM.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+from ..errors import ShellsplineError
+from ..version import __version__
+
+__all__ = ["main"]
+
+EXIT_OK, EXIT_WARN, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
+DEBUG_ENV = "SHELLSPLINE_DEBUG"
+"""Environment variable: set (to anything but empty or 0) to print the traceback of an
+internal error."""
+
+
+_notes_seen: set[str] = set()
+
+
+def _note(text: str, stream=None) -> None:
+    """One ``note:`` line, once per run: a solver's warning and the pipeline's message about
+    the same event ("nonlinear_spline: ..." and "nonlinear spline: ...") print once."""
+    key = " ".join(re.sub(r"[\W_]+", " ", str(text)).lower().split())
+    if key in _notes_seen:
+        return
+    _notes_seen.add(key)
+    out = stream or sys.stderr
+    out.write(f"  note: {text}\n")
+    out.flush()
+
+
+class _Bar:
+    """A small stderr progress display fed by pipeline progress events."""
+
+    def __init__(self, stream=None, quiet: bool = False):
+        self.stream = stream or sys.stderr
+        self.quiet = quiet
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._t0 = None
+        self._last = 0.0
+
+    def __call__(self, ev) -> None:
+        if self.quiet:
+            return
+        kind = ev.get("kind")
+        if kind == "stage_start":
+            self._t0 = time.perf_counter()
+            if ev.get("total"):
+                self._draw(ev["stage"], 0, ev["total"])
+        elif kind == "advance":
+            now = time.perf_counter()
+            text = ev.get("text")
+            if self.tty and (now - self._last > 0.1 or ev["done"] == ev["total"] or text):
+                self._draw(ev["stage"], ev["done"], ev["total"], text)
+                self._last = now
+            elif text and not self.tty:  # logs and pipes: one line per described step
+                el = now - (self._t0 or now)
+                self.stream.write(f"  {ev['stage']:<12s} {text}  {el:6.1f} s\n")
+                self.stream.flush()
+        elif kind == "stage_end":
+            if self.tty and ev.get("total"):
+                self.stream.write("\r\033[K")
+            self.stream.write(f"  {ev['stage']:<12s} {ev['seconds']:8.3f} s\n")
+            self.stream.flush()
+        elif kind == "message":
+            _note(ev["text"], self.stream)
+
+    def _draw(self, stage, done, total, text=None):
+        if not self.tty:
+            return
+        width = 30
+        fill = int(width * min(done, total) / max(total, 1))
+        el = time.perf_counter() - (self._t0 or time.perf_counter())
+        if text:  # the state says more than an ETA (e.g. an optimiser's gradient norm)
+            tail = f"  {text}  {el:5.1f}s"
+        else:
+            eta = el / done * (total - done) if done else float("nan")
+            tail = f" {done}/{total}  {el:5.1f}s  eta {eta:5.1f}s"
+        self.stream.write(f"\r\033[K  {stage:<12s} [{'#' * fill}{'.' * (width - fill)}]{tail}")
+        self.stream.flush()
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="shellspline",
+                                description="Smooth in-betweens of triangle-mesh keyframes: "
+                                            "splines in the space of thin shells.")
+    p.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = p.add_subparsers(dest="command")
+    q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF)",
+                       description="Interpolate keyframes of one triangle mesh (same "
+                                   "connectivity) and write OUT/frame_0000.obj ... plus "
+                                   "OUT/report.json.",
+                       epilog="exit codes: 0 success; 1 written, but a frame did not converge, "
+                              "the quality check failed or --max-time was reached; 2 bad "
+                              "input or usage, or an I/O error on your paths; 3 internal "
+                              f"error (a bug; {DEBUG_ENV}=1 prints the traceback); 130/143 "
+                              "interrupted by SIGINT/SIGTERM")
+    q.add_argument("keyframes", nargs="+", help="keyframe mesh files, in time order")
+    q.add_argument("-o", "--out", required=True, help="output directory (created atomically)")
+    g = q.add_mutually_exclusive_group()
+    g.add_argument("--frames", help="keyframe frames, e.g. 0,10,20 (or a file of integers)")
+    q.add_argument("--K", "-K", type=int, dest="K", help="last frame index (K+1 frames)")
+    q.add_argument("--bc", default="natural", choices=["natural", "periodic", "hermite"],
+                   help="time boundary conditions (hermite: keyframes at frames 1 and K-1 fix "
+                        "the end velocities)")
+    q.add_argument("--method", default="lta", choices=["lta", "linear", "geodesic", "nonlinear"],
+                   help="lta: LΘA shell spline (default, fast); linear: per-vertex blending "
+                        "baseline; geodesic: piecewise discrete geodesics (paper §3); "
+                        "nonlinear: nonlinear shell spline (paper §5-6) started from lta, slow")
+    q.add_argument("--max-time", type=float, default=None,
+                   help="wall-clock limit in seconds of the nonlinear stage, its set-up and "
+                        "first evaluation included, or of the geodesic Newton iterations "
+                        "(default 600; the last accepted iterate is written, marked 'time "
+                        "limit reached', exit 1)")
+    q.add_argument("--ftol", type=float, default=None,
+                   help="nonlinear: also stop when the energy fell by at most FTOL (relative) "
+                        "over the last 3 iterations, e.g. 1e-6 (default: off, stop on the "
+                        "gradient only)")
+    q.add_argument("--eta", type=float, default=1e-3, help="bending weight η = thickness² "
+                                                           "(default 1e-3)")
+    q.add_argument("--mu", type=float, default=1.0, help="edge-length weight (default 1)")
+    q.add_argument("--lam", type=float, default=1.0, help="area weight (default 1)")
+    q.add_argument("--reference", default="constant",
+                   help="reference meshes for the weights: constant (first keyframe), "
+                        "keyframe (nearest keyframe per frame), geodesic (piecewise discrete "
+                        "geodesic between the keyframes at every frame, paper §9), or a "
+                        "keyframe index")
+    q.add_argument("--fixpoint", type=int, default=0, metavar="N",
+                   help="N fixpoint iterations (paper §9, Fig. 9): reference meshes <- "
+                        "current result, re-solve the LΘA spline and reconstruct; the change "
+                        "per iteration goes to report.json 'fixpoint' (default 0)")
+    q.add_argument("--rigid-track", choices=("fit", "spline", "linear"), default="fit",
+                   help="where in-betweens are placed rigidly: onto a per-vertex C² cubic "
+                        "through the keyframes (fit, default: closest to the truth on skinned "
+                        "walks), along a C² SE(3) spline through the keyframes' rigid poses "
+                        "(spline: exact for rigid turns, e.g. a circle), or onto the linear "
+                        "blend (linear)")
+    q.add_argument("--pinned", help="file of vertex indices held fixed (e.g. a base)")
+    q.add_argument("--fix-boundary", action="store_true",
+                   help="hold the mesh boundary vertices fixed")
+    q.add_argument("--coarse", default="auto",
+                   help="multiresolution: decimate all keyframes to N vertices (or a fraction "
+                        "0<γ<1), solve there and prolong by detail transfer; 'none' = full "
+                        "resolution; 'auto' (default) = 1000 vertices for meshes above 20k "
+                        "(above 2000 with --method nonlinear)")
+    q.add_argument("--fine", action="store_true",
+                   help="after --coarse, run the spline and Gauss–Newton at full resolution "
+                        "initialised from the prolonged result")
+    q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
+    q.add_argument("--max-iter", type=int, default=None, help="Gauss–Newton iteration limit")
+    q.add_argument("--format", default="obj", choices=["obj", "ply", "glb"],
+                   help="output: frame_*.obj (default, exact), frame_*.ply (binary, exact) or "
+                        "one animation.glb (float32 morph-target animation for Blender, "
+                        "three.js, game engines)")
+    q.add_argument("--fps", type=float, default=24.0,
+                   help="frames per second of the GLB animation (default 24)")
+    q.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    # Other subcommands live in their own modules; each registers parsers that set `func`.
+    from . import batch as _cli_batch
+    from . import path as _cli_path
+    from . import viz as _cli_viz
+
+    _cli_viz.add_parsers(sub)
+    _cli_batch.add_parsers(sub)
+    _cli_path.add_parsers(sub)
+    return p
+
+
+def _source_line(summary: dict) -> str:
+    """One line on what reading a real export changed (only the non-zero counts)."""
+    words = [("non_triangle_polygons", "polygons triangulated"),
+             ("welded_vertices", "seam vertices welded"),
+             ("reoriented_polygons", "faces reoriented"),
+             ("fin_polygons", "fin faces set aside"),
+             ("set_aside_vertices", "vertices set aside"),
+             ("texture_coordinates", "texture coordinates kept")]
+    parts = [f"{summary[k]} {w}" for k, w in words if summary.get(k)]
+    return (f"{summary['source_vertices']} vertices, {summary['polygons']} faces; "
+            + (", ".join(parts) or "unchanged") + "; written back as given")
+
+
+def _interpolate(args) -> int:
+    import numpy as np
+
+    from ..io import check_output_dir, read_frames, read_indices, read_keyframes, write_sequence
+    from ..pipeline import interpolate
+
+    bar = _Bar(quiet=args.quiet)
+    if args.max_iter is not None and args.max_iter < 1:
+        raise ShellsplineError(f"--max-iter must be >= 1, got {args.max_iter}")
+    if args.frames is not None and not args.frames.strip():
+        raise ShellsplineError("--frames is empty")
+    if not (args.fps > 0 and args.fps < float("inf")):
+        raise ShellsplineError(f"--fps must be a positive number, got {args.fps}")
+    t_read = time.perf_counter()
+    try:
+        frames = read_frames(args.frames) if args.frames else None
+    except OverflowError:
+        raise ShellsplineError(f"--frames {args.frames!r}: a frame number is too "
+                               "large") from None
+    kf = read_keyframes(args.keyframes, frames=frames)
+    t_read = time.perf_counter() - t_read
+    pinned = None
+    if args.pinned:
+        try:
+            pinned = read_indices(args.pinned)
+        except OverflowError:
+            raise ShellsplineError(f"--pinned {args.pinned}: a vertex index is too "
+                                   "large") from None
+        n_input = kf.n if kf.source is None else kf.source.n_source
+        bad = (pinned < 0) | (pinned >= n_input)
+        if bad.any():
+            raise ShellsplineError(f"--pinned {args.pinned}: vertex indices must lie in [0, "
+                                   f"{n_input}), got {int(pinned[bad][0])} ({int(bad.sum())} "
+                                   "out of range)")
+        if kf.source is not None:  # the file numbers the input's vertices
+            pinned = kf.source.solve_vertices(pinned, "--pinned")
+    if args.fix_boundary:
+        bv = kf.topology.boundary_vertices
+        if bv.size == 0:
+            raise ShellsplineError("--fix-boundary: the mesh has no boundary")
+        pinned = bv if pinned is None else np.union1d(pinned, bv)
+    from ..pipeline.interpolation import REFERENCES, canonical_frames
+
+    reference = args.reference
+    if str(reference).lstrip("-").isdigit():
+        reference = int(reference)
+    elif str(reference).strip().lower() not in REFERENCES:
+        raise ShellsplineError(f"--reference must be one of {', '.join(REFERENCES)} or a keyframe "
+                         f"index, got {reference!r}")
+    if args.fixpoint < 0:
+        raise ShellsplineError(f"--fixpoint must be >= 0, got {args.fixpoint}")
+    if args.fixpoint and args.method not in ("lta", "nonlinear"):
+        raise ShellsplineError("--fixpoint applies to --method lta (and nonlinear, whose start "
+                               "it is)")
+    gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
+    solver_options = {}
+    if args.max_time is not None and args.method not in ("nonlinear", "geodesic"):
+        raise ShellsplineError("--max-time applies to --method nonlinear and geodesic only")
+    if args.max_time is not None and not 0 < args.max_time < float("inf"):
+        raise ShellsplineError(f"--max-time must be a positive number of seconds, got "
+                               f"{args.max_time}")
+    if args.ftol is not None and args.method != "nonlinear":
+        raise ShellsplineError("--ftol applies to --method nonlinear only")
+    if args.ftol is not None and not 0 <= args.ftol < 1:
+        raise ShellsplineError(f"--ftol must be in [0, 1), got {args.ftol}")
+    if args.method in ("nonlinear", "geodesic"):
+        solver_options["max_time_s"] = 600.0 if args.max_time is None else args.max_time
+        if args.ftol is not None:
+            solver_options["ftol"] = args.ftol
+    # the output location is checked before any computing (writable, not over an input,
+    # room for the estimated output), so a bad -o costs no solve
+    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames)
+                                      if p and Path(p).is_file()]
+    _, K_out = canonical_frames(kf.J, kf.frames, args.K, args.bc)
+    check_output_dir(args.out, n_frames=K_out + 1, n_vertices=kf.n, n_faces=kf.m,
+                        fmt=args.format, overwrite=args.overwrite, protect=protect)
+    if not args.quiet:
+        print(f"shellspline {__version__}: {len(args.keyframes)} keyframes, "
+              f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)
+        if kf.source is not None:
+            print(f"  input: {_source_line(kf.source.summary())}", file=sys.stderr)
+    res = interpolate(kf, K=args.K, method=args.method, bc=args.bc, eta=args.eta, mu=args.mu,
+                         lam=args.lam, reference=reference, pinned=pinned,
+                         workers=args.workers, gn_options=gn_options,
+                         solver_options=solver_options, coarse=args.coarse, fine=args.fine,
+                         fixpoint=args.fixpoint, rigid_track=args.rigid_track,
+                         progress=bar)
+    res.report["timings"]["read"] = t_read
+    t0 = time.perf_counter()
+    if res.source is not None:  # the input's polygons and numbering, written back
+        res.report["source_mesh"] = res.source.summary()
+    V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K, args.bc)
+    out = write_sequence(args.out, V_out, res.F, res.report, overwrite=args.overwrite,
+                            protect=protect, fmt=args.format, fps=args.fps, source=res.source)
+    res.report["timings"]["write"] = time.perf_counter() - t0
+    # rewrite report with the write time (inside the now-complete output directory)
+    _rewrite_report(Path(out), res.report)
+    return _summary(res, Path(out), quiet=args.quiet, fmt=args.format)
+
+
+def _rewrite_report(out: Path, report: dict) -> None:
+    import os
+    import tempfile
+
+    def named(exc: OSError) -> OSError:  # the user's file, never the temporary one
+        what = exc.strerror or str(exc)
+        return OSError(exc.errno, f"{what[:1].lower()}{what[1:]} writing "
+                                  f"'{out / 'report.json'}'")
+
+    try:
+        fd, tmp = tempfile.mkstemp(dir=out, prefix=".report.", suffix=".json")
+    except OSError as exc:
+        raise named(exc) from None
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(report, fh, indent=2, default=_json_default, allow_nan=False)
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; the report is an ordinary output file
+        os.replace(tmp, out / "report.json")
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise named(exc) from None
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
+    rep = res.report
+    q = rep["quality"]
+    gn = rep.get("gauss_newton")
+    what = ("animation.glb (one morph target per frame)" if fmt == "glb"
+            else f"frame_0000.{fmt} …")
+    lines = [f"wrote {res.K + 1} frames to {out}/ as {what} and report.json"]
+    if "multires" in rep:
+        lines.append(f"multiresolution: solved on {rep['multires']['coarse_vertices']} coarse "
+                     f"vertices, prolonged to {res.V.shape[1]}"
+                     + (" and refined at full resolution" if rep["parameters"]["fine"] else ""))
+    t = rep["timings"]
+    lines.append("time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
+    if gn:
+        line = (f"Gauss–Newton: {gn['converged']}/{gn['frames']} frames converged, "
+                f"{gn['iterations_total']} iterations (median {gn.get('iterations_median', 0):g}"
+                f", max {gn['iterations_max']}), {gn['factorizations_total']} factorizations")
+        for key, what in (("stalled", "stalled"), ("iteration_limit", "at the iteration limit")):
+            if gn.get(key):
+                fr = gn[key]
+                line += f"; {what}: frames {fr[:8]}{' …' if len(fr) > 8 else ''}"
+        lines.append(line)
+    line = (f"quality: keyframes exact={q['keyframes_exact']}, new flipped faces "
+            f"{q['flipped_faces']}, collapsed {q.get('collapsed_faces', 0)}, folded edges "
+            f"{q.get('folded_edges', 0)}, degenerate {q['degenerate_faces']}, pop "
+            f"{q.get('pop', 0.0):.2f}")
+    if q.get("worst_frames"):
+        line += f"; worst frames {q['worst_frames']} (report.json quality.per_frame)"
+    lines.append(line)
+    for name in ("geodesic", "nonlinear"):
+        if name in rep:
+            r = rep[name]
+            line = (f"{name}: {'converged' if r['success'] else 'NOT converged'} after "
+                    f"{r['nit']} iterations ({r['message']})")
+            if name == "nonlinear" and r.get("grad_norm_initial"):
+                line += (f"; F {r['energy_initial']:.6g} -> {r['energy_final']:.6g}, |g|/|g0| "
+                         f"{r['grad_norm_final'] / r['grad_norm_initial']:.1e} in "
+                         f"{r['seconds']:.1f} s")
+            lines.append(line)
+    from ..pipeline.interpolation import quality_ok
+
+    ok = quality_ok(q) and (not gn or gn["converged"] == gn["frames"]) and \
+        all(rep[name]["success"] for name in ("geodesic", "nonlinear") if name in rep)
+    if not quiet:
+        print("\n".join(lines), file=sys.stderr)
+    return EXIT_OK if ok else EXIT_WARN
+
+
+def _value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Option strings of ``parser`` and its subcommands that take exactly one value."""
+    found = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _value_options(sub)
+        elif action.option_strings and action.nargs is None:
+            found.update(action.option_strings)
+    return found
+
+
+_NEGATIVE = re.compile(r"^-[0-9.]")
+
+
+def _protect_negative_values(argv, parser=None):
+    """Attach a negative-looking value to its option (``--frames -3,5`` → ``--frames=-3,5``).
+
+    argparse takes a token such as ``-3,5,10`` or ``-1e-3`` for an option and reports
+    "expected one argument"; attached, the value reaches the option's own check, whose
+    message says what is wrong with it.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    options = _value_options(parser or _build_parser())
+    out, i = [], 0
+    while i < len(argv):
+        tok = str(argv[i])
+        if tok == "--":
+            out.extend(argv[i:])
+            break
+        if tok in options and i + 1 < len(argv) and _NEGATIVE.match(str(argv[i + 1])):
+            glue = "=" if tok.startswith("--") else ""
+            out.append(f"{tok}{glue}{argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
+def _one_line_error(exc: BaseException) -> str:
+    """The message of an input or I/O error on one line (no ``[Errno N]`` prefix)."""
+    if isinstance(exc, OSError) and exc.strerror:
+        text = exc.strerror
+        if exc.filename is not None:
+            text += f": '{os.fsdecode(exc.filename)}'"
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())
+
+
+def _internal_error(exc: BaseException) -> int:
+    """Report an exception that is not an input error as a bug; return :data:`EXIT_INTERNAL`."""
+    import traceback
+
+    where = ""
+    tb = traceback.extract_tb(exc.__traceback__)
+    if tb:
+        where = f" at {Path(tb[-1].filename).name}:{tb[-1].lineno}"
+    debug = os.environ.get(DEBUG_ENV, "").strip() not in ("", "0")
+    if debug:
+        traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
+    msg = " ".join(str(exc).split())
+    if len(msg) > 200:
+        msg = msg[:197] + "..."
+    hint = "" if debug else f"; rerun with {DEBUG_ENV}=1 for the traceback"
+    print(f"shellspline: internal error (a bug in shellspline, not a problem with your input): "
+          f"{type(exc).__name__}: {msg}{where}{hint}", file=sys.stderr)
+    return EXIT_INTERNAL
+
+
+@contextmanager
+def _warnings_as_notes(stream=None):
+    """Python warnings become one-line ``note:`` lines on stderr (no source lines)."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        if "encountered in" in text:  # numpy floating-point warning: say where
+            text += f" (numerical warning at {Path(filename).name}:{lineno})"
+        _note(text, stream)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")  # repeats are dropped by _note, once per run
+        warnings.showwarning = show
+        yield
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``shellspline`` console script; returns the exit code."""
+    parser = _build_parser()
+    args = parser.parse_args(_protect_negative_values(argv, parser))
+    _notes_seen.clear()
+    if args.version:
+
+        print(__version__)
+        return EXIT_OK
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USAGE
+    from ..parallel import interrupt_exit_code, stop_signals_unwind
+
+    try:
+        # SIGTERM and SIGINT unwind like Ctrl-C (temp outputs removed, workers stopped) and
+        # exit with 128 + the signal (130 SIGINT, 143 SIGTERM)
+        with stop_signals_unwind(), _warnings_as_notes():
+            if args.command == "interpolate":
+                return _interpolate(args)
+            if hasattr(args, "func"):
+                return args.func(args)
+    except (ShellsplineError, OSError) as exc:
+        print(f"shellspline: error: {_one_line_error(exc)}", file=sys.stderr)
+        return EXIT_USAGE
+    except MemoryError:
+        print("shellspline: error: out of memory (fewer frames, --coarse, or more memory)",
+              file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt as exc:
+        print("shellspline: interrupted; no output was written", file=sys.stderr)
+        return interrupt_exit_code(exc)
+    except Exception as exc:  # not the input: a bug, never passed off as bad input
+        return _internal_error(exc)
+    return EXIT_USAGE
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,226 @@
+"""``shellspline path``: smooth camera / rigid-body paths through keyframe poses.
+
+Reads a pose file (TUM, KITTI, EuRoC, our CSV/JSON), keeps every N-th pose as a keyframe
+(first and last always), builds a curve of the chosen kind on SE(3) or SO(3) x R^3 through
+(or, for B-splines, controlled by) the keyframes, and writes poses at the input times (or at a
+rate, or at times from a file) in the input's format or another one; optionally a plot.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ShellsplineError
+
+EXIT_OK, EXIT_WARN = 0, 1
+
+_EPILOG = """examples:
+  shellspline path groundtruth.txt -o smooth.txt --keep-every 10
+  shellspline path poses.csv -o out.csv --rate 200 --group se3 --plot path.png
+  shellspline path kitti_00.txt -o resampled.txt --kind bspline --times times.txt
+
+kinds: interp  C2 cubic spline through the keyframes (--bc natural|clamped|periodic;
+               clamped = zero velocity at both ends, periodic needs first == last pose)
+       bezier  C1 piecewise-cubic Bezier through the keyframes, Catmull-Rom velocities (local)
+       bspline cubic geodesic B-spline with the keyframes as control points (smooths; passes
+               through the first and last keyframe only)
+groups: so3xr3 (default: rotation and position interpolated separately; on the TUM camera
+        ground truth its errors equal or beat scipy's, see benchmarks/README.md) or se3
+        (screw motions: the curve does not depend on where the body frame sits)"""
+
+
+def add_parsers(sub) -> None:
+    """Register ``shellspline path`` on the ``shellspline`` subparsers."""
+    p = sub.add_parser("path", help="smooth camera/rigid-body paths through keyframe poses",
+                       description="Interpolate or smooth a trajectory on SE(3) or SO(3)xR^3 "
+                                   "through keyframe poses and resample it.",
+                       epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("poses", metavar="POSES",
+                   help="pose file: TUM (t tx ty tz qx qy qz qw), KITTI (3x4 rows), EuRoC CSV, "
+                        "or ours (.csv with header t,tx,ty,tz,qx,qy,qz,qw / .json)")
+    p.add_argument("-o", "--out", required=True, metavar="OUT", help="pose file to write")
+    p.add_argument("--format", choices=["tum", "kitti", "euroc", "csv", "json"],
+                   help="format of OUT (default: the input's)")
+    p.add_argument("--keep-every", type=int, default=1, metavar="N",
+                   help="keyframes are every N-th input pose, first and last always (default 1)")
+    p.add_argument("--kind", choices=["interp", "bezier", "bspline"], default="interp",
+                   help="curve kind (default interp)")
+    p.add_argument("--group", choices=["se3", "so3xr3"], default="so3xr3",
+                   help="metric on poses: so3xr3 (default; rotation and position separately) or "
+                        "se3 (screw motions)")
+    p.add_argument("--bc", choices=["natural", "clamped", "periodic"], default="natural",
+                   help="end conditions of --kind interp (default natural)")
+    when = p.add_mutually_exclusive_group()
+    when.add_argument("--rate", type=float, metavar="HZ",
+                      help="output poses at this rate from the first to the last keyframe time "
+                           "(KITTI: poses per index step)")
+    when.add_argument("--times", metavar="FILE",
+                      help="output poses at these times, one per line ('#' comments), in the "
+                           "input's unit (seconds; EuRoC: nanoseconds; KITTI: pose index)")
+    p.add_argument("--plot", metavar="PNG",
+                   help="plot positions, rotation angles and angular rate (needs matplotlib: "
+                        "pip install 'shellspline[viz]')")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
+    p.set_defaults(func=_path)
+
+
+def keyframe_indices(n: int, every: int) -> np.ndarray:
+    """Every ``every``-th index of ``range(n)``, always with the first and the last."""
+    idx = np.arange(0, n, every)
+    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+
+
+def _read_times(path, nanoseconds=False):
+    """Times from a text file, one per line (``#`` comments); with ``nanoseconds`` integers
+    kept exact (EuRoC timestamps exceed float64's 16 digits)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such times file")
+    vals = []
+    for k, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        s = raw.strip()
+        if not s or s.startswith("#"):
+            continue
+        tok = s.split()[0].rstrip(",")
+        try:
+            v = int(tok) if nanoseconds else float(tok)
+        except ValueError:
+            what = "an integer nanosecond timestamp" if nanoseconds else "a time"
+            raise ShellsplineError(f"{path}:{k}: not {what}: {tok!r}") from None
+        if not np.isfinite(v):
+            raise ShellsplineError(f"{path}:{k}: non-finite time")
+        vals.append(v)
+    if not vals:
+        raise ShellsplineError(f"{path}: no times in the file")
+    t = np.array(vals, dtype=np.int64 if nanoseconds else np.float64)
+    if np.any(np.diff(t) < 0):
+        raise ShellsplineError(f"{path}: times must not decrease")
+    return t
+
+
+def build_curve(t, T, kind="interp", group="so3xr3", bc="natural"):
+    """The curve ``shellspline path`` uses through keyframe poses ``T (n, 4, 4)`` at times
+    ``t (n,)``; returns an object evaluated as ``curve(times) -> (m, 4, 4)`` with a ``solve``
+    record for ``interp``."""
+    from ..curves import BSpline, clamped_knots, cubic_spline, hermite_spline
+    from ..groups import group as _group
+
+    G = _group(group)
+    if kind != "interp" and bc != "natural":
+        raise ShellsplineError(f"--bc {bc} applies to --kind interp only")
+    if kind == "interp":
+        return cubic_spline(G, t, T, bc)
+    if kind == "bezier":
+        return hermite_spline(G, t, T)
+    if kind == "bspline":
+        m = min(3, t.size - 1)
+        return BSpline(G, T, clamped_knots(t, m), m)
+    raise ShellsplineError(f"kind must be interp, bezier or bspline, got {kind!r}")
+
+
+def _path(args) -> int:
+    from ..groups import so3
+    from ..io.posefiles import read_poses, write_poses
+
+    out = sys.stderr
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, file=out))
+    if args.keep_every < 1:
+        raise ShellsplineError(f"--keep-every must be >= 1, got {args.keep_every}")
+    if args.rate is not None and not args.rate > 0:
+        raise ShellsplineError(f"--rate must be > 0, got {args.rate}")
+    if args.plot:  # fail before any work when the picture cannot be drawn
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise ShellsplineError("--plot needs matplotlib: pip install 'shellspline[viz]'")
+    track = read_poses(args.poses)
+    n = track.t.size
+    if n < 2:
+        raise ShellsplineError(f"{args.poses}: a path needs at least 2 poses, got {n}")
+    keys = keyframe_indices(n, args.keep_every)
+    tk, Tk = track.t[keys], track.T[keys]
+    curve = build_curve(tk, Tk, args.kind, args.group, args.bc)
+    if args.rate is not None:
+        m = int(np.floor((tk[-1] - tk[0]) * args.rate + 1e-9)) + 1
+        tq = tk[0] + np.arange(m) / args.rate
+    elif args.times is not None:
+        if track.format == "euroc":  # the file's unit: integer nanoseconds
+            tq = (_read_times(args.times, nanoseconds=True) - track.origin_ns) * 1e-9
+        else:
+            tq = _read_times(args.times)
+        lo, hi = tk[0], tk[-1]
+        if tq[0] < lo - 1e-9 or tq[-1] > hi + 1e-9:
+            raise ShellsplineError(f"{args.times}: times must lie in [{lo:.9g}, {hi:.9g}] (the "
+                                   f"keyframes), got {tq[0]:.9g}..{tq[-1]:.9g}")
+    else:
+        tq = track.t
+    Tq = curve(tq)
+    fmt = args.format or track.format
+    write_poses(args.out, tq, Tq, fmt, origin_ns=track.origin_ns)
+    solve = getattr(curve, "solve", None)
+    say(f"  path        {n} poses, {keys.size} keyframes, {args.kind} on {args.group}"
+        + (f" ({args.bc})" if args.kind == "interp" else "")
+        + (f", {solve.message}" if solve is not None and solve.message else ""))
+    if tq is track.t and keys.size < n:
+        rest = np.setdiff1d(np.arange(n), keys)
+        dp = np.linalg.norm(Tq[rest, :3, 3] - track.T[rest, :3, 3], axis=1)
+        da = np.degrees(so3.angle(np.swapaxes(Tq[rest, :3, :3], -1, -2) @ track.T[rest, :3, :3]))
+        say(f"  in-between  {rest.size} poses: position rms {np.sqrt(np.mean(dp ** 2)):.3g} "
+            f"max {dp.max():.3g}; angle rms {np.sqrt(np.mean(da ** 2)):.3g} max "
+            f"{da.max():.3g} deg")
+    say(f"  wrote       {args.out} ({tq.size} poses, {fmt})")
+    if args.plot:
+        _plot(args.plot, curve, tq, Tq, tk, Tk, args.group)
+        say(f"  plot        {args.plot}")
+    if solve is not None and not solve.success:
+        say(f"  warning: {solve.message}")
+        return EXIT_WARN
+    return EXIT_OK
+
+
+def _plot(png, curve, tq, Tq, tk, Tk, group):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..groups import so3
+
+    R0t = Tq[0, :3, :3].T
+    rv = so3.log(R0t @ Tq[:, :3, :3])
+    rvk = so3.log(R0t @ Tk[:, :3, :3])
+    if hasattr(curve, "velocity"):
+        rate = np.linalg.norm(curve.velocity(tq)[:, :3], axis=1)
+    else:  # B-spline: central differences of the points
+        h = 1e-4 * (tq[-1] - tq[0])
+        tt = np.clip(tq, tq[0] + h, tq[-1] - h)
+        rate = np.linalg.norm(so3.log(np.swapaxes(curve(tt - h)[:, :3, :3], -1, -2)
+                                      @ curve(tt + h)[:, :3, :3]), axis=1) / (2 * h)
+    fig, ax = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    t0 = tq[0]
+    x, xk = tq - t0, tk - t0
+    ms = 4 if len(tk) <= 60 else 2
+    for i, c in enumerate("xyz"):
+        ax[0].plot(x, Tq[:, i, 3], label=c)
+        ax[0].plot(xk, Tk[:, i, 3], "k.", ms=ms)
+        ax[1].plot(x, np.degrees(rv[:, i]), label=c)
+        ax[1].plot(xk, np.degrees(rvk[:, i]), "k.", ms=ms)
+    ax[0].set_ylabel("position")
+    ax[1].set_ylabel("rotation from start (deg,\nrotation vector)")
+    ax[2].plot(x, np.degrees(rate))
+    ax[2].set_ylabel("angular rate (deg/s)")
+    ax[2].set_xlabel(f"t - {t0:.6g}")
+    ax[0].legend(loc="best", fontsize=8)
+    ax[0].set_title(f"{len(tk)} keyframes (dots), {group}")
+    fig.tight_layout()
+    tmp = Path(png).with_name(f".{Path(png).name}.tmp.png")
+    try:
+        fig.savefig(tmp, dpi=100)
+        tmp.replace(png)
+    finally:
+        plt.close(fig)
+        if tmp.exists():
+            tmp.unlink()

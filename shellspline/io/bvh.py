@@ -1,0 +1,511 @@
+"""Skeletal motion in BVH files: reading, writing and forward kinematics.
+
+A BVH file has a ``HIERARCHY`` section (joints with an ``OFFSET`` from their parent, a list
+of ``CHANNELS`` and optional ``End Site`` leaves) and a ``MOTION`` section (``Frames:``,
+``Frame Time:``, then one line of channel values per frame, in the order the channels are
+declared, joints in file order).
+
+Conventions (what real files from Blender, CMU, motion builders and game studios need):
+
+* **Rotation channels** are intrinsic Euler angles in degrees, composed in the order they
+  are written: ``Zrotation Xrotation Yrotation`` means ``R = Rz(z) @ Rx(x) @ Ry(y)``
+  applied to column vectors (scipy: ``Rotation.from_euler("ZXY", [z, x, y],
+  degrees=True)``). Any order, and any number of rotation channels (0 to 3), per joint.
+* **Position channels** may appear on any joint. When present, they *replace* the matching
+  component of the joint's ``OFFSET`` as its translation in the parent frame (the files of
+  the Bandai Namco set store every joint's bone vector there, equal to its offset, and
+  the root's absolute position); absent components keep the offset. The translation is
+  applied before the rotation, whatever the channel order.
+* A joint's world transform is ``p_j = p_parent + R_parent @ t_j``, ``R_j = R_parent @
+  R_local_j``; a root's parent is the world frame.
+* Lines may end in CRLF; tokens may be separated by tabs; keywords are case-insensitive.
+  Malformed input raises :class:`~shellspline.errors.ShellsplineError` with one line that
+  names the file and the line number.
+
+Writing uses ``repr`` of every float (the shortest string that parses back to the same
+double), so ``read_bvh(write_bvh(m))`` reproduces channel values, offsets and the frame time
+bit for bit.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ShellsplineError
+
+__all__ = ["Motion", "read_bvh", "write_bvh", "forward_kinematics", "euler_matrices",
+           "CHANNEL_NAMES"]
+
+CHANNEL_NAMES = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
+"""Channel names of the BVH format (canonical spelling; files may use any case)."""
+
+_CANONICAL = {c.lower(): c for c in CHANNEL_NAMES}
+
+
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """A skeleton and its channel values over time, as stored in a BVH file.
+
+    Attributes
+    ----------
+    names : tuple of str, length J
+        Joint names in file order (parents before children).
+    parents : (J,) int64 numpy array
+        Index of every joint's parent, ``-1`` for a root.
+    offsets : (J,3) float64 numpy array
+        ``OFFSET`` of every joint in its parent's frame.
+    channels : tuple of tuple of str, length J
+        Channel names of every joint, in file order (canonical spelling, e.g.
+        ``("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")``).
+    frame_time : float
+        Seconds per frame.
+    values : (T,C) float64 numpy array
+        Channel values of every frame, ``C = sum(len(c) for c in channels)`` columns in
+        file order; rotations in degrees.
+    end_sites : tuple of (int, (3,) float64 numpy array)
+        ``(parent joint, OFFSET)`` of every ``End Site``, in file order.
+    """
+
+    names: tuple
+    parents: np.ndarray
+    offsets: np.ndarray
+    channels: tuple
+    frame_time: float
+    values: np.ndarray
+    end_sites: tuple = ()
+
+    def __post_init__(self):
+        J = len(self.names)
+        parents = np.asarray(self.parents, dtype=np.int64).reshape(-1)
+        offsets = np.asarray(self.offsets, dtype=np.float64)
+        if parents.shape != (J,) or offsets.shape != (J, 3) or len(self.channels) != J:
+            raise ShellsplineError(
+                f"Motion: names, parents, offsets and channels must describe the same "
+                f"{J} joints, got parents {parents.shape}, offsets {offsets.shape}, "
+                f"{len(self.channels)} channel lists")
+        if np.any(parents >= np.arange(J)) or np.any(parents < -1):
+            raise ShellsplineError("Motion: every parent must come before its child (index "
+                                   f"-1 for a root), got parents {parents.tolist()}")
+        channels = tuple(tuple(_canonical_channel(c, "Motion") for c in cs)
+                         for cs in self.channels)
+        C = sum(len(c) for c in channels)
+        values = np.asarray(self.values, dtype=np.float64)
+        if values.ndim != 2 or values.shape[1] != C:
+            raise ShellsplineError(f"Motion: values must be a (frames, {C}) array, got shape "
+                                   f"{values.shape}")
+        if not (np.isfinite(self.frame_time) and self.frame_time > 0):
+            raise ShellsplineError(f"Motion: frame_time must be positive, got "
+                                   f"{self.frame_time!r}")
+        ends = tuple((int(p), np.asarray(o, dtype=np.float64).reshape(3))
+                     for p, o in self.end_sites)
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+        object.__setattr__(self, "parents", parents)
+        object.__setattr__(self, "offsets", offsets)
+        object.__setattr__(self, "channels", channels)
+        object.__setattr__(self, "frame_time", float(self.frame_time))
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "end_sites", ends)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames ``T``."""
+        return self.values.shape[0]
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints ``J`` (End Sites not counted)."""
+        return len(self.names)
+
+    @property
+    def fps(self) -> float:
+        """Frames per second, ``1 / frame_time``."""
+        return 1.0 / self.frame_time
+
+    def joint_index(self, name: str) -> int:
+        """Index of the joint called ``name`` (raises ``ShellsplineError`` if absent)."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ShellsplineError(f"Motion: no joint named {name!r} (joints: "
+                                   f"{', '.join(self.names)})") from None
+
+    def channel_columns(self, joint: int) -> np.ndarray:
+        """Columns of :attr:`values` that belong to ``joint``: (c,) int64."""
+        start = sum(len(c) for c in self.channels[:joint])
+        return np.arange(start, start + len(self.channels[joint]), dtype=np.int64)
+
+    def frames(self, start: int = 0, stop: int | None = None, step: int = 1) -> "Motion":
+        """The same skeleton with the frames ``values[start:stop:step]`` (frame time scaled
+        by ``step``)."""
+        return Motion(self.names, self.parents, self.offsets, self.channels,
+                      self.frame_time * step, self.values[start:stop:step], self.end_sites)
+
+    def local_transforms(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every joint's rotation and translation in its parent's frame, at every frame.
+
+        Returns
+        -------
+        R : (T,J,3,3) float64 numpy array
+            Local rotations (identity for joints without rotation channels).
+        t : (T,J,3) float64 numpy array
+            Local translations: the offset, with components given by position channels
+            replaced by their values.
+        """
+        T, J = self.n_frames, self.n_joints
+        R = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
+        t = np.broadcast_to(self.offsets, (T, J, 3)).copy()
+        col = 0
+        for j, chans in enumerate(self.channels):
+            rot_axes, rot_cols = [], []
+            for c in chans:
+                if c.endswith("position"):
+                    t[:, j, "XYZ".index(c[0])] = self.values[:, col]
+                else:
+                    rot_axes.append(c[0])
+                    rot_cols.append(col)
+                col += 1
+            if rot_axes:
+                R[:, j] = euler_matrices(self.values[:, rot_cols], "".join(rot_axes))
+        return R, t
+
+
+def euler_matrices(angles, axes: str) -> np.ndarray:
+    """Rotation matrices of intrinsic Euler angles in degrees.
+
+    Parameters
+    ----------
+    angles : (...,k) array_like
+        Angles in degrees, one per axis.
+    axes : str of length k (1 to 3)
+        Axes among ``"X", "Y", "Z"`` (case-insensitive), in composition order.
+
+    Returns
+    -------
+    (...,3,3) float64 numpy array
+        ``R = R_axes[0](angles[...,0]) @ R_axes[1](angles[...,1]) @ ...``, acting on column
+        vectors; equal to ``scipy.spatial.transform.Rotation.from_euler(axes.upper(),
+        angles, degrees=True).as_matrix()``.
+
+    Examples
+    --------
+    >>> R = euler_matrices([90.0, 0.0], "ZX")
+    >>> np.round(R @ [1.0, 0.0, 0.0], 12) + 0.0
+    array([0., 1., 0.])
+    """
+    a = np.radians(np.asarray(angles, dtype=np.float64))
+    axes = axes.upper()
+    if a.shape[-1:] != (len(axes),) or not axes or set(axes) - set("XYZ"):
+        raise ShellsplineError(f"euler_matrices: need one angle per axis among X, Y, Z, got "
+                               f"axes {axes!r} and angles of shape {a.shape}")
+    R = None
+    for i, ax in enumerate(axes):
+        c, s = np.cos(a[..., i]), np.sin(a[..., i])
+        E = np.zeros(a.shape[:-1] + (3, 3))
+        p, q = {"X": (1, 2), "Y": (2, 0), "Z": (0, 1)}[ax]
+        r = 3 - p - q
+        E[..., r, r] = 1.0
+        E[..., p, p] = c
+        E[..., q, q] = c
+        E[..., p, q] = -s
+        E[..., q, p] = s
+        R = E if R is None else R @ E
+    return R
+
+
+def forward_kinematics(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """World positions and rotations of every joint at every frame.
+
+    Parameters
+    ----------
+    motion : Motion
+
+    Returns
+    -------
+    positions : (T,J,3) float64 numpy array
+        Joint origins in world coordinates.
+    rotations : (T,J,3,3) float64 numpy array
+        Joint frames in world coordinates (``rotations[f, j] @ x`` maps a vector given in
+        joint ``j``'s frame to world coordinates).
+
+    Notes
+    -----
+    Vectorised over frames; one pass over the joints in file (topological) order:
+    ``p_j = p_parent + R_parent t_j``, ``R_j = R_parent R_local_j``.
+    """
+    R_loc, t_loc = motion.local_transforms()
+    P = np.empty_like(t_loc)  # every joint is written below, parents first
+    R = np.empty_like(R_loc)
+    for j, p in enumerate(motion.parents):
+        if p < 0:
+            P[:, j] = t_loc[:, j]
+            R[:, j] = R_loc[:, j]
+        else:
+            P[:, j] = P[:, p] + np.einsum("fab,fb->fa", R[:, p], t_loc[:, j])
+            R[:, j] = R[:, p] @ R_loc[:, j]
+    return P, R
+
+
+# ----------------------------------------------------------------------------------------
+# Reading
+# ----------------------------------------------------------------------------------------
+class _Tokens:
+    """Whitespace tokens of the HIERARCHY section with their line numbers."""
+
+    def __init__(self, lines: list[str], start: int, stop: int, name: str):
+        self.items = [(tok, i + 1) for i in range(start, stop) for tok in lines[i].split()]
+        self.pos = 0
+        self.name = name
+        self.last_line = stop
+
+    def error(self, msg: str, line: int | None = None) -> ShellsplineError:
+        line = self.last_line if line is None else line
+        return ShellsplineError(f"{self.name}:{line}: {msg}")
+
+    def next(self, what: str) -> tuple[str, int]:
+        if self.pos >= len(self.items):
+            raise self.error(f"unexpected end of HIERARCHY, expected {what}")
+        self.pos += 1
+        return self.items[self.pos - 1]
+
+    def peek(self) -> str | None:
+        return self.items[self.pos][0] if self.pos < len(self.items) else None
+
+    def expect(self, word: str) -> int:
+        tok, line = self.next(repr(word))
+        if tok.lower() != word.lower():
+            raise self.error(f"expected {word!r}, got {tok!r}", line)
+        return line
+
+    def floats(self, k: int, what: str) -> np.ndarray:
+        out = []
+        for _ in range(k):
+            tok, line = self.next(what)
+            try:
+                out.append(float(tok))
+            except ValueError:
+                raise self.error(f"{what}: expected a number, got {tok!r}", line) from None
+        return np.array(out)
+
+
+def _canonical_channel(c: str, where: str) -> str:
+    try:
+        return _CANONICAL[c.lower()]
+    except (KeyError, AttributeError):
+        raise ShellsplineError(f"{where}: unknown channel {c!r} (expected one of "
+                               f"{', '.join(CHANNEL_NAMES)})") from None
+
+
+def read_bvh(path) -> Motion:
+    """Read a BVH file.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    Motion
+
+    Raises
+    ------
+    ShellsplineError
+        One line naming the file and line: missing ``HIERARCHY``/``MOTION``, unbalanced
+        braces, unknown channels, a bad ``Frames:``/``Frame Time:`` header, a frame line
+        with the wrong number of values or a non-number, fewer or more frame lines than
+        declared. ``OSError`` if the file cannot be read.
+    """
+    p = Path(path)
+    name = str(p)
+    text = p.read_bytes().decode("utf-8", errors="replace")
+    lines = text.splitlines()
+    motion_at = next((i for i, s in enumerate(lines) if s.strip().upper() == "MOTION"), None)
+    first = next((i for i, s in enumerate(lines) if s.strip()), None)
+    if first is None or lines[first].strip().upper() != "HIERARCHY":
+        raise ShellsplineError(f"{name}:{(first or 0) + 1}: not a BVH file: expected "
+                               "'HIERARCHY' as the first line")
+    if motion_at is None:
+        raise ShellsplineError(f"{name}: no MOTION section (the file ends after "
+                               f"{len(lines)} lines of HIERARCHY)")
+    toks = _Tokens(lines, first + 1, motion_at, name)
+    names, parents, offsets, channels, ends = [], [], [], [], []
+    while toks.peek() is not None:
+        tok, line = toks.next("ROOT")
+        if tok.upper() != "ROOT":
+            raise toks.error(f"expected 'ROOT', got {tok!r}", line)
+        _read_joint(toks, -1, names, parents, offsets, channels, ends)
+    if not names:
+        raise ShellsplineError(f"{name}:{first + 1}: HIERARCHY declares no joint")
+    frame_time, values = _read_motion(lines, motion_at, sum(len(c) for c in channels), name)
+    return Motion(tuple(names), np.array(parents, dtype=np.int64), np.array(offsets),
+                  tuple(channels), frame_time, values, tuple(ends))
+
+
+def _read_joint(toks: _Tokens, parent, names, parents, offsets, channels, ends) -> None:
+    jname, line = toks.next("a joint name")
+    if jname == "{":
+        raise toks.error("joint without a name", line)
+    j = len(names)
+    names.append(jname)
+    parents.append(parent)
+    toks.expect("{")
+    toks.expect("OFFSET")
+    offsets.append(toks.floats(3, f"OFFSET of {jname}"))
+    chans = []
+    if (toks.peek() or "").upper() == "CHANNELS":
+        toks.next("CHANNELS")
+        tok, line = toks.next("the channel count")
+        if not tok.isdigit():
+            raise toks.error(f"CHANNELS of {jname}: expected a count, got {tok!r}", line)
+        for _ in range(int(tok)):
+            c, line = toks.next(f"channel names of {jname}")
+            if c.lower() not in _CANONICAL:
+                raise toks.error(f"CHANNELS of {jname}: unknown channel {c!r} (expected "
+                                 f"{tok} of {', '.join(CHANNEL_NAMES)})", line)
+            chans.append(_CANONICAL[c.lower()])
+    channels.append(tuple(chans))
+    while True:
+        tok, line = toks.next(f"'}}' closing {jname}")
+        key = tok.upper()
+        if key == "}":
+            return
+        if key == "JOINT":
+            _read_joint(toks, j, names, parents, offsets, channels, ends)
+        elif key == "END":
+            toks.expect("Site")
+            toks.expect("{")
+            toks.expect("OFFSET")
+            ends.append((j, toks.floats(3, f"End Site OFFSET of {jname}")))
+            toks.expect("}")
+        else:
+            raise toks.error(f"in joint {jname}: expected 'JOINT', 'End Site' or '}}', "
+                             f"got {tok!r}", line)
+
+
+_HEADER = re.compile(r"^\s*(frames|frame\s+time)\s*:\s*(\S+)\s*$", re.IGNORECASE)
+
+
+def _read_motion(lines: list[str], at: int, C: int, name: str) -> tuple[float, np.ndarray]:
+    header = {}
+    i = at + 1
+    for key in ("frames", "frame time"):
+        while i < len(lines) and not lines[i].strip():
+            i += 1
+        m = _HEADER.match(lines[i]) if i < len(lines) else None
+        if m is None or " ".join(m.group(1).lower().split()) != key:
+            got = repr(lines[i].strip()) if i < len(lines) else "the end of the file"
+            raise ShellsplineError(f"{name}:{i + 1}: expected '{key.title()}: <value>' after "
+                                   f"MOTION, got {got}")
+        try:
+            header[key] = int(m.group(2)) if key == "frames" else float(m.group(2))
+        except ValueError:
+            raise ShellsplineError(f"{name}:{i + 1}: {key.title()}: expected "
+                                   f"{'an integer' if key == 'frames' else 'a number'}, got "
+                                   f"{m.group(2)!r}") from None
+        i += 1
+    n, ft = header["frames"], header["frame time"]
+    if n < 0:
+        raise ShellsplineError(f"{name}:{i - 1}: Frames: must be non-negative, got {n}")
+    if not (np.isfinite(ft) and ft > 0):
+        raise ShellsplineError(f"{name}:{i}: Frame Time: must be positive, got {ft!r}")
+    rows = [(k + 1, s) for k, s in enumerate(lines[i:], start=i) if s.strip()]
+    if len(rows) != n:
+        where = rows[n][0] if len(rows) > n else len(lines)
+        raise ShellsplineError(f"{name}:{where}: Frames: declares {n} frames, the file has "
+                               f"{len(rows)} frame lines")
+    values = np.zeros((n, C))
+    for f, (line, s) in enumerate(rows):
+        tok = s.split()
+        if len(tok) != C:
+            raise ShellsplineError(f"{name}:{line}: frame {f} has {len(tok)} values, the "
+                                   f"HIERARCHY declares {C} channels")
+        try:
+            values[f] = [float(x) for x in tok]
+        except ValueError:
+            bad = next(x for x in tok if not _is_float(x))
+            raise ShellsplineError(f"{name}:{line}: frame {f}: expected numbers, got "
+                                   f"{bad!r}") from None
+    if not np.all(np.isfinite(values)):
+        f = int(np.argwhere(~np.isfinite(values))[0, 0])
+        raise ShellsplineError(f"{name}:{rows[f][0]}: frame {f} has a non-finite value")
+    return ft, values
+
+
+def _is_float(x: str) -> bool:
+    try:
+        float(x)
+    except ValueError:
+        return False
+    return True
+
+
+# ----------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------
+def write_bvh(motion: Motion, path) -> Path:
+    """Write a BVH file (LF line endings, tab indentation, ``repr`` of every float).
+
+    Parameters
+    ----------
+    motion : Motion
+    path : str or path-like
+        Destination; written atomically (a temporary sibling renamed into place).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Notes
+    -----
+    ``repr`` gives the shortest decimal string that parses back to the same double, so
+    reading the file back reproduces ``values``, ``offsets`` and ``frame_time`` exactly.
+    """
+    out = ["HIERARCHY"]
+    children = [[] for _ in motion.names]
+    for j, p in enumerate(motion.parents):
+        if p >= 0:
+            children[p].append(j)
+    ends = [[] for _ in motion.names]
+    for p, o in motion.end_sites:
+        ends[p].append(o)
+
+    def fmt(xs):
+        return " ".join(repr(float(x)) for x in xs)
+
+    def joint(j, depth):
+        ind = "\t" * depth
+        out.append(f"{ind}{'ROOT' if motion.parents[j] < 0 else 'JOINT'} {motion.names[j]}")
+        out.append(ind + "{")
+        out.append(f"{ind}\tOFFSET {fmt(motion.offsets[j])}")
+        if motion.channels[j]:
+            out.append(f"{ind}\tCHANNELS {len(motion.channels[j])} "
+                       + " ".join(motion.channels[j]))
+        for c in children[j]:
+            joint(c, depth + 1)
+        for o in ends[j]:
+            out.extend([f"{ind}\tEnd Site", ind + "\t{", f"{ind}\t\tOFFSET {fmt(o)}",
+                        ind + "\t}"])
+        out.append(ind + "}")
+
+    order = []
+    stack = [int(j) for j in np.flatnonzero(motion.parents < 0)][::-1]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack += children[j][::-1]
+    if order != list(range(motion.n_joints)):
+        raise ShellsplineError(f"write_bvh: {path}: joints must be in depth-first order (every "
+                               f"joint's subtree right after it), got order {order}")
+    for j in np.flatnonzero(motion.parents < 0):
+        joint(int(j), 0)
+    out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {motion.frame_time!r}"]
+    out += [" ".join(map(repr, row)) for row in motion.values.tolist()]
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,502 @@
+"""Reading one mesh file: OBJ (own vectorised reader), PLY and OFF (trimesh).
+
+-------
+* **OBJ** is parsed by a small vectorised reader of our own: ``v`` and ``f`` lines only,
+  polygons of any size, ``f a/b/c`` and negative (relative) indices understood, a UTF-8
+  byte-order mark skipped, texture coordinates, normals, ``o/g/s/usemtl/mtllib/l/vp`` lines
+  ignored. trimesh's OBJ loader is not used because, even with ``process=False``, it drops
+  vertices no face uses (unless ``maintain_order=True``), splits vertices at texture/normal
+  seams, needs Pillow for any file with ``vt`` lines, and triangulates polygons per file.
+* **PLY** (ASCII and binary) and **OFF** are read with
+  ``trimesh.load(path, process=False)``, which keeps the vertex order and merges nothing.
+  trimesh triangulates polygons per file (and reorders the faces of files that mix triangles
+  and polygons), so when the face count declared in the header differs from the number of
+  triangles loaded the polygons are taken from the file itself (PLY: trimesh's raw element
+  data; OFF: the face lines).
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MeshError, one_line
+from ..mesh.source_mesh import triangulate_polygons
+
+__all__ = ["read_mesh", "MESH_EXTENSIONS"]
+
+MESH_EXTENSIONS = (".obj", ".off", ".ply")
+"""File extensions :func:`read_mesh` understands (case-insensitive)."""
+
+# ----------------------------------------------------------------------------------------
+# Reading single meshes
+# ----------------------------------------------------------------------------------------
+class _Unreadable(Exception):
+    """Internal: a file cannot be parsed; the message is the reason."""
+
+
+def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a mesh from an OBJ, PLY or OFF file as triangles, keeping the vertex order.
+
+    Nothing is merged, reordered or dropped (vertices no face uses are kept). Coordinates
+    are returned as float64 (float32 PLY data is converted exactly). Polygons are
+    triangulated by :func:`shellspline.mesh.source_mesh.triangulate_polygons` on this one pose
+    (:func:`read_keyframes` triangulates once for all keyframes instead). Only parsing
+    problems are checked here; see :func:`read_keyframes` for the geometric checks.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``.obj``, ``.ply`` (ASCII or binary) or ``.off`` file.
+
+    Returns
+    -------
+    V : (n,3) float64 numpy array
+        Vertex positions.
+    F : (m,3) int64 numpy array
+        Triangles, zero-based vertex indices.
+
+    Raises
+    ------
+    MeshError
+        "cannot read '<path>': <reason>" if the file is missing, unreadable, malformed or
+        has an unknown extension; "<path>: ... separate objects" for a multi-object scene;
+        "<path>: ... face indices must lie in [0, n)" for an index out of range.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> p = os.path.join(d, "tri.obj")
+    >>> _ = open(p, "w").write("v 0 0 0\\nv 1 0 0\\nv 0 1 0\\nf 1 2 3\\n")
+    >>> V, F = read_mesh(p)
+    >>> V.shape, F.tolist()
+    ((3, 3), [[0, 1, 2]])
+    """
+    V, offsets, indices, _ = read_polygons(path)
+    name = str(path)
+    check_indices(offsets, indices, V.shape[0], name)
+    F, _ = triangulate_polygons(V[None], offsets, indices, name)
+    return V, F
+
+
+def read_polygons(path):
+    """``V (n,3)``, polygon ``offsets (P+1,)``, corner ``indices (N,)`` of a mesh file and its
+    texture coordinates ``(uv (t,2), corner_uv (N,))`` or ``None`` (OBJ ``f v/vt`` only)."""
+    name = str(path)
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in MESH_EXTENSIONS:
+        raise MeshError(f"cannot read '{name}': unknown extension '{p.suffix}' "
+                        f"(supported: {', '.join(MESH_EXTENSIONS)})")
+    try:
+        if not p.exists():
+            raise _Unreadable("no such file")
+        if p.is_dir():
+            raise _Unreadable("is a directory")
+        if ext == ".obj":
+            V, offsets, indices, uv = _parse_obj(p.read_bytes(), name)
+        else:
+            (V, offsets, indices), uv = _read_with_trimesh(p, ext, name), None
+    except MeshError:
+        raise
+    except _Unreadable as exc:
+        raise MeshError(f"cannot read '{name}': {exc}") from None
+    except OSError as exc:
+        raise MeshError(f"cannot read '{name}': {exc.strerror or exc}") from None
+    except Exception as exc:  # trimesh raises many kinds; report one line, no traceback
+        raise MeshError(f"cannot read '{name}': {one_line(exc)}") from None
+    return V, offsets, indices, uv
+
+
+def check_indices(offsets: np.ndarray, indices: np.ndarray, n: int, name: str) -> None:
+    """Polygon corners must be vertices; a polygon must not repeat a vertex."""
+    if indices.size and (indices.min() < 0 or indices.max() >= n):
+        raise MeshError(f"{name}: face indices must lie in [0, {n}), got range "
+                        f"[{indices.min()}, {indices.max()}]")
+    sizes = np.diff(offsets)
+    if sizes.size and (sizes == 3).all():
+        F = indices.reshape(-1, 3)
+        bad = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
+    else:
+        key = np.sort(np.repeat(np.arange(sizes.size), sizes) * np.int64(max(n, 1)) + indices)
+        bad = np.zeros(sizes.size, dtype=bool)
+        bad[key[1:][key[1:] == key[:-1]] // max(n, 1)] = True
+    if bad.any():
+        t = int(np.flatnonzero(bad)[0])
+        raise MeshError(f"{name}: face {t} {indices[offsets[t]:offsets[t + 1]].tolist()} "
+                        f"repeats a vertex ({int(bad.sum())} such faces)")
+
+
+
+
+def _parse_obj(data: bytes, name: str):
+    """Vectorised OBJ reader: ``v``, ``vt`` and ``f`` lines, global numbering; returns ``V``,
+    polygon offsets, corner indices and the texture coordinates (see :func:`_obj_texture`)."""
+    if data[:3] == b"\xef\xbb\xbf":  # UTF-8 byte-order mark (Windows editors, exporters)
+        data = data[3:]
+    if b"\0" in data:
+        raise _Unreadable("binary data in a text OBJ file")
+    if b"\\\n" in data or b"\\\r\n" in data:  # line continuations
+        data = re.sub(rb"\\\r?\n", b" ", data)
+    lines = data.splitlines()
+    if b"#" in data:
+        lines = [ln[:ln.find(b"#")] if b"#" in ln else ln for ln in lines]
+    if b"\t" in data or b"\n " in data or b"\r " in data or data[:1] == b" ":
+        lines = [ln.strip().replace(b"\t", b" ") for ln in lines]
+    vlines = [ln for ln in lines if ln[:2] == b"v "]
+    flines = [ln for ln in lines if ln[:2] == b"f "]
+    vtlines = [ln for ln in lines if ln[:3] == b"vt "] if b"vt " in data else []
+    V = _obj_vertices(vlines)
+    offsets, indices, ttok = _obj_faces(flines, lines, name, slashes=b"/" in data,
+                                        texture=bool(vtlines))
+    uv = None if ttok is None else _obj_texture(vtlines, ttok, offsets, lines)
+    return V, offsets, indices, uv
+
+
+def _obj_texture(vtlines: list[bytes], ttok: list[bytes], offsets: np.ndarray,
+                 lines: list[bytes]):
+    """``(uv (t,2), corner_uv (N,))`` when every face corner names a valid texture
+    coordinate (``f v/vt ...``), else ``None`` (texture coordinates are then not carried)."""
+    if not all(ttok):
+        return None
+    try:
+        ti = np.array(list(map(int, ttok)), dtype=np.int64)
+        tokens = _regular_tokens(vtlines, 3)  # "vt u v" everywhere: the fast path
+        if tokens is not None:
+            del tokens[::3]
+            uv = np.array(list(map(float, tokens)), dtype=np.float64).reshape(-1, 2)
+        else:
+            uv = np.array([[float(x) for x in (ln.split()[1:3] + [b"0"])[:2]]
+                           for ln in vtlines], dtype=np.float64).reshape(-1, 2)
+    except ValueError:
+        return None
+    if (ti < 0).any():  # relative: counted back from the last vt line before the face line
+        kinds = [ln[:3] for ln in lines if ln[:3] == b"vt " or ln[:2] == b"f "]
+        is_t = np.array([k == b"vt " for k in kinds])
+        before = np.repeat(np.cumsum(is_t)[~is_t], np.diff(offsets))
+        ti = np.where(ti < 0, ti + before, ti - 1)
+    else:
+        ti -= 1
+    if ti.size and (ti.min() < 0 or ti.max() >= uv.shape[0]):
+        return None
+    return uv, ti
+
+
+def _regular_tokens(rows: list[bytes], width: int) -> list[bytes] | None:
+    """Tokens of ``rows`` if every row has exactly ``width`` tokens, else ``None``."""
+    tokens = b" ".join(rows).split()
+    if len(tokens) != width * len(rows):
+        return None
+    key = rows[0].split(None, 1)[0] if rows else b""
+    # a row with a wrong token count shifts the keyword out of every later slot
+    if tokens[::width].count(key) != len(rows):
+        return None
+    return tokens
+
+
+def _obj_vertices(vlines: list[bytes]) -> np.ndarray:
+    if not vlines:
+        return np.zeros((0, 3))
+    tokens = _regular_tokens(vlines, 4)
+    if tokens is not None:
+        del tokens[::4]
+    else:
+        tokens = []
+        for i, ln in enumerate(vlines):
+            t = ln.split()
+            if len(t) < 4:
+                raise _Unreadable(f"vertex {i + 1} has {len(t) - 1} coordinates, expected 3")
+            tokens.extend(t[1:4])  # extra values (w, colours) are ignored
+    try:
+        return np.array(list(map(float, tokens)), dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        for i in range(0, len(tokens), 3):
+            try:
+                list(map(float, tokens[i:i + 3]))
+            except ValueError:
+                bad = b" ".join(tokens[i:i + 3]).decode("ascii", "replace")
+                raise _Unreadable(f"vertex {i // 3 + 1} has non-numeric coordinates "
+                                  f"'{bad}'") from None
+        raise  # pragma: no cover
+
+
+def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *, slashes: bool,
+               texture: bool = False):
+    """Polygon offsets and vertex indices of the ``f`` lines, and (with ``texture``) every
+    corner's texture-index token (``b""`` where a corner has none) or ``None``."""
+    if not flines:
+        return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), None
+    tokens = _regular_tokens(flines, 4)
+    if tokens is not None:  # triangles only: the fast path
+        del tokens[::4]
+        sizes = None
+    else:  # polygons: every face line starts with the token b"f", no index token is b"f"
+        tokens = b" ".join(flines).split()
+        starts = [i for i, t in enumerate(tokens) if t == b"f"]
+        sizes = np.diff(np.array(starts + [len(tokens)], dtype=np.int64)) - 1
+        if (sizes < 3).any():
+            t = int(np.flatnonzero(sizes < 3)[0])
+            raise _Unreadable(f"face {t} on line {_line_number(lines, t)} has {sizes[t]} "
+                              "vertices (a face needs at least 3)")
+        tokens = [t for t in tokens if t != b"f"]
+    ttok = None
+    if slashes and texture:
+        parts = [t.split(b"/", 2) for t in tokens]
+        tokens = [q[0] for q in parts]
+        ttok = [q[1] if len(q) > 1 else b"" for q in parts]
+    elif slashes:
+        tokens = [t.split(b"/", 1)[0] for t in tokens]
+    try:
+        idx = np.array(list(map(int, tokens)), dtype=np.int64)
+    except ValueError:
+        bad = next(t for t in tokens if not re.fullmatch(rb"[+-]?\d+", t))
+        raise _Unreadable(f"face index '{bad.decode('ascii', 'replace')}' is not an "
+                          "integer") from None
+    if sizes is None:
+        sizes = np.full(len(flines), 3, dtype=np.int64)
+    offsets = np.zeros(sizes.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    if (idx == 0).any():
+        t = int(np.searchsorted(offsets, np.flatnonzero(idx == 0)[0], side="right") - 1)
+        raise _Unreadable(f"face {t} uses vertex index 0 (OBJ indices start at 1)")
+    neg = idx < 0
+    if neg.any():
+        # relative indices count back from the last vertex defined before the face line
+        kinds = [ln[:2] for ln in lines if ln[:2] in (b"v ", b"f ")]
+        is_v = np.array([k == b"v " for k in kinds])
+        v_before = np.repeat(np.cumsum(is_v)[~is_v], sizes)
+        idx = np.where(neg, idx + v_before, idx - 1)
+    else:
+        idx -= 1
+    return offsets, idx, ttok
+
+
+def _line_number(lines: list[bytes], occurrence: int) -> int:
+    """1-based number of the ``occurrence``-th face line (best effort, error path only)."""
+    seen = 0
+    for i, ln in enumerate(lines):
+        if ln[:2] == b"f ":
+            if seen == occurrence:
+                return i + 1
+            seen += 1
+    return -1  # pragma: no cover
+
+
+def _read_with_trimesh(p: Path, ext: str, name: str):
+    import trimesh
+
+    declared = _ply_header_counts(p) if ext == ".ply" else _off_header_counts(p)
+    own = _read_ply if ext == ".ply" else _read_off
+    try:
+        loaded = trimesh.load(str(p), file_type=ext[1:], process=False)
+    except Exception as exc:
+        if declared is None or not isinstance(exc, (ValueError, IndexError, TypeError)):
+            raise
+        # trimesh reads neither binary PLY nor OFF files that mix polygon sizes
+        try:
+            return own(p)
+        except (_Unreadable, ValueError, IndexError):
+            nv, nf = declared
+            raise _Unreadable(f"the data does not match the header, which declares {nv} "
+                              f"vertices and {nf} faces (truncated file or wrong counts; "
+                              f"{one_line(exc)})") from None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = list(loaded.geometry.values())
+        if len(geoms) > 1:
+            raise MeshError(f"{name}: the file holds {len(geoms)} separate objects; expected "
+                            "a single mesh")
+        loaded = geoms[0] if geoms else None
+    if loaded is None:
+        V, F = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    else:
+        V = np.array(loaded.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = getattr(loaded, "faces", None)  # a PointCloud has none
+        F = (np.zeros((0, 3), dtype=np.int64) if faces is None or len(faces) == 0
+             else np.array(faces, dtype=np.int64).reshape(-1, 3))
+    if declared is not None:
+        nv, nf = declared
+        if nf is not None and F.shape[0] != nf:
+            if F.shape[0] < nf:
+                raise _Unreadable(f"the file declares {nf} faces but {F.shape[0]} were found "
+                                  "(truncated?)")
+            # polygons, which trimesh triangulated (and may have reordered): read as written
+            return own(p)
+        if nv is not None and V.shape[0] != nv:
+            raise _Unreadable(f"the file declares {nv} vertices but {V.shape[0]} were found "
+                              "(truncated?)")
+    return V, polygon_offsets(np.full(F.shape[0], 3)), F.ravel()
+
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
+              "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
+              "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
+              "float64": "f8"}
+
+
+def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A PLY reader for polygon faces of mixed sizes (ASCII or binary, any element layout;
+    list properties are read record by record)."""
+    data = p.read_bytes()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise _Unreadable("not a PLY file (no 'ply' magic or no end_header)")
+    body = data[data.index(b"\n", end) + 1:]
+    fmt, elements = None, []
+    for ln in data[:end].decode("ascii", "replace").splitlines()[1:]:
+        t = ln.split()
+        if not t or t[0] in ("comment", "obj_info"):
+            continue
+        if t[0] == "format":
+            fmt = t[1]
+        elif t[0] == "element":
+            elements.append((t[1], int(t[2]), []))
+        elif t[0] == "property" and elements:
+            kind = ("list", _PLY_TYPES[t[2]], _PLY_TYPES[t[3]]) if t[1] == "list" \
+                else _PLY_TYPES[t[1]]
+            elements[-1][2].append((t[-1], kind))
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise _Unreadable(f"unknown PLY format {fmt!r}")
+    order = "<" if fmt == "binary_little_endian" else ">"
+    tokens = body.split() if fmt == "ascii" else None
+    pos = 0
+    V = faces = None
+    for ename, count, props in elements:
+        if all(not isinstance(k, tuple) for _, k in props):   # fixed-size records
+            if tokens is not None:
+                width = len(props)
+                rec = np.array(tokens[pos:pos + count * width], dtype=np.float64)
+                if rec.size != count * width:
+                    raise _Unreadable(f"element '{ename}' is truncated")
+                rec = rec.reshape(count, width)
+                cols = {n: rec[:, i] for i, (n, _) in enumerate(props)}
+                pos += count * width
+            else:
+                dt = np.dtype([(n, order + k) for n, k in props])
+                if pos + count * dt.itemsize > len(body):
+                    raise _Unreadable(f"element '{ename}' is truncated")
+                rec = np.frombuffer(body, dtype=dt, count=count, offset=pos)
+                cols = {n: rec[n] for n, _ in props}
+                pos += count * dt.itemsize
+            if ename == "vertex":
+                V = np.stack([cols[c].astype(np.float64) for c in "xyz"], axis=1)
+            continue
+        if tokens is None and ename == "face" and len(props) == 1 and \
+                np.dtype(props[0][1][1]).itemsize == 1:
+            faces, pos = _ply_binary_lists(body, pos, count, np.dtype(order + props[0][1][2]))
+            continue
+        lists = []
+        for _ in range(count):                                    # record by record
+            for pname, kind in props:
+                if isinstance(kind, tuple):
+                    if tokens is not None:
+                        k = int(tokens[pos])
+                        vals = [int(x) for x in tokens[pos + 1:pos + 1 + k]]
+                        pos += 1 + k
+                    else:
+                        cdt, idt = np.dtype(order + kind[1]), np.dtype(order + kind[2])
+                        k = int(np.frombuffer(body, cdt, 1, pos)[0])
+                        vals = np.frombuffer(body, idt, k, pos + cdt.itemsize)
+                        pos += cdt.itemsize + k * idt.itemsize
+                    if len(vals) != k:
+                        raise _Unreadable(f"element '{ename}' is truncated")
+                    if pname in ("vertex_indices", "vertex_index"):
+                        lists.append(vals)
+                else:
+                    pos += 1 if tokens is not None else np.dtype(kind).itemsize
+        if ename == "face":
+            faces = (np.array([len(f) for f in lists], dtype=np.int64),
+                     np.concatenate([np.asarray(f, dtype=np.int64) for f in lists])
+                     if lists else np.zeros(0, dtype=np.int64))
+    if tokens is None and pos != len(body) or tokens is not None and pos != len(tokens):
+        raise _Unreadable("the data does not match the header")
+    if V is None:
+        V = np.zeros((0, 3))
+    sizes, indices = faces if faces is not None else (np.zeros(0, np.int64),
+                                                      np.zeros(0, np.int64))
+    return V, polygon_offsets(sizes), indices
+
+
+def _ply_binary_lists(body: bytes, pos: int, count: int, idt: np.dtype):
+    """Sizes and items of ``count`` binary list records ``uchar k, k x idt`` from ``pos``;
+    returns ``((sizes, indices), end)``: one pass over the counts, one gather of the items."""
+    isz = idt.itemsize
+    sizes = np.zeros(count, dtype=np.int64)
+    p = pos
+    for r in range(count):
+        if p >= len(body):
+            raise _Unreadable("element 'face' is truncated")
+        k = body[p]
+        sizes[r] = k
+        p += 1 + k * isz
+    if p > len(body):
+        raise _Unreadable("element 'face' is truncated")
+    starts = pos + np.concatenate([[0], np.cumsum(1 + sizes * isz)[:-1]]) + 1
+    first = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    corner = np.arange(int(sizes.sum()))
+    item = np.repeat(starts, sizes) + isz * (corner - np.repeat(first, sizes))
+    raw = np.frombuffer(body, dtype=np.uint8)
+    indices = raw[item[:, None] + np.arange(isz)].copy().view(idt).ravel().astype(np.int64)
+    return (sizes, indices), p
+
+
+def _read_off(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An OFF reader for polygon faces ``k i1 .. ik [colour]`` of mixed sizes."""
+    rows = [ln.split("#", 1)[0].split()
+            for ln in p.read_text(encoding="ascii", errors="replace").splitlines()]
+    rows = [r for r in rows if r]
+    if not rows or not rows[0][0].upper().endswith("OFF"):
+        raise _Unreadable("not an OFF file")
+    head = rows[0][1:] if len(rows[0]) > 1 else rows[1]
+    start = 1 if len(rows[0]) > 1 else 2
+    nv, nf = int(head[0]), int(head[1])
+    vrows, frows = rows[start:start + nv], rows[start + nv:start + nv + nf]
+    if len(vrows) != nv or len(frows) != nf:
+        raise _Unreadable(f"the file declares {nv} vertices and {nf} faces but is shorter")
+    V = np.array([r[:3] for r in vrows], dtype=np.float64).reshape(-1, 3)
+    sizes = np.array([int(r[0]) for r in frows], dtype=np.int64)
+    if any(len(r) <= k for r, k in zip(frows, sizes)):
+        raise _Unreadable("a face line is shorter than its vertex count")
+    indices = np.array([int(i) for r, k in zip(frows, sizes) for i in r[1:k + 1]],
+                       dtype=np.int64)
+    return V, polygon_offsets(sizes), indices
+
+
+def polygon_offsets(sizes: np.ndarray) -> np.ndarray:
+    offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    return offsets
+
+
+def _ply_header_counts(p: Path) -> tuple[int | None, int | None] | None:
+    """Vertex and face counts declared in a PLY header (``None`` if not parseable)."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return None  # let trimesh report the problem
+    counts: dict[str, int] = {}
+    for ln in head[:end].decode("ascii", "replace").splitlines():
+        parts = ln.split()
+        if len(parts) == 3 and parts[0] == "element" and parts[2].isdigit():
+            counts[parts[1]] = int(parts[2])
+    return counts.get("vertex"), counts.get("face")
+
+
+def _off_header_counts(p: Path) -> tuple[int | None, int | None] | None:
+    """Vertex and face counts on the header line(s) of an OFF file."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16).decode("ascii", "replace")
+    tokens: list[str] = []
+    for ln in head.splitlines():
+        tokens.extend(ln.split("#", 1)[0].split())
+        if len(tokens) >= 4:
+            break
+    if not tokens or not tokens[0].upper().endswith("OFF") or len(tokens) < 3:
+        return None
+    if not (tokens[1].isdigit() and tokens[2].isdigit()):
+        return None
+    return int(tokens[1]), int(tokens[2])
+
+

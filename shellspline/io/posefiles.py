@@ -1,0 +1,327 @@
+"""Pose files: camera and rigid-body trajectories in the formats users bring.
+
+=========  =====================================================================================
+format     content
+=========  =====================================================================================
+``tum``    ``timestamp tx ty tz qx qy qz qw`` per line (seconds; quaternion scalar last), ``#``
+           comments (TUM RGB-D benchmark)
+``kitti``  12 numbers per line: the 3x4 matrix ``[R | t]`` row by row; no times (the pose
+           index is the time)
+``euroc``  CSV ``#timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z[, more columns]``
+           (nanoseconds; quaternion scalar first; extra columns are ignored)
+``csv``    ours: header ``t,tx,ty,tz,qx,qy,qz,qw`` (seconds; quaternion scalar last)
+``json``   ours: ``{"format": "shellspline-poses", "version": 1, "t": [...], "position":
+           [[x, y, z], ...], "quaternion_xyzw": [[x, y, z, w], ...]}``
+=========  =====================================================================================
+
+Poses are ``(n, 4, 4)`` rigid motions body -> world. Reading validates once (finite numbers,
+unit quaternions within 1e-3 — then normalised —, rotation blocks within 1e-3 of orthonormal —
+then projected —, strictly increasing times) and raises a one-line
+:class:`~shellspline.errors.ShellsplineError` naming the file and line. Writing is atomic
+(a temporary file in the target folder, then a rename) and makes quaternion signs continuous.
+Layer rule: numpy, :mod:`shellspline.groups` and :mod:`shellspline.errors` only.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ShellsplineError
+from ..groups import se3, so3
+
+__all__ = ["PoseTrack", "FORMATS", "detect_format", "read_poses", "write_poses",
+           "write_text_atomic"]
+
+FORMATS = ("tum", "kitti", "euroc", "csv", "json")
+_EUROC_HEADER = ("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],"
+                 "q_RS_y [],q_RS_z []")
+
+
+@dataclass
+class PoseTrack:
+    """A timed sequence of poses read from (or to be written to) a file.
+
+    Attributes
+    ----------
+    t : (n,) ndarray
+        Times in seconds (KITTI: the pose index; EuRoC: seconds since ``origin_ns``).
+    T : (n, 4, 4) ndarray
+        Rigid motions body -> world.
+    format : str
+        One of :data:`FORMATS`.
+    origin_ns : int
+        EuRoC only: the integer nanosecond timestamp of ``t == 0`` (keeps nanosecond
+        timestamps exact through float seconds).
+    """
+
+    t: np.ndarray
+    T: np.ndarray
+    format: str
+    origin_ns: int = 0
+
+
+def _fail(path, line, msg):
+    where = f"{path}:{line}" if line else f"{path}"
+    raise ShellsplineError(f"{where}: {msg}")
+
+
+def _data_lines(text, comment="#"):
+    for k, raw in enumerate(text.splitlines(), start=1):
+        s = raw.strip()
+        if s and not s.startswith(comment):
+            yield k, s
+
+
+def detect_format(path) -> str:
+    """The format of a pose file from its name and first data line (see the module table).
+
+    Raises
+    ------
+    ShellsplineError
+        When the content matches none of the formats (names the file and line).
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        return "json"
+    try:
+        with open(path, encoding="utf-8") as f:
+            head = [ln.strip() for _, ln in zip(range(200), f)]
+    except UnicodeDecodeError:
+        _fail(path, 0, "not a text pose file (undecodable bytes)")
+    for k, s in enumerate(head, start=1):
+        if not s:
+            continue
+        low = s.lower()
+        if low.startswith("#timestamp") or "p_rs_r" in low:
+            return "euroc"
+        if low.replace(" ", "").startswith("t,tx,ty,tz"):
+            return "csv"
+        if s.startswith("#"):
+            continue
+        if "," in s:
+            first = s.split(",")[0].strip()
+            return "euroc" if first.isdigit() and len(first) >= 13 else "csv"
+        n = len(s.split())
+        if n == 8:
+            return "tum"
+        if n == 12:
+            return "kitti"
+        _fail(path, k, f"cannot tell the pose format: {n} numbers on a line (TUM has 8, KITTI "
+                       "12; EuRoC and ours are CSV)")
+    _fail(path, 0, "no poses in the file")
+
+
+def _numbers(path, k, fields, n, what):
+    if len(fields) < n:
+        _fail(path, k, f"expected {n} numbers ({what}), got {len(fields)}")
+    try:
+        return [float(x) for x in fields[:n]]
+    except ValueError:
+        bad = next(x for x in fields[:n] if not _is_float(x))
+        _fail(path, k, f"not a number: {bad!r} (expected {what})")
+
+
+def _is_float(x):
+    try:
+        float(x)
+        return True
+    except ValueError:
+        return False
+
+
+def _quats(path, lines, q):
+    """Unit quaternions ``(n, 4)`` from file values, normalised; one-line error at the first
+    that is not within 1e-3 of unit norm."""
+    nq = np.linalg.norm(q, axis=1)
+    bad = np.abs(nq - 1) > 1e-3
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        _fail(path, lines[i], f"quaternion norm {nq[i]:.6g} is not 1 (within 1e-3)")
+    return q / nq[:, None]
+
+
+def _check_times(path, t, lines):
+    d = np.diff(t)
+    if np.any(d <= 0):
+        i = int(np.argmax(d <= 0))
+        _fail(path, lines[i + 1], f"times must increase strictly, got {t[i + 1]!r} after "
+                                  f"{t[i]!r}")
+
+
+_LAYOUT = {"tum": (8, "t tx ty tz qx qy qz qw"), "kitti": (12, "a 3x4 matrix row by row"),
+           "csv": (8, "t tx ty tz qx qy qz qw"), "euroc": (8, "timestamp px py pz qw qx qy qz")}
+
+
+def read_poses(path, format=None) -> PoseTrack:
+    """Read a pose file.
+
+    Parameters
+    ----------
+    path : str or Path
+    format : str, optional
+        One of :data:`FORMATS`; default :func:`detect_format`.
+
+    Returns
+    -------
+    PoseTrack
+
+    Raises
+    ------
+    ShellsplineError
+        One line naming the file and line: wrong count of numbers, a non-number, a quaternion
+        or rotation that is not one, times that do not increase, an empty file.
+    FileNotFoundError
+        When ``path`` does not exist.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such pose file")
+    fmt = detect_format(path) if format is None else str(format).lower()
+    if fmt not in FORMATS:
+        raise ShellsplineError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
+    text = path.read_text(encoding="utf-8")
+    if fmt == "json":
+        t, T, lines = _read_json(path, text)
+        _check_times(path, t, lines)
+        return PoseTrack(t, T, fmt)
+    n, what = _LAYOUT[fmt]
+    rows, lines, tns = [], [], []
+    for k, s in _data_lines(text):
+        if fmt in ("tum", "kitti"):
+            f = s.split()
+        else:
+            f = [x.strip() for x in s.split(",")]
+            if fmt == "csv" and f[0].lower() == "t":
+                continue  # header
+            if fmt == "euroc":
+                if not f[0].lstrip("-").isdigit():
+                    _fail(path, k, f"EuRoC timestamps are integer nanoseconds, got {f[0]!r}")
+                tns.append(int(f[0]))
+        rows.append(_numbers(path, k, f, n, what))
+        lines.append(k)
+    if not rows:
+        _fail(path, 0, "no poses in the file")
+    V = np.array(rows, dtype=np.float64)
+    finite = np.all(np.isfinite(V), axis=1)
+    if not np.all(finite):
+        _fail(path, lines[int(np.argmin(finite))], f"non-finite number (expected {what})")
+    origin = 0
+    if fmt == "kitti":
+        M = V.reshape(-1, 3, 4)
+        t = np.arange(len(rows), dtype=np.float64)
+        R, p = _rotations(path, lines, M[:, :, :3]), M[:, :, 3]
+    else:
+        if fmt == "euroc":
+            origin = tns[0]
+            t = (np.array(tns, dtype=np.int64) - origin).astype(np.float64) * 1e-9
+            q = V[:, [5, 6, 7, 4]]
+        else:
+            t, q = V[:, 0], V[:, 4:8]
+        R, p = so3.matrix_from_quat(_quats(path, lines, q)), V[:, 1:4]
+    _check_times(path, t, lines)
+    return PoseTrack(t, se3.from_rt(R, p), fmt, origin)
+
+
+def _rotations(path, lines, M):
+    """Rotation blocks ``(n, 3, 3)`` projected onto SO(3) (SVD); one-line error at the first
+    that is more than 1e-3 from orthonormal or reflects."""
+    err = np.abs(M @ np.swapaxes(M, -1, -2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(M)
+    bad = (err > 1e-3) | (det < 0)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        _fail(path, lines[i], f"the 3x3 block is not a rotation (|R R^T - I| = {err[i]:.2g}, "
+                              f"det = {det[i]:.3g})")
+    U, _, Vt = np.linalg.svd(M)
+    return U @ Vt
+
+
+def _read_json(path, text):
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        _fail(path, exc.lineno, f"invalid JSON: {exc.msg}")
+    if not isinstance(d, dict) or not {"t", "position", "quaternion_xyzw"} <= set(d):
+        _fail(path, 0, "JSON poses need the keys t, position, quaternion_xyzw")
+    try:
+        t = np.asarray(d["t"], dtype=np.float64)
+        p = np.asarray(d["position"], dtype=np.float64)
+        q = np.asarray(d["quaternion_xyzw"], dtype=np.float64)
+    except (TypeError, ValueError):
+        _fail(path, 0, "t, position and quaternion_xyzw must be numbers")
+    n = t.shape[0] if t.ndim == 1 else -1
+    if n < 1 or p.shape != (n, 3) or q.shape != (n, 4):
+        _fail(path, 0, f"expected t (n,), position (n, 3), quaternion_xyzw (n, 4), got "
+                       f"{t.shape}, {p.shape}, {q.shape}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        _fail(path, 0, "non-finite numbers")
+    lines = [f"pose {i}" for i in range(n)]
+    return t, se3.from_rt(so3.matrix_from_quat(_quats(path, lines, q)), p), lines
+
+
+def write_text_atomic(path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename,
+    so readers never see a half-written file."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:
+    """Write poses in one of :data:`FORMATS` (atomically).
+
+    Parameters
+    ----------
+    path : str or Path
+    t : (n,) array_like
+        Times in seconds (ignored by KITTI; EuRoC writes ``origin_ns + round(t * 1e9)``).
+    T : (n, 4, 4) array_like
+        Rigid motions body -> world.
+    format : str
+    origin_ns : int
+        EuRoC only (see :class:`PoseTrack`).
+    """
+    fmt = str(format).lower()
+    if fmt not in FORMATS:
+        raise ShellsplineError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
+    t = np.asarray(t, dtype=np.float64)
+    T = np.asarray(T, dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or t.shape != (T.shape[0],):
+        raise ShellsplineError(f"write_poses: expected t (n,) and T (n, 4, 4), got {t.shape} and "
+                               f"{T.shape}")
+    p = T[:, :3, 3]
+    q = so3.quat_continuous(so3.quat_from_matrix(T[:, :3, :3]))
+    out = []
+    if fmt == "tum":
+        out.append("# timestamp tx ty tz qx qy qz qw")
+        out += [f"{float(ti)!r} " + " ".join(f"{x:.12g}" for x in (*pi, *qi))
+                for ti, pi, qi in zip(t, p, q)]
+    elif fmt == "kitti":
+        out += [" ".join(f"{x:.12e}" for x in Ti[:3].ravel()) for Ti in T]
+    elif fmt == "euroc":
+        out.append(_EUROC_HEADER)
+        ns = origin_ns + np.round(t * 1e9).astype(np.int64)
+        out += [f"{n}," + ",".join(f"{x:.12g}" for x in (*pi, qi[3], *qi[:3]))
+                for n, pi, qi in zip(ns, p, q)]
+    elif fmt == "csv":
+        out.append("t,tx,ty,tz,qx,qy,qz,qw")
+        out += [f"{float(ti)!r}," + ",".join(f"{x:.12g}" for x in (*pi, *qi))
+                for ti, pi, qi in zip(t, p, q)]
+    else:
+        doc = {"format": "shellspline-poses", "version": 1, "t": t.tolist(),
+               "position": p.tolist(), "quaternion_xyzw": q.tolist()}
+        write_text_atomic(path, json.dumps(doc) + "\n")
+        return
+    write_text_atomic(path, "\n".join(out) + "\n")

@@ -1,0 +1,548 @@
+"""Writing and reading interpolated sequences, atomically.
+
+Output: :func:`write_sequence` writes ``frame_0000.obj ... frame_K.obj`` (or binary
+little-endian PLY with ``double`` coordinates) and ``report.json`` atomically: all files go
+into a temporary sibling directory which is renamed into place at the end.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+import secrets
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MeshError, ShellsplineError, one_line
+from ..mesh.source_mesh import triangulate_polygons
+from .keyframes import check_same_polygons
+from .meshes import check_indices, read_polygons
+
+__all__ = ["write_sequence", "check_output_dir", "read_sequence", "GLB_NAME"]
+
+FRAME_RE = re.compile(r"^frame_(\d+)\.(obj|ply)$")
+GLB_NAME = "animation.glb"
+"""File name of the sequence in an output directory written with ``fmt="glb"``."""
+
+# ----------------------------------------------------------------------------------------
+# Writing sequences
+# ----------------------------------------------------------------------------------------
+def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: bool = False,
+                   protect=(), workers: int = 1, fps: float = 24.0, source=None) -> Path:
+    """Write a sequence of poses as ``frame_0000.obj ...`` plus ``report.json``, atomically.
+
+    Everything is written into a temporary sibling directory
+    (``.<out_dir>.tmp-<pid>-<random>``) that is renamed to ``out_dir`` at the end, so a crash
+    or an exception never leaves a half-written output; the temporary directory is removed
+    on any error. An existing output is replaced only with ``overwrite=True``, by renaming
+    it aside, renaming the new one into place and then deleting the old one.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+        Output directory; its parent is created if needed.
+    V : (K+1,n,3) float array
+        Poses of frames ``0..K``.
+    F : (m,3) int array
+        Faces, zero-based (written 1-based in OBJ).
+    report : dict, optional
+        Written as ``report.json`` (indent 2); numpy arrays and scalars, paths, tuples and
+        dataclasses are converted. Default ``{}``.
+    fmt : {"obj", "ply", "glb"}
+        ``"obj"``: text, coordinates with 17 significant digits (``%.17g``), so that every
+        float64 reads back bit-identically. ``"ply"``: binary little-endian PLY with
+        ``double`` coordinates (exact, smaller and faster). ``"glb"``: one file
+        ``animation.glb`` (binary glTF: frame 0 as the base mesh, one morph target per later
+        frame, an animation playing them at ``fps``; float32, see :mod:`shellspline.io.gltf`).
+    overwrite : bool
+        Replace an existing ``out_dir``. Only a directory that is empty or holds a
+        ``report.json`` (i.e. looks like an earlier output) is ever replaced.
+    protect : iterable of str or path-like
+        Input paths (the keyframe files) that must survive: it is an error if ``out_dir``
+        resolves to one of them or contains one.
+    workers : int
+        Number of processes that format and write frames (``1``: in this process).
+        Formatting OBJ text is CPU bound, so more workers help on long sequences. The
+        workers (:func:`shellspline.parallel.process_pool`) die with this process and are
+        stopped at once on Ctrl-C or SIGTERM (the temporary directory is then removed).
+    fps : float
+        Frames per second of the GLB animation (``fmt="glb"`` only).
+    source : SourceMesh, optional
+        Write the input's mesh back (:attr:`Keyframes.source`): ``V`` is then
+        ``(K+1,n_source,3)`` in the input's vertex indexing (:meth:`SourceMesh.expand`), and
+        OBJ and PLY frames get the input's polygons, GLB its triangles; ``F`` is not used.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path of the written directory.
+
+    Raises
+    ------
+    FileExistsError
+        If ``out_dir`` exists and ``overwrite`` is false, or it exists and is not a
+        directory.
+    ShellsplineError
+        For bad arguments, a non-serialisable report, an ``out_dir`` that contains a
+        protected input or the working directory, or one that does not look like an earlier
+        output when ``overwrite=True``.
+
+    Notes
+    -----
+    Frame files are named ``frame_{k:0{w}d}`` with ``w = max(4, len(str(K)))``. The face
+    block of an OBJ file is the same for every frame and is formatted once.
+
+    Examples
+    --------
+    >>> import tempfile, os, numpy as np
+    >>> V = np.random.default_rng(0).random((3, 4, 3))
+    >>> F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> out = write_sequence(os.path.join(tempfile.mkdtemp(), "out"), V, F, {"K": 2})
+    >>> sorted(p.name for p in out.iterdir())
+    ['frame_0000.obj', 'frame_0001.obj', 'frame_0002.obj', 'report.json']
+    >>> V2, F2, rep = read_sequence(out)
+    >>> bool((V2 == V).all()), rep
+    (True, {'K': 2})
+    """
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 3 or V.shape[2] != 3 or V.shape[0] == 0:
+        raise ShellsplineError(f"V must be a (K+1,n,3) array of poses, got shape {V.shape}")
+    polygons = None
+    if source is not None:
+        if V.shape[1] != source.n_source:
+            raise ShellsplineError(f"with `source`, V must hold the input's {source.n_source} "
+                                   f"vertices (SourceMesh.expand), got shape {V.shape}")
+        F = source.triangles
+        if (np.diff(source.poly_offsets) != 3).any() or source.uv is not None:
+            polygons = (source.poly_offsets, source.poly_indices, source.uv, source.corner_uv)
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3 or (F.size and not np.issubdtype(F.dtype, np.integer)):
+        raise ShellsplineError(f"F must be an (m,3) integer array, got shape {F.shape} and "
+                               f"dtype {F.dtype}")
+    F = F.astype(np.int64)
+    n = V.shape[1]
+    if F.size and (F.min() < 0 or F.max() >= n):
+        raise ShellsplineError(f"F indexes vertices outside [0, {n}): range "
+                               f"[{F.min()}, {F.max()}]")
+    fmt = str(fmt).lower().lstrip(".")
+    if fmt not in ("obj", "ply", "glb"):
+        raise ShellsplineError(f"fmt must be 'obj', 'ply' or 'glb', got {fmt!r}")
+    if fmt == "glb":
+        from .gltf import glb_bytes
+
+        glb = glb_bytes(V, F, fps=fps)  # validates fps before anything is created
+    workers = int(workers)
+    if workers < 1:
+        raise ShellsplineError(f"workers must be >= 1, got {workers}")
+    report_text = json.dumps(_jsonable({} if report is None else report, "report"),
+                             indent=2) + "\n"
+
+    out = Path(out_dir)
+    target = check_output_dir(out, n_frames=V.shape[0], n_vertices=n, n_faces=F.shape[0],
+                              fmt=fmt, overwrite=overwrite, protect=protect)
+    parent = target.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = _fresh_sibling(parent, f".{target.name}.tmp-{os.getpid()}-")
+    except OSError as exc:
+        raise _on_user_path(exc, None, out, "creating") from None
+    try:
+        if fmt == "glb":
+            (tmp / GLB_NAME).write_bytes(glb)
+        else:
+            K = V.shape[0] - 1
+            width = max(4, len(str(K)))
+            paths = [tmp / f"frame_{k:0{width}d}.{fmt}" for k in range(K + 1)]
+            _write_frames(paths, V, F, fmt, workers, polygons)
+        (tmp / "report.json").write_text(report_text, encoding="utf-8")
+        move_into_place(tmp, target, overwrite)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, FileExistsError) and exc.errno is None:
+            raise  # our own message: the output appeared while we were writing
+        raise _on_user_path(exc, tmp, out, "writing") from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return target
+
+
+#: Lower estimates of the bytes per vertex and per face of one frame (the space check must
+#: never refuse an output that fits): OBJ ``v x y z`` lines with 17 significant digits are
+#: 55-65 bytes, a face line ``f a b c`` 8 bytes and more; PLY stores 3 doubles per vertex and
+#: 13 bytes per face; GLB 24 bytes per vertex and frame (float32 position and normal deltas).
+_BYTES_PER_VERTEX = {"obj": 50, "ply": 24, "glb": 24}
+_BYTES_PER_FACE = {"obj": 8, "ply": 13, "glb": 0}
+
+
+def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces: int = 0,
+                     fmt: str = "obj", overwrite: bool = False, protect=()) -> Path:
+    """Check, before any computing, that :func:`write_sequence` can write ``out_dir``.
+
+    Nothing is created: the nearest existing ancestor of ``out_dir`` must be a directory
+    in which a directory can be created (probed by creating and removing one, which also
+    catches read-only mounts and permissions that the superuser ignores), ``out_dir`` must
+    not contain or replace an input, must not exist unless ``overwrite`` (and then only
+    as an earlier output), and, where the platform tells (:func:`shutil.disk_usage`), the
+    file system must have room for the estimated size of the output.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+        The output directory.
+    n_frames, n_vertices, n_faces : int
+        Size of the sequence to be written (``K+1`` frames), for the free-space estimate;
+        ``0`` skips that check.
+    fmt : {"obj", "ply", "glb"}
+        Output format (bytes per vertex differ).
+    overwrite, protect
+        As for :func:`write_sequence`.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path that will be written.
+
+    Raises
+    ------
+    FileExistsError
+        If ``out_dir`` exists and ``overwrite`` is false, or it exists and is not a directory.
+    ShellsplineError
+        If ``out_dir`` lies under a file, its parent cannot be written, it would contain or
+        replace a protected input, or the file system has too little free space.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = tempfile.mkdtemp()
+    >>> check_output_dir(os.path.join(d, "new", "out"), n_frames=21, n_vertices=5000,
+    ...                  n_faces=9996).name
+    'out'
+    >>> os.listdir(d)  # nothing was created
+    []
+    """
+    out = Path(out_dir)
+    fmt = str(fmt).lower().lstrip(".")
+    if fmt not in _BYTES_PER_VERTEX:
+        raise ShellsplineError(f"fmt must be 'obj', 'ply' or 'glb', got {fmt!r}")
+    target = out.resolve()
+    _check_destination(target, out, overwrite, protect)
+    base = target.parent
+    while not base.is_dir():
+        if base.exists() or base.is_symlink():
+            raise ShellsplineError(f"cannot create output directory '{out}': '{base}' is a "
+                                   "file, not a directory")
+        base = base.parent
+    try:  # a directory created and removed: os.access knows neither read-only mounts nor root
+        _fresh_sibling(base, f".{target.name}.probe-{os.getpid()}-").rmdir()
+    except OSError as exc:
+        raise ShellsplineError(f"cannot create output directory '{out}': cannot write in "
+                               f"'{base}': {(exc.strerror or str(exc)).lower()}") from None
+    need = int(n_frames) * (int(n_vertices) * _BYTES_PER_VERTEX[fmt]
+                            + int(n_faces) * _BYTES_PER_FACE[fmt])
+    if need > 0:
+        try:
+            free = shutil.disk_usage(base).free
+        except (OSError, AttributeError):  # the platform does not say
+            free = None
+        if free is not None and free < need:
+            raise ShellsplineError(f"not enough space for output directory '{out}': about "
+                                   f"{_megabytes(need)} needed, {_megabytes(free)} free in "
+                                   f"'{base}'")
+    return target
+
+
+def _megabytes(nbytes: int) -> str:
+    return f"{nbytes / 1e6:,.1f} MB" if nbytes < 1e9 else f"{nbytes / 1e9:,.1f} GB"
+
+
+def _on_user_path(exc: OSError, tmp: Path | None, out: Path, doing: str) -> OSError:
+    """``exc`` again (same type and errno) with a message that names the user's path.
+
+    A file inside the hidden temporary directory ``tmp`` is named by where it would have
+    landed in ``out``; ``No space left on device`` becomes ``no space left on device
+    writing 'OUT/frame_0012.obj'``.
+    """
+    where = out
+    for name in (exc.filename, exc.filename2):
+        if name is None or tmp is None:
+            continue
+        try:
+            where = out / Path(os.fsdecode(name)).relative_to(tmp)
+            break
+        except ValueError:
+            continue
+    what = exc.strerror or str(exc) or type(exc).__name__
+    what = what[:1].lower() + what[1:]
+    return OSError(exc.errno, f"{what} {doing} '{where}'")  # the errno picks the subclass
+
+
+def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> None:
+    for p in protect:
+        rp = Path(p).resolve()
+        if rp == target or target in rp.parents:
+            raise ShellsplineError(f"refusing to write to '{out}': it would contain or "
+                                   f"replace the input '{p}'")
+    if not (target.exists() or target.is_symlink()):
+        return
+    if not target.is_dir():
+        raise FileExistsError(f"'{out}' exists and is not a directory")
+    if not overwrite:
+        raise FileExistsError(f"output directory '{out}' already exists (use overwrite=True "
+                              "to replace it)")
+    cwd = Path.cwd().resolve()
+    if cwd == target or target in cwd.parents:
+        raise ShellsplineError(f"refusing to replace '{out}': it contains the current working "
+                               "directory")
+    if any(target.iterdir()) and not (target / "report.json").is_file():
+        raise ShellsplineError(f"refusing to replace '{out}': it is not empty and has no "
+                               "report.json, so it does not look like an earlier output")
+
+
+def _fresh_sibling(parent: Path, prefix: str) -> Path:
+    while True:
+        p = parent / f"{prefix}{secrets.token_hex(4)}"
+        try:
+            p.mkdir()
+            return p
+        except FileExistsError:  # pragma: no cover - 32 random bits
+            continue
+
+
+def move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
+    if target.exists() or target.is_symlink():
+        if not overwrite:  # created by someone else while we were writing
+            raise FileExistsError(f"output directory '{target}' already exists")
+        aside = target.parent / f".{target.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+        os.rename(target, aside)
+        try:
+            os.rename(tmp, target)
+        except BaseException:
+            os.rename(aside, target)
+            raise
+        shutil.rmtree(aside, ignore_errors=True)
+    else:
+        os.rename(tmp, target)
+
+
+def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
+                  workers: int, polygons=None) -> None:
+    if polygons is None:
+        block = _obj_faces_block(F) if fmt == "obj" else _ply_faces_bytes(F)
+        m = F.shape[0]
+    else:  # the input's polygons (offsets, indices)
+        block = (_obj_polygons_block(*polygons) if fmt == "obj"
+                 else _ply_polygons_bytes(*polygons[:2]))
+        m = polygons[0].size - 1
+    workers = min(workers, len(paths))
+    if workers <= 1:
+        for k, p in enumerate(paths):
+            if fmt == "obj":
+                _write_obj_frame(p, V[k], block)
+            else:
+                _write_ply_frame(p, V[k], block, m)
+        return
+    from ..parallel import process_pool
+
+    chunks = np.array_split(np.arange(len(paths)), workers)
+    with process_pool(workers) as ex:  # workers stopped at once on Ctrl-C/SIGTERM
+        futures = [ex.submit(_write_frames_chunk, [paths[k] for k in c], V[c], block, fmt,
+                             m) for c in chunks]
+        try:
+            for fut in futures:
+                fut.result()
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+
+def _write_frames_chunk(paths, Vc, block, fmt, m) -> None:
+    for p, X in zip(paths, Vc):
+        if fmt == "obj":
+            _write_obj_frame(p, X, block)
+        else:
+            _write_ply_frame(p, X, block, m)
+
+
+def _obj_faces_block(F: np.ndarray) -> bytes:
+    """The ``f a b c`` lines (1-based) of every frame, formatted once."""
+    return (("f %d %d %d\n" * F.shape[0]) % tuple((F + 1).ravel().tolist())).encode("ascii")
+
+
+def _obj_polygons_block(offsets: np.ndarray, indices: np.ndarray, uv=None,
+                        corner_uv=None) -> bytes:
+    """The ``f a b c ...`` lines (1-based) of polygons, formatted once; with texture
+    coordinates the ``vt`` lines first and ``f a/ta b/tb ...`` corners."""
+    if uv is None:
+        fmt = "".join("f" + " %d" * int(s) + "\n" for s in np.diff(offsets))
+        return (fmt % tuple((indices + 1).tolist())).encode("ascii")
+    vt = ("vt %.17g %.17g\n" * uv.shape[0]) % tuple(uv.ravel().tolist())
+    fmt = "".join("f" + " %d/%d" * int(s) + "\n" for s in np.diff(offsets))
+    corners = np.stack([indices + 1, corner_uv + 1], axis=1).ravel()
+    return (vt + fmt % tuple(corners.tolist())).encode("ascii")
+
+
+def _ply_polygons_bytes(offsets: np.ndarray, indices: np.ndarray) -> bytes:
+    """Binary PLY face records ``uchar count, int32 indices...`` of polygons."""
+    sizes = np.diff(offsets)
+    P = sizes.size
+    out = np.zeros(P + 4 * indices.size, dtype=np.uint8)
+    out[4 * offsets[:-1] + np.arange(P)] = sizes
+    pos = 4 * np.arange(indices.size) + np.repeat(np.arange(P), sizes) + 1
+    out[pos[:, None] + np.arange(4)] = indices.astype("<i4").view(np.uint8).reshape(-1, 4)
+    return out.tobytes()
+
+
+def _write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes) -> None:
+    """One OBJ frame; ``%.17g`` round-trips every float64 exactly."""
+    verts = ("v %.17g %.17g %.17g\n" * V.shape[0]) % tuple(V.ravel().tolist())
+    with open(path, "wb") as fh:
+        fh.write(verts.encode("ascii"))
+        fh.write(faces_block)
+
+
+def _ply_faces_bytes(F: np.ndarray) -> bytes:
+    rec = np.zeros(F.shape[0], dtype=[("count", "u1"), ("idx", "<i4", (3,))])
+    rec["count"] = 3
+    rec["idx"] = F
+    return rec.tobytes()
+
+
+def _write_ply_frame(path: Path, V: np.ndarray, faces_bytes: bytes, m: int) -> None:
+    header = ("ply\nformat binary_little_endian 1.0\ncomment written by shellspline\n"
+              f"element vertex {V.shape[0]}\nproperty double x\nproperty double y\n"
+              f"property double z\nelement face {m}\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(np.ascontiguousarray(V, dtype="<f8").tobytes())
+        fh.write(faces_bytes)
+
+
+def _jsonable(obj, where: str):
+    """Convert a report to JSON-native types; raise naming the offending entry."""
+    if obj is None or isinstance(obj, (str, bool, int)):
+        return obj
+    if isinstance(obj, float):
+        return obj
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if isinstance(obj, dict):
+        out = {}
+        for k, v in obj.items():
+            key = k.item() if isinstance(k, np.generic) else k
+            if isinstance(key, os.PathLike):
+                key = os.fspath(key)
+            if not isinstance(key, (str, int, float, bool)) and key is not None:
+                raise ShellsplineError(f"{where}: key {k!r} of type {type(k).__name__} cannot "
+                                       "be written to JSON")
+            out[key] = _jsonable(v, f"{where}[{k!r}]")
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, (set, frozenset)):
+        return [_jsonable(v, where) for v in sorted(obj, key=repr)]
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return _jsonable({f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)},
+                         where)
+    raise ShellsplineError(f"{where}: value of type {type(obj).__name__} cannot be written to "
+                           "JSON")
+
+
+def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Read a directory written by :func:`write_sequence`, or a ``.glb`` animation file.
+
+    Frame files (``frame_*.obj`` / ``frame_*.ply``) are read when present, else
+    ``animation.glb`` (float32 coordinates, see :func:`shellspline.io.gltf.read_glb`). Frames
+    written with the input's polygons are triangulated once for the whole sequence
+    (:func:`shellspline.mesh.source_mesh.triangulate_polygons`).
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+        An output directory, or the path of a ``.glb`` file.
+
+    Returns
+    -------
+    V : (K+1,n,3) float64 numpy array
+        Poses, in frame order.
+    F : (m,3) int64 numpy array
+        Faces.
+    report : dict
+        The contents of ``report.json`` (``{}`` if there is none).
+
+    Raises
+    ------
+    MeshError
+        If the directory has no frame files, frames are missing, or the frames disagree in
+        vertex count or faces.
+    """
+    d = Path(out_dir)
+    if d.suffix.lower() == ".glb" and d.is_file():
+        from .gltf import read_glb
+
+        try:
+            Vg, Fg, _ = read_glb(d)
+        except ShellsplineError as exc:
+            raise MeshError(str(exc)) from None
+        return Vg, Fg, _read_report(d.parent) if d.name == GLB_NAME else {}
+    if not d.is_dir():
+        raise MeshError(f"cannot read sequence '{d}': not a directory or a .glb file")
+    found = {}
+    for p in d.iterdir():
+        mt = FRAME_RE.match(p.name)
+        if mt:
+            k = int(mt.group(1))
+            if k in found:
+                raise MeshError(f"{d}: frame {k} appears twice ({found[k].name}, {p.name})")
+            found[k] = p
+    if not found:
+        if (d / GLB_NAME).is_file():
+            from .gltf import read_glb
+
+            try:
+                Vg, Fg, _ = read_glb(d / GLB_NAME)
+            except ShellsplineError as exc:
+                raise MeshError(str(exc)) from None
+            return Vg, Fg, _read_report(d)
+        raise MeshError(f"{d}: no frame_*.obj, frame_*.ply or {GLB_NAME} files")
+    ks = sorted(found)
+    if ks != list(range(len(ks))):
+        missing = sorted(set(range(ks[-1] + 1)) - set(ks))
+        raise MeshError(f"{d}: frames are not numbered 0..{ks[-1]} without gaps (missing "
+                        f"{missing[:5]})")
+    Vs = []
+    for k in ks:
+        name = str(found[k])
+        V, offsets, indices, _ = read_polygons(found[k])
+        if not Vs:
+            off0, idx0, name0 = offsets, indices, name
+            check_indices(offsets, indices, V.shape[0], name)
+        else:
+            if V.shape[0] != Vs[0].shape[0]:
+                raise MeshError(f"{name} has {V.shape[0]} vertices but {name0} has "
+                                f"{Vs[0].shape[0]}")
+            check_same_polygons(offsets, indices, off0, idx0, name, name0)
+        Vs.append(V)
+    V = np.stack(Vs)
+    F, _ = triangulate_polygons(V, off0, idx0, name0)
+    return V, F, _read_report(d)
+
+
+def _read_report(d: Path) -> dict:
+    rp = d / "report.json"
+    if not rp.is_file():
+        return {}
+    try:
+        return json.loads(rp.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise MeshError(f"cannot read '{rp}': {one_line(exc)}") from None
+

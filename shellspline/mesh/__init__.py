@@ -1,0 +1,1 @@
+"""Triangle meshes: topology, real-export repair (polygons, seams, fins), decimation."""

@@ -1,0 +1,42 @@
+"""Rigid motions of a mesh: the kernel of every shell energy (dimension 6).
+
+Rigid motions must be fixed before any Cholesky of a shell Hessian (ARCHITECTURE, math notes).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["rigid_modes"]
+
+
+def rigid_modes(V, free, pinned_dofs):
+    """Orthonormal basis ``(len(free), r)`` of the infinitesimal rigid motions of ``V (n,3)``
+    that leave the pinned DOFs fixed, restricted to the free DOFs (``r <= 6``). The pinned rows
+    are examined first, so three non-collinear pins (``r = 0``) cost no full-size basis."""
+    c = V - V.mean(axis=0)
+
+    def basis(cc):  # (m,3) centred points -> (3m, 6): translations, e_a × c
+        B = np.zeros((len(cc), 3, 6))
+        B[:, [0, 1, 2], [0, 1, 2]] = 1.0
+        B[:, 1, 3], B[:, 2, 3] = -cc[:, 2], cc[:, 1]
+        B[:, 0, 4], B[:, 2, 4] = cc[:, 2], -cc[:, 0]
+        B[:, 0, 5], B[:, 1, 5] = -cc[:, 1], cc[:, 0]
+        return B.reshape(-1, 6)
+
+    C = None
+    if len(pinned_dofs):
+        pv = np.unique(pinned_dofs // 3)
+        rows = 3 * np.searchsorted(pv, pinned_dofs // 3) + pinned_dofs % 3
+        Bp = basis(c[pv])[rows]
+        if len(Bp) < 6:  # one pin: pad with zero rows so that Vh is (6,6) (same row space)
+            Bp = np.vstack([Bp, np.zeros((6 - len(Bp), 6))])
+        _, s, Vh = np.linalg.svd(Bp, full_matrices=False)
+        rank = int(np.sum(s > 1e-10 * max(s[0], 1e-300)))
+        C = Vh[rank:].T
+        if C.shape[1] == 0:
+            return np.zeros((len(free), 0))
+    B = basis(c)
+    if C is not None:
+        B = B @ C
+    Q, _ = np.linalg.qr(B[free])
+    return Q

@@ -1,0 +1,466 @@
+"""Prolongation of a coarse sequence to the fine mesh by detail transfer (paper §8).
+
+The coarse mesh of :func:`~shellspline.mesh.decimate.decimate` is a subset of the fine vertices.
+Given a coarse pose ``Vc``, the *base surface* ``S(Vc)`` on the fine connectivity is the
+fairest surface through the coarse vertices: the kept fine vertices sit exactly at ``Vc``
+and the others minimise the bi-Laplacian energy ``‖L S‖²``,
+
+    S_free = −(B_ff)⁻¹ B_fc Vc,    B = Lᵀ L,   L = D − A (graph Laplacian),
+
+with edge weights ``A_uv = 1 / l̄_uv`` (``l̄``: the edge's mean keyframe length, see
+:func:`_edge_weights`), so that the base follows the fine surface closely on irregular
+meshes and the details stay short: a linear map whose sparse factorization is computed once and reused for every pose
+(precompute/solve split). At every fine vertex ``i`` the base carries an orthonormal frame
+``R_i(S) = [t_i, b_i, n_i]``: ``n_i`` the area-weighted vertex normal of ``S``, ``t_i`` the
+edge to a fixed neighbour projected onto the tangent plane, ``b_i = n_i × t_i``.
+
+*Encode* (once per keyframe ``j``): ``c_i^j = R_i(S_j)ᵀ (x_i^j − S_i(Vc_j))``, the fine
+detail in local coordinates. *Decode* (any frame ``k``): interpolate the coefficients in
+time, ``c_i(k) = Σ_j W[k,j] c_i^j`` (piecewise linear by default, or the spline's own
+weights), and place them on the reconstructed coarse frame:
+``x_i(k) = S_i(Vc_k) + R_i(S(Vc_k)) c_i(k)``. Keyframe frames return the input keyframes
+bit for bit; kept vertices follow the coarse solution exactly (their detail is zero).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ShellsplineError
+from ..numerics.linalg import SparseCholesky
+from ..mesh.decimate import Decimation
+from ..mesh.pinned import pinned_mask
+from .descriptors import cross
+from ..mesh.topology import Topology, topology
+
+__all__ = ["Prolongation", "linear_time_weights", "spline_time_weights", "prolong"]
+
+
+def linear_time_weights(frames, K: int, bc: str = "natural") -> np.ndarray:
+    """Piecewise-linear interpolation weights of the keyframes, frame by frame.
+
+    Parameters
+    ----------
+    frames : (J,) int array_like
+        Strictly increasing keyframe frames in ``[0, K]`` (``< K`` for periodic).
+    K : int
+        Last frame index.
+    bc : {"natural", "hermite", "periodic"}
+        ``"periodic"`` blends the last keyframe back into the first at frame ``K``; otherwise
+        frames before the first / after the last keyframe hold that keyframe.
+
+    Returns
+    -------
+    W : (K+1,J) float64 numpy array
+        Rows sum to 1; ``W[frames[j]] = e_j`` exactly.
+    """
+    fr, K = _checked_frames(frames, K)
+    J = fr.shape[0]
+    k = np.arange(K + 1, dtype=np.float64)
+    W = np.zeros((K + 1, J))
+    if str(bc).lower() == "periodic":
+        ext = np.r_[fr, K].astype(np.float64)
+        jj = np.r_[np.arange(J), 0]
+    else:
+        ext = fr.astype(np.float64)
+        jj = np.arange(J)
+    if ext.shape[0] == 1:
+        W[:, 0] = 1.0
+        return W
+    pos = np.clip(np.searchsorted(ext, k, side="right") - 1, 0, ext.shape[0] - 2)
+    t = np.clip((k - ext[pos]) / (ext[pos + 1] - ext[pos]), 0.0, 1.0)
+    rows = np.arange(K + 1)
+    np.add.at(W, (rows, jj[pos]), 1.0 - t)
+    np.add.at(W, (rows, jj[pos + 1]), t)
+    W[fr] = np.eye(J)
+    return W
+
+
+def spline_time_weights(frames, K: int, bc: str = "natural") -> np.ndarray:
+    """Weights of the time-discrete cubic spline (constant reference) through the keyframes.
+
+    Row ``k`` holds the coefficients with which frame ``k`` of
+    :func:`~shellspline.shells.lta_spline.lta_spline` combines the keyframe values, obtained by
+    running the spline on the identity ``Z_key = I_J``.
+
+    Parameters
+    ----------
+    frames : (J,) int array_like
+    K : int
+    bc : {"natural", "periodic", "hermite"}
+
+    Returns
+    -------
+    W : (K+1,J) float64 numpy array
+    """
+    from .lta_spline import lta_spline
+
+    fr, K = _checked_frames(frames, K)
+    W = np.asarray(lta_spline(np.eye(fr.shape[0]), fr, K, bc=bc), dtype=np.float64)
+    W[fr] = np.eye(fr.shape[0])
+    return W
+
+
+def _checked_frames(frames, K):
+    fr = np.asarray(frames)
+    if fr.ndim != 1 or fr.size == 0 or not np.issubdtype(fr.dtype, np.integer):
+        raise ShellsplineError(f"`frames` must be a non-empty 1-D integer array, got {frames!r}")
+    if isinstance(K, (bool, np.bool_)) or not isinstance(K, (int, np.integer)) or K < 1:
+        raise ShellsplineError(f"`K` must be an integer >= 1, got {K!r}")
+    fr = fr.astype(np.int64)
+    if (np.diff(fr) <= 0).any() or fr[0] < 0 or fr[-1] > K:
+        raise ShellsplineError(f"`frames` must be strictly increasing in [0, K={K}], got "
+                               f"{fr.tolist()}")
+    return fr, int(K)
+
+
+class Prolongation:
+    """Detail transfer from a coarse mesh to the fine mesh it was decimated from.
+
+    Build it with :meth:`encode`; then :meth:`decode` prolongs any coarse sequence. The
+    bi-Laplacian factorization is computed once in :meth:`encode` and reused by every
+    :meth:`base` / :meth:`decode` call.
+
+    Attributes
+    ----------
+    F : (m,3) int64 numpy array
+        Fine faces.
+    kept : (nc,) int64 numpy array
+        Fine indices of the coarse vertices.
+    frames : (J,) int64 numpy array
+        Keyframe frames.
+    keyframes : (J,n,3) float64 numpy array
+        The fine keyframes (returned verbatim at keyframe frames).
+    coeffs : (J,n,3) float64 numpy array
+        Detail coordinates ``(t, b, n)`` of every fine vertex in every keyframe.
+    pinned : (p,) int64 numpy array
+        Fine vertices held at their keyframe position in every frame.
+
+    Examples
+    --------
+    >>> import numpy as np, data_synth
+    >>> from shellspline.mesh.decimate import decimate
+    >>> d = data_synth.generate("bumpy", n_vertices=600)
+    >>> dec = decimate(d["V"], d["F"], 150)
+    >>> P = Prolongation.encode(d["V"], d["F"], dec, [0, 2, 4])
+    >>> Vc = np.repeat(dec.V, 2, axis=0)[:5]
+    >>> Vc[1], Vc[3] = (dec.V[0] + dec.V[1]) / 2, (dec.V[1] + dec.V[2]) / 2
+    >>> V = P.decode(Vc)            # (K+1, n, 3); keyframes exact
+    >>> V.shape, bool((V[4] == d["V"][2]).all())
+    ((5, 642, 3), True)
+    """
+
+    def __init__(self, F, n, kept, frames, keyframes, coeffs, pinned, solver, B_fc, free,
+                 ref_nbr):
+        self.F = F
+        self.n_vertices = n
+        self.kept = kept
+        self.frames = frames
+        self.keyframes = keyframes
+        self.coeffs = coeffs
+        self.pinned = pinned
+        self._solver = solver
+        self._B_fc = B_fc
+        self._free = free
+        self._ref_nbr = ref_nbr
+
+    # -- construction ----------------------------------------------------------------------
+    @classmethod
+    def encode(cls, Vs_fine, F_fine, dec: Decimation, frames=None, *, pinned=None,
+               backend: str = "auto") -> "Prolongation":
+        """Precompute the base-surface solver and encode the keyframes' fine detail.
+
+        Parameters
+        ----------
+        Vs_fine : (J,n,3) float array_like
+            Fine keyframes.
+        F_fine : (m,3) int array_like or Topology
+            Fine faces (those given to :func:`~shellspline.mesh.decimate.decimate`), or their
+            prebuilt :class:`~shellspline.mesh.topology.Topology`.
+        dec : Decimation
+            The decimation of these keyframes.
+        frames : (J,) int array_like, optional
+            Keyframe frames; default ``0, 1, ..., J-1``.
+        pinned : (p,) int array_like or (n,) bool array_like, optional
+            Fine vertices returned at their (identical) keyframe position in every frame.
+        backend : {"auto", "cholmod", "splu"}
+            Sparse factorization backend (see :class:`~shellspline.numerics.linalg.SparseCholesky`).
+
+        Returns
+        -------
+        Prolongation
+
+        Raises
+        ------
+        ValueError
+            If shapes disagree with ``dec``, ``frames`` is not strictly increasing, or a
+            ``pinned`` vertex moves between keyframes.
+        """
+        Vs = np.asarray(Vs_fine, dtype=np.float64)
+        if Vs.ndim == 2:
+            Vs = Vs[None]
+        if not isinstance(dec, Decimation):
+            raise ShellsplineError(f"`dec` must be a Decimation, got {type(dec).__name__}")
+        if Vs.ndim != 3 or Vs.shape[1:] != (dec.n_fine, 3):
+            raise ShellsplineError(f"`Vs_fine` must have shape (J, {dec.n_fine}, 3), got "
+                                   f"{Vs.shape}")
+        J, n, _ = Vs.shape
+        if isinstance(F_fine, Topology):
+            if F_fine.n_vertices != n:
+                raise ShellsplineError(f"`F_fine` is a Topology of {F_fine.n_vertices} vertices, "
+                                       f"expected {n}")
+            T = F_fine
+        else:
+            T = topology(F_fine, n, name="`F_fine`")
+        if frames is None:
+            frames = np.arange(J)
+        fr = np.asarray(frames)
+        if fr.shape != (J,) or not np.issubdtype(fr.dtype, np.integer) or \
+                (np.diff(fr) <= 0).any():
+            raise ShellsplineError(f"`frames` must be {J} strictly increasing integers, got "
+                                   f"{np.asarray(frames).tolist()}")
+        pin = pinned_mask(pinned, n)
+        if pin.any() and not (Vs[:, pin] == Vs[:1, pin]).all():
+            raise ShellsplineError("`pinned` vertices must be identical in all keyframes")
+        # edge-length-weighted graph Laplacian and the bi-Laplacian split free/kept
+        E = T.E
+        w = _edge_weights(Vs, E)
+        A = sp.coo_matrix((np.r_[w, w], (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
+                          shape=(n, n))
+        A = A.tocsr()
+        deg = np.asarray(A.sum(axis=1)).ravel()
+        L = (sp.diags(deg) - A).tocsr()
+        B = (L.T @ L).tocsr()
+        is_kept = np.zeros(n, dtype=bool)
+        is_kept[dec.kept] = True
+        free = np.flatnonzero(~is_kept)
+        B_ff = B[free][:, free].tocsc()
+        B_fc = B[free][:, dec.kept].tocsr()
+        solver = SparseCholesky(B_ff, backend=backend) if free.size else None
+        # a fixed neighbour per vertex for the tangent direction
+        ref_nbr = np.full(n, -1, dtype=np.int64)
+        ref_nbr[E[::-1, 0]] = E[::-1, 1]
+        ref_nbr[E[::-1, 1]] = E[::-1, 0]
+        lonely = ref_nbr < 0
+        ref_nbr[lonely] = np.flatnonzero(lonely)        # unreferenced vertex: no frame needed
+        obj = cls(T.F, n, dec.kept, fr.astype(np.int64), Vs.copy(), None,
+                  np.flatnonzero(pin).astype(np.int64), solver, B_fc, free, ref_nbr)
+        S = obj.base(Vs[:, dec.kept])
+        D = Vs - S
+        obj.coeffs = np.stack([np.einsum("jni,jni->jn", a, D) for a in obj._frame_vectors(S)],
+                              axis=-1)
+        return obj
+
+    # -- evaluation ----------------------------------------------------------------------------
+    def base(self, Vc) -> np.ndarray:
+        """The fair base surface through coarse poses, on the fine connectivity.
+
+        Parameters
+        ----------
+        Vc : (nc,3) or (B,nc,3) float array_like
+            Coarse poses.
+
+        Returns
+        -------
+        S : (n,3) or (B,n,3) float64 numpy array
+            ``S[..., kept, :] == Vc``; the other vertices minimise ``‖L S‖²``.
+        """
+        Vc = np.asarray(Vc, dtype=np.float64)
+        single = Vc.ndim == 2
+        Vb = Vc[None] if single else Vc
+        if Vb.ndim != 3 or Vb.shape[1:] != (self.kept.shape[0], 3):
+            raise ShellsplineError(f"`Vc` must have shape (..., {self.kept.shape[0]}, 3), got "
+                                   f"{Vc.shape}")
+        S = self._base_vm(Vb).transpose(1, 0, 2)
+        return S[0] if single else np.ascontiguousarray(S)
+
+    def _base_vm(self, Vb):
+        """:meth:`base` of coarse poses ``Vb (B,nc,3)`` in vertex-major layout ``(n,B,3)``."""
+        nb = Vb.shape[0]
+        St = np.zeros((self.n_vertices, nb, 3))
+        Vt = Vb.transpose(1, 0, 2)
+        St[self.kept] = Vt
+        if self._free.size:
+            rhs = -(self._B_fc @ Vt.reshape(self.kept.shape[0], 3 * nb))
+            St[self._free] = self._solver.solve(rhs).reshape(self._free.shape[0], nb, 3)
+        return St
+
+    def frames_of(self, S) -> np.ndarray:
+        """Orthonormal frames ``[t, b, n]`` (as columns) of base surfaces.
+
+        Parameters
+        ----------
+        S : (..., n, 3) float array_like
+
+        Returns
+        -------
+        R : (..., n, 3, 3) float64 numpy array
+            ``R[..., i, :, 0] = t_i``, ``R[..., i, :, 1] = b_i``, ``R[..., i, :, 2] = n_i``.
+        """
+        return np.stack(self._frame_vectors(np.asarray(S, dtype=np.float64)), axis=-1)
+
+    def _frame_vectors(self, S):
+        """The columns ``t, b, n`` (each shaped like ``S (..., n, 3)``) of :meth:`frames_of`."""
+        n = self.n_vertices
+        St = np.ascontiguousarray(np.moveaxis(S.reshape(-1, n, 3), 1, 0))
+        return tuple(np.moveaxis(a, 0, 1).reshape(S.shape) for a in self._frames_vm(St))
+
+    def _frames_vm(self, St):
+        """Frame columns ``t, b, n`` of base surfaces in vertex-major layout ``St (n,B,3)``
+        (each ``(n,B,3)``): one sparse product for the vertex normals of the whole batch."""
+        n, nb, _ = St.shape
+        F = self.F
+        if getattr(self, "_inc", None) is None:
+            m = F.shape[0]
+            self._inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))),
+                                      shape=(n, m))
+        p0 = St[F[:, 0]]
+        N = cross(St[F[:, 1]] - p0, St[F[:, 2]] - p0)                 # (m,B,3)
+        nrm = (self._inc @ N.reshape(F.shape[0], 3 * nb)).reshape(n, nb, 3)
+        nrm /= np.maximum(np.sqrt(np.einsum("nbi,nbi->nb", nrm, nrm)), 1e-300)[..., None]
+        e = St[self._ref_nbr] - St
+        t = e - np.einsum("nbi,nbi->nb", e, nrm)[..., None] * nrm
+        tl = np.sqrt(np.einsum("nbi,nbi->nb", t, t))[..., None]
+        el = np.sqrt(np.einsum("nbi,nbi->nb", e, e))[..., None]
+        bad = ~(tl > 1e-12 * np.maximum(el, 1e-300))
+        t /= np.maximum(tl, 1e-300)
+        if bad.any():
+            # fallback for a reference edge along the normal: any direction orthogonal to n
+            alt = cross(nrm, np.where(np.abs(nrm[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
+            alt /= np.maximum(np.linalg.norm(alt, axis=-1, keepdims=True), 1e-300)
+            t = np.where(bad, alt, t)
+        return t, cross(nrm, t), nrm
+
+    def decode(self, Vc, frames=None, K=None, *, time_weights="linear", bc: str = "natural",
+               chunk: int = 16, only=None) -> np.ndarray:
+        """Prolong a coarse sequence to the fine mesh.
+
+        Parameters
+        ----------
+        Vc : (K+1,nc,3) float array_like
+            Coarse frames ``k = 0..K`` (e.g. the coarse spline).
+        frames : (J,) int array_like, optional
+            Keyframe frames; default: those given to :meth:`encode`. Must equal them.
+        K : int, optional
+            Last frame; default ``Vc.shape[0] - 1``.
+        time_weights : "linear", "spline" or (K+1,J) float array_like
+            How the detail coefficients are interpolated in time: piecewise linear
+            (:func:`linear_time_weights`), the constant-reference spline
+            (:func:`spline_time_weights`), or explicit weights.
+        bc : {"natural", "periodic", "hermite"}
+            Boundary condition used by the ``"linear"``/``"spline"`` weights.
+        chunk : int
+            Frames solved together (memory ``~ chunk * n * 3`` doubles).
+        only : (r,) int array_like, optional
+            Decode only these frames (the other rows of the result are zero); lets callers
+            split the frames over processes.
+
+        Returns
+        -------
+        V : (K+1,n,3) float64 numpy array
+            ``V[frames[j]]`` is the fine keyframe ``j`` bit for bit; pinned vertices keep
+            their keyframe position in every frame.
+        """
+        Vc = np.asarray(Vc, dtype=np.float64)
+        if Vc.ndim != 3 or Vc.shape[1:] != (self.kept.shape[0], 3):
+            raise ShellsplineError(f"`Vc` must have shape (K+1, {self.kept.shape[0]}, 3), got "
+                                   f"{Vc.shape}")
+        if K is None:
+            K = Vc.shape[0] - 1
+        if Vc.shape[0] != K + 1:
+            raise ShellsplineError(f"`Vc` must hold K+1 = {K + 1} frames, got {Vc.shape[0]}")
+        fr = self.frames if frames is None else np.asarray(frames)
+        if fr.shape != self.frames.shape or not (fr == self.frames).all():
+            raise ShellsplineError(f"`frames` must equal the keyframe frames given to encode "
+                                   f"{self.frames.tolist()}, got {np.asarray(frames).tolist()}")
+        if self.frames[-1] > K:
+            raise ShellsplineError(f"`K` = {K} is before the last keyframe frame {self.frames[-1]}")
+        J = self.frames.shape[0]
+        if isinstance(time_weights, str):
+            tw = time_weights.lower()
+            if tw == "linear":
+                W = linear_time_weights(self.frames, K, bc)
+            elif tw == "spline":
+                W = spline_time_weights(self.frames, K, bc)
+            else:
+                raise ShellsplineError(f"`time_weights` must be 'linear', 'spline' or a (K+1,J) "
+                                       f"array, got {time_weights!r}")
+        else:
+            W = np.asarray(time_weights, dtype=np.float64)
+            if W.shape != (K + 1, J) or not np.isfinite(W).all():
+                raise ShellsplineError(f"`time_weights` must be a finite ({K + 1},{J}) array, got "
+                                       f"shape {W.shape}")
+        out = np.zeros((K + 1, self.n_vertices, 3))
+        key_of = np.full(K + 1, -1, dtype=np.int64)
+        key_of[self.frames] = np.arange(J)
+        if str(bc).lower() == "periodic" and self.frames[0] == 0:
+            key_of[K] = 0
+        todo = np.flatnonzero(key_of < 0)
+        if only is not None:
+            todo = np.intersect1d(todo, np.asarray(only, dtype=np.int64))
+        step = max(1, int(chunk))
+        for s in range(0, todo.shape[0], step):
+            ks = todo[s:s + step]
+            St = self._base_vm(Vc[ks])                          # (n,B,3)
+            t, b, nrm = self._frames_vm(St)
+            c = np.einsum("kj,jna->nka", W[ks], self.coeffs)
+            St += t * c[..., :1]
+            St += b * c[..., 1:2]
+            St += nrm * c[..., 2:]
+            out[ks] = St.transpose(1, 0, 2)
+        if self.pinned.size:
+            out[:, self.pinned] = self.keyframes[0, self.pinned]
+        done = np.flatnonzero(key_of >= 0)
+        if only is not None:
+            done = np.intersect1d(done, np.asarray(only, dtype=np.int64))
+        out[done] = self.keyframes[key_of[done]]
+        return out
+
+
+def _edge_weights(Vs, E):
+    """Laplacian weights ``1 / l̄_e`` of the edges ``E (e,2)``, ``l̄_e`` the edge's length
+    averaged over the keyframes ``Vs (J,n,3)`` (floored at 1e-3 of the mean length), scaled
+    to mean 1.
+
+    With uniform weights the fair base surface of an irregular mesh drifts tangentially from
+    the fine surface: on the horse (8.4k vertices, 1000 coarse) the encoded details reach
+    2.7 mean edge lengths (0.42 on average), and small rotations of the local frames move
+    such long detail vectors across their neighbours (167 flipped faces and 89 folded edges
+    after prolonging a coarse result with 39 flipped coarse faces). Weights ``1 / l`` halve
+    the details (max 1.3, mean 0.23) and give 119 flipped faces and 18 folded edges; uniform,
+    cotangent, ``1 / l²`` and ``1 / √l`` weights were measured and are worse.
+    """
+    d = Vs[:, E[:, 1]] - Vs[:, E[:, 0]]
+    ln = np.sqrt(np.einsum("jei,jei->je", d, d)).mean(axis=0)
+    if ln.size == 0:
+        return ln
+    mean = float(ln.mean())
+    if not mean > 0:
+        return np.ones_like(ln)
+    w = 1.0 / np.maximum(ln, 1e-3 * mean)
+    return w / w.mean()
+
+
+def prolong(Vc, Vs_fine, F_fine, dec: Decimation, frames=None, *, pinned=None,
+            time_weights="linear", bc: str = "natural") -> np.ndarray:
+    """One-call detail transfer: :meth:`Prolongation.encode` then :meth:`~Prolongation.decode`.
+
+    Parameters
+    ----------
+    Vc : (K+1,nc,3) float array_like
+        Coarse sequence.
+    Vs_fine : (J,n,3) float array_like
+        Fine keyframes.
+    F_fine : (m,3) int array_like
+    dec : Decimation
+    frames : (J,) int array_like, optional
+    pinned : optional
+    time_weights, bc
+        See :meth:`Prolongation.decode`.
+
+    Returns
+    -------
+    (K+1,n,3) float64 numpy array
+    """
+    P = Prolongation.encode(Vs_fine, F_fine, dec, frames, pinned=pinned)
+    return P.decode(Vc, time_weights=time_weights, bc=bc)

@@ -1,0 +1,774 @@
+"""Gauss–Newton reconstruction of vertex positions from LΘA descriptors (paper eq. 12).
+
+For a target ``z* = (L*, Θ*, A*)`` and weights ``w`` we minimise
+
+    f(s) = Σ_i w_i r_i(s)²,   r = z[s] - z*   (Θ residuals wrapped to [-π, π)),
+
+by Gauss–Newton: each step solves ``(Jᵀ W J + δ I) p = -Jᵀ W r`` with preconditioned conjugate
+gradients, where the preconditioner is a sparse Cholesky factorization of the Gauss–Newton
+matrix at some earlier iterate. The pattern of ``Jᵀ W J`` is the same for every iteration and
+frame, so one factorization (and one symbolic analysis) serves many steps and frames; it is
+refreshed only when CG stops converging quickly. A backtracking line search on ``f`` makes
+every accepted step decrease the energy and rejects steps that collapse a triangle.
+
+The factorization is *rotated* to the current pose: the descriptors are invariant under
+rotations, so if the pose moved from ``s_a`` (where ``H_a = J_aᵀ W J_a`` was factored) to
+``s_b`` by local rotations ``R_v`` (one per vertex, fitted to its edges by polar
+decomposition), then ``J_b ≈ J_a Rᵀ`` and ``H_b ≈ R H_a Rᵀ`` with ``R = blockdiag(R_v)``; the
+preconditioner applies ``R H_a⁻¹ Rᵀ``. For a thin shell (membrane much stiffer than bending)
+an unrotated factor from a pose a few degrees away is a poor preconditioner (its stiff
+membrane directions point the wrong way: CG hits its limit and the factor must be rebuilt);
+rotated, it stays good across Gauss–Newton iterations and neighbouring frames, so large
+meshes rarely refactor. The rotations are fitted once per frame (at its initial guess) and
+kept for its Gauss–Newton steps unless a vertex moves by more than a quarter of the mean edge
+length: the steps inside a warm-started frame are small non-rigid corrections, and rotations
+fitted to them made CG slower (154k vertices: 24 CG iterations instead of 13 for the second
+step of a frame).
+
+Rigid motions are in the kernel of ``f``: they are removed by pinned vertices when given, and
+otherwise by the small Levenberg–Marquardt term ``δ I`` (steps never move along the kernel
+because the gradient is orthogonal to it); :func:`rigid_placement` then places each frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ShellsplineError
+from ..mesh.rigid import rigid_modes
+from ..numerics.linalg import SparseCholesky, available_backends, nested_dissection
+from .descriptors import face_areas, lta_descriptors, lta_jacobian, wrap_angle
+from ..mesh.topology import Topology
+
+__all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement"]
+
+#: Vertex count above which :class:`GaussNewton` rotates its cached preconditioner and refreshes
+#: it less eagerly (both pay off only when a factorization costs many solves).
+LARGE_MESH = 20_000
+
+
+@dataclass
+class ReconstructionResult:
+    """Outcome of one Gauss–Newton reconstruction.
+
+    Attributes
+    ----------
+    V : (n,3) float64 array
+        Reconstructed vertex positions.
+    success : bool
+        True when the gradient criterion holds (``status == "converged"``).
+    status : {"converged", "stalled", "limit", "failed"}
+        ``"converged"``: ``|g| <= gtol |g_0|`` (or the gradient is at the energy's round-off
+        level); ``"stalled"``: the line search failed or the energy stopped decreasing before
+        that; ``"limit"``: the iteration limit; ``"failed"``: a degenerate initial guess.
+    nit : int
+        Gauss–Newton iterations performed.
+    message : str
+        Which test stopped the iteration.
+    energy : list of float
+        ``f`` after each iteration (first entry: the initial guess).
+    grad_norm : list of float
+        ``|Jᵀ W r|`` after each iteration.
+    cg_iterations : int
+        Total preconditioned-CG iterations.
+    factorizations : int
+        Numeric factorizations done during this reconstruction.
+    """
+
+    V: np.ndarray
+    success: bool
+    nit: int
+    message: str
+    energy: list = field(default_factory=list)
+    grad_norm: list = field(default_factory=list)
+    cg_iterations: int = 0
+    factorizations: int = 0
+    status: str = "stalled"
+
+    def summary(self) -> dict:
+        """JSON-friendly record (no arrays)."""
+        return {
+            "success": bool(self.success),
+            "status": self.status,
+            "nit": int(self.nit),
+            "message": self.message,
+            "energy_initial": float(self.energy[0]) if self.energy else None,
+            "energy_final": float(self.energy[-1]) if self.energy else None,
+            "grad_norm_final": float(self.grad_norm[-1]) if self.grad_norm else None,
+            "cg_iterations": int(self.cg_iterations),
+            "factorizations": int(self.factorizations),
+        }
+
+
+class GaussNewton:
+    """Precomputed Gauss–Newton solver for one connectivity (STYLE rule 6: precompute + solve).
+
+    Parameters
+    ----------
+    T : Topology
+    pinned : (p,) int array, optional
+        Vertices held at their initial positions (e.g. the cactus base).
+    backend : {"auto", "cholmod", "splu"}
+        Sparse Cholesky backend for the preconditioner (see :mod:`shellspline.numerics.linalg`).
+    max_iter : int
+        Gauss–Newton iteration limit per frame.
+    ftol : float
+        Stalled (not converged) when the relative energy decrease stays below ``ftol`` for
+        three iterations while neither gradient criterion holds.
+    gtol : float
+        Converged when ``|g| <= gtol * |g_0|``.
+    dtol : float
+        Converged when the Gauss–Newton decrement is below ``dtol`` times the energy:
+        ``−gᵀp <= dtol f`` for the (inexact) Gauss–Newton step ``p`` and ``g = JᵀWρ`` (half the
+        gradient of ``f = Σ w ρ²``), i.e. the quadratic model predicts no relative decrease
+        above ``dtol`` (``λ²/2`` of Newton's method, a
+        gradient norm in the metric of the Gauss–Newton matrix; scale-free, and independent of
+        how good the initial guess was, unlike ``gtol``).
+    damping : float
+        Levenberg–Marquardt term relative to the mean diagonal of ``Jᵀ W J``.
+    cg_tol : float
+        Relative residual of the inner CG solves (inexact Gauss–Newton).
+    cg_max_iter : int
+        CG iteration limit; hitting it marks the preconditioner as stale.
+    refresh_cg : int, optional
+        A CG solve that needs more iterations than this marks the preconditioner as stale:
+        the next Gauss–Newton step refactors at its iterate (numeric factorization only; the
+        symbolic analysis is done once). Default: 8 up to 20 000 vertices, growing like the
+        square root of the vertex count above (22 at 150 000 vertices), because a
+        factorization costs more solves the larger the mesh (measured: about 15 solves at
+        20k vertices, 40 at 150k).
+    ordering : {"auto", "amd", "nd"}
+        Fill-reducing order of the factorization (``cholmod`` backend): ``"amd"`` CHOLMOD's
+        approximate minimum degree, ``"nd"`` geometric nested dissection of the vertex graph
+        (:func:`shellspline.numerics.linalg.nested_dissection`, computed once per solver at the
+        first factored pose; CHOLMOD keeps it only where it fills less than its AMD).
+        Default: ``"nd"`` above 20 000 vertices (154k-vertex synthetic cactus: 15 % fewer
+        nonzeros in the factor, 1.6 GB instead of 2.0 GB, numeric factorization 1.5x and
+        triangular solves 13 % faster; the ordering itself takes ~2.5 s), ``"amd"`` below.
+    amortize_refresh : bool, optional
+        Also refactor at the start of a frame when the previous frame needed more CG
+        iterations than this factor's average per frame, the factorization counted as
+        ``refresh_cg`` iterations: the per-frame cost grows as warm-started frames move away
+        from the factored pose, and refactoring when it passes the running average keeps the
+        average smallest. Default: on above 20 000 vertices (154k-vertex synthetic cactus,
+        ``fine=True``: a refactorization every 3–5 frames instead of every 10–12, 25 % fewer
+        CG iterations in all).
+    rotate_preconditioner : bool, optional
+        Apply the cached factorization rotated by the per-vertex rotations from the pose it
+        was computed at to the current pose (see the module notes); ``False`` applies it
+        as is. Default: on above 20 000 vertices (measured on the 154k-vertex synthetic
+        cactus, K = 50, ``fine=True``: 10–26 s per frame and one frame in five refactoring,
+        against ~80 s and two factorizations per frame before; on the 5.2k cactus the
+        rotations cost more than the CG iterations they save).
+    """
+
+    def __init__(self, T: Topology, *, pinned=None, backend: str = "auto", max_iter: int = 60,
+                 ftol: float = 1e-6, gtol: float = 1e-5, damping: float = 1e-8,
+                 cg_tol: float = 1e-2, cg_max_iter: int = 40, refresh_cg: int | None = None,
+                 dtol: float = 2e-6,
+                 rotate_preconditioner: bool | None = None, ordering: str = "auto",
+                 amortize_refresh: bool | None = None):
+        self.T = T
+        self.backend = backend
+        self.max_iter = int(max_iter)
+        self.ftol, self.gtol, self.dtol = float(ftol), float(gtol), float(dtol)
+        self.damping = float(damping)
+        self.cg_tol, self.cg_max_iter = float(cg_tol), int(cg_max_iter)
+        self.refresh_cg = int(refresh_cg) if refresh_cg is not None else \
+            max(8, int(round(8 * np.sqrt(T.n_vertices / LARGE_MESH))))
+        self.rotate_preconditioner = T.n_vertices > LARGE_MESH if rotate_preconditioner is None \
+            else bool(rotate_preconditioner)
+        self.amortize_refresh = T.n_vertices > LARGE_MESH if amortize_refresh is None \
+            else bool(amortize_refresh)
+        self._cycle, self._last_cg = None, 0
+        ordering = str(ordering).lower()
+        if ordering not in ("auto", "amd", "nd"):
+            raise ShellsplineError(f"`ordering` must be 'auto', 'amd' or 'nd', got {ordering!r}")
+        if ordering == "auto":
+            ordering = "nd" if T.n_vertices > LARGE_MESH else "amd"
+        self.ordering = ordering
+        self._perm = None  # DOF elimination order (ordering="nd"), see _dof_order
+        self._x_fact = None  # pose (3n,) at which the cached factorization was computed
+        self._h = None  # mean edge length there (scale of "moved" for the rotations)
+        self._incidence = None
+        N = 3 * T.n_vertices
+        self.pinned = np.unique(np.asarray(pinned, dtype=np.int64)) if pinned is not None \
+            and len(pinned) else np.zeros(0, dtype=np.int64)
+        self._dof_pinned = np.zeros(N, dtype=bool)
+        self._dof_pinned[(3 * self.pinned[:, None] + np.arange(3)).ravel()] = True
+        self._free = ~self._dof_pinned
+        self._chol: SparseCholesky | None = None
+        self._asm = None
+        self._stale = True
+        sl = T.descriptor_slices()
+        self._sL, self._sT, self._sA = sl
+
+    def reset(self) -> None:
+        """Refactor at the next iterate: the next :meth:`solve` no longer depends on the frames
+        this solver solved before (the cached preconditioner only changes the inexact steps,
+        but those reach the converged frame by different paths)."""
+        self._stale = True
+        self._last_cg = 0
+
+    # -- pieces -------------------------------------------------------------------------
+    def merit(self, z, z_target, w):
+        """The reconstruction energy and its Gauss–Newton form at descriptors ``z``.
+
+        Parameters
+        ----------
+        z, z_target : (e+i+m,) float64 arrays
+            Descriptors of the iterate and the target.
+        w : (e+i+m,) float64 array
+            Weights.
+
+        Returns
+        -------
+        f : float
+            ``Σ w ρ²``.
+        r_eff, w_eff : (e+i+m,) float64 arrays
+            ``Jᵀ (w_eff r_eff)`` is half the gradient of ``f`` and ``Jᵀ W_eff J`` its
+            Gauss–Newton matrix (``J`` the descriptor Jacobian).
+
+        Notes
+        -----
+        ``ρ = z − z*`` (paper eq. 12) except:
+
+        - angle residuals are wrapped to ``[−π, π)`` (the spline's targets keep off ±π, see
+          :func:`shellspline.shells.descriptors.consistent_angles`; following each angle continuously
+          instead was measured on the horse and gave 5x more flipped triangles: it holds flaps
+          that the initial guess has on the wrong side of ±π there);
+        - a triangle compressed below its target (``a < a*``) has ``ρ = (a − a*) √(a*/a)``:
+          equal value and slope at ``a = a*``, unchanged for ``a ≥ a*``, and a barrier that
+          grows like ``1/a`` as the triangle collapses. Without it the line search stalled
+          against its no-collapse guard on the horse (gradients up to 3e4 at "converged"
+          frames, 29 collapsed triangles); starting the barrier only at a quarter of the
+          target area stalled on 23 of 38 horse frames (the full form conditions the
+          Gauss–Newton matrix of compressed triangles). It moves the ellipsoids of paper
+          Fig. 3 by at most 6e-4 of a half-axis.
+        """
+        r = z - z_target
+        r[self._sT] = wrap_angle(r[self._sT])
+        sA = self._sA
+        a, at = z[sA], z_target[sA]
+        comp = (a < at) & (a > 0)
+        w_eff = w
+        f_r = r
+        if comp.any():
+            idx = sA.start + np.flatnonzero(comp)
+            g = np.sqrt(at[comp] / a[comp])
+            slope = g * (a[comp] + at[comp]) / (2.0 * a[comp])   # dρ/da
+            rho = r[idx] * g
+            f_r = r.copy()
+            f_r[idx] = rho
+            w_eff = w.copy()
+            w_eff[idx] *= slope * slope
+            r = r.copy()
+            r[idx] = rho / slope
+        f = float(w @ (f_r * f_r))
+        return f, r, w_eff
+
+    def _assembler(self):
+        if self._asm is None:
+            self._asm = _LowerAssembler(self.T)
+        return self._asm
+
+    def _refresh(self, J, w, x):
+        """Factor ``Jᵀ W J + D`` at the current iterate ``x`` (the CG preconditioner)."""
+        asm = self._assembler()
+        data, diag = asm.values(J.data, w)
+        scale = diag[self._free].mean() if self._free.any() else 1.0
+        self._delta = self.damping * scale
+        data[asm.diag_pos] += np.where(self._dof_pinned, max(scale, 1.0), self._delta)
+        if self._chol is None:
+            self._chol = SparseCholesky.from_lower_pattern(asm.indptr, asm.indices, asm.N, data,
+                                                           backend=self.backend,
+                                                           perm=self._dof_order(x))
+        else:
+            self._chol.refactor_lower(data)
+        self._x_fact = np.array(x, dtype=np.float64, copy=True)
+        self._stale = False
+        # cost of this factor's cycle in CG iterations, the factorization counted as
+        # ``refresh_cg`` of them, and the frames it served (see ``solve``)
+        self._cycle = [float(self.refresh_cg), 0]
+
+    def _dof_order(self, x):
+        """DOF elimination order for the factorization, computed once from the pose ``x``
+        (3n,) (None: the backend's own ordering). The vertex graph of ``Jᵀ W J`` is the
+        edges plus the two opposite vertices of every flap; each vertex's three DOFs stay
+        together."""
+        backend = available_backends()[0] if self.backend == "auto" else self.backend
+        if self.ordering != "nd" or backend != "cholmod":
+            return None
+        if self._perm is None:
+            T = self.T
+            order = nested_dissection(np.asarray(x, dtype=np.float64).reshape(-1, 3),
+                                      np.concatenate([T.E[:, 0], T.flaps[:, 2]]),
+                                      np.concatenate([T.E[:, 1], T.flaps[:, 3]]))
+            self._perm = (3 * order[:, None] + np.arange(3)).ravel()
+        return self._perm
+
+    def _rotations(self, x):
+        """Per-vertex rotations ``(n,3,3)`` from the factored pose to ``x``, or None when
+        ``x`` is that pose (or rotation is switched off)."""
+        if not self.rotate_preconditioner or self._x_fact is None or \
+                np.array_equal(self._x_fact, x):
+            return None
+        if self._incidence is None:
+            self._incidence = _edge_incidence(self.T.E, self.T.n_vertices)
+        return _vertex_rotations(self._x_fact.reshape(-1, 3), x.reshape(-1, 3), self.T.E,
+                                 self._incidence, self.T.F)
+
+    def _moved(self, x, x_rot) -> bool:
+        """Whether ``x`` moved so far from ``x_rot`` (where the preconditioner's rotations were
+        fitted) that they must be fitted again: some vertex moved by more than a quarter of
+        the mean edge length of the factored pose."""
+        if not self.rotate_preconditioner:
+            return False
+        if self._h is None:
+            X = self._x_fact.reshape(-1, 3)
+            E = self.T.E
+            self._h = float(np.mean(np.sqrt(np.einsum("ij,ij->i", X[E[:, 1]] - X[E[:, 0]],
+                                                      X[E[:, 1]] - X[E[:, 0]]))))
+        d = (x - x_rot).reshape(-1, 3)
+        return float(np.einsum("ij,ij->i", d, d).max()) > (0.25 * self._h) ** 2
+
+    def _preconditioner(self, x_cur, R="fit"):
+        """``v ↦ P v`` with ``P ≈ (JᵀWJ + δI)⁻¹`` at ``x_cur``: the cached factor, rotated
+        by the per-vertex rotations ``R (n,3,3)`` (default ``"fit"``: :meth:`_rotations` to
+        ``x_cur``; None: not rotated), zero on pinned DOFs and (without pins) off the rigid
+        modes of ``x_cur``: a factorization from an earlier pose amplifies *its* rigid modes
+        by 1/δ, which are not rigid for the current pose."""
+        free = self._free
+        Q = self._free_rigid_modes(x_cur) if x_cur is not None else None
+        if isinstance(R, str):
+            R = self._rotations(x_cur) if x_cur is not None else None
+        chol = self._chol
+
+        def precond(v):
+            if R is not None:
+                v = np.einsum("nji,nj->ni", R, v.reshape(-1, 3)).ravel()  # Rᵀ v
+            out = chol.solve(v)
+            if R is not None:
+                out = np.einsum("nij,nj->ni", R, out.reshape(-1, 3)).ravel()
+            out[~free] = 0.0
+            if Q is not None:
+                out -= np.einsum("ij,j->i", Q, np.einsum("ij,i->j", Q, out))
+            return out
+
+        return precond
+
+    def _free_rigid_modes(self, x):
+        """Orthonormal (3n,r) basis of the rigid motions the pins leave free (all six without
+        pins, none with three non-collinear pins), zero on the pinned DOFs; None if r = 0."""
+        if not self.pinned.size:
+            return _rigid_basis(x)
+        free = np.flatnonzero(self._free)
+        Qf = rigid_modes(x.reshape(-1, 3), free, np.flatnonzero(self._dof_pinned))
+        if Qf.shape[1] == 0:
+            return None
+        Q = np.zeros((x.shape[0], Qf.shape[1]))
+        Q[free] = Qf
+        return Q
+
+    def _pcg(self, J, w, b, delta, precond):
+        """Solve (JᵀWJ + δI) x = b on the free DOFs by CG preconditioned with ``precond``
+        (from :meth:`_preconditioner`; without pins its range excludes the current rigid
+        motions, so CG runs on their complement)."""
+        free = self._free
+        JT = J.T  # one transposed view per solve, not one per CG iteration
+
+        def matvec(v):
+            out = JT @ (w * (J @ v)) + delta * v
+            out[~free] = 0.0
+            return out
+
+        x = np.zeros_like(b)
+        r = b.copy()
+        bn = np.sqrt(_dot(b, b))
+        if bn == 0.0:
+            return x, 0, True
+        zv = precond(r)
+        p = zv.copy()
+        rz = _dot(r, zv)
+        for it in range(1, self.cg_max_iter + 1):
+            Ap = matvec(p)
+            pAp = _dot(p, Ap)
+            if pAp <= 0:
+                return x, it, False
+            a = rz / pAp
+            x += a * p
+            r -= a * Ap
+            if np.sqrt(_dot(r, r)) <= self.cg_tol * bn:
+                return x, it, True
+            zv = precond(r)
+            rz_new = _dot(r, zv)
+            p = zv + (rz_new / rz) * p
+            rz = rz_new
+        return x, self.cg_max_iter, False
+
+    # -- main entry ---------------------------------------------------------------------
+    def solve(self, z_target, weights, V_init) -> ReconstructionResult:
+        """Reconstruct one frame.
+
+        Parameters
+        ----------
+        z_target : (e+i+m,) float64 array
+            Target LΘA descriptors ``z_k``.
+        weights : (e+i+m,) float64 array
+            Energy weights (from :func:`shellspline.shells.descriptors.lta_weights`); entries for
+            non-positive target lengths or areas are set to zero here (paper §7).
+        V_init : (n,3) float64 array
+            Initial guess; pinned vertices keep these positions.
+
+        Returns
+        -------
+        ReconstructionResult
+        """
+        T = self.T
+        z_target = np.asarray(z_target, dtype=np.float64)
+        w = np.array(weights, dtype=np.float64, copy=True)
+        w[self._sL][z_target[self._sL] <= 0] = 0.0
+        w[self._sA][z_target[self._sA] <= 0] = 0.0
+        # a step may not shrink a triangle below this (the barrier keeps iterates far above)
+        a_floor = 1e-6 * np.maximum(z_target[self._sA], 0.0)
+        x = np.array(V_init, dtype=np.float64, copy=True).ravel()
+        J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
+        f, r, w_eff = self.merit(z, z_target, w)
+        g = J.T @ (w_eff * r)
+        g[self._dof_pinned] = 0.0
+        g0 = float(np.linalg.norm(g))
+        res = ReconstructionResult(V=x.reshape(-1, 3), success=False, nit=0, message="",
+                                   energy=[f], grad_norm=[g0], status="stalled")
+        facts0 = self._chol.n_factorizations if self._chol is not None else 0
+        if not (np.isfinite(f) and np.isfinite(g0)):
+            res.status = "failed"
+            res.message = "initial guess is degenerate (non-finite energy)"
+            return res
+        # round-off level of the energy (relative to the targets' own energy) and of the
+        # gradient: a frame this close is exact (e.g. identical keyframes)
+        f_tiny = 1e-20 * float(w @ (z_target * z_target))
+        g_tiny = 1e-12 * np.sqrt(max(f, 0.0) * float(w.sum())) + 1e-300
+        if g0 <= g_tiny or f <= f_tiny:
+            res.success, res.status = True, "converged"
+            res.message = "initial guess is stationary"
+            return res
+        cycle = getattr(self, "_cycle", None)
+        if self.amortize_refresh and cycle is not None and cycle[1] and \
+                self._last_cg * cycle[1] > cycle[0]:
+            # the last frame cost more CG iterations than this factor's average per frame
+            # (factorization included): the per-frame cost grows as the frames move away from
+            # the factored pose, so refactoring now keeps the average smallest
+            self._stale = True
+        x_rot, R = None, None  # pose at which the preconditioner's rotations were fitted
+        stall = 0
+        for it in range(1, self.max_iter + 1):
+            fresh = self._stale or self._chol is None
+            if fresh:
+                self._refresh(J, w_eff, x)
+                x_rot, R = x, None
+            elif x_rot is None or self._moved(x, x_rot):
+                x_rot, R = x, self._rotations(x)
+            precond = self._preconditioner(x, R)
+            p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond)
+            res.cg_iterations += ncg
+            self._cycle[0] += ncg
+            if not ok or ncg > self.refresh_cg:
+                self._stale = True
+            # backtracking line search (Armijo); a step may not collapse a triangle
+            slope = float(g @ p)
+            if slope >= 0:  # not a descent direction: fall back to preconditioned gradient
+                p = -precond(g)
+                slope = float(g @ p)
+                self._stale = True
+            # the Gauss–Newton decrement: the decrease the model still predicts at its
+            # minimiser p (f = Σ w ρ², g = Jᵀ W ρ is half its gradient: the model
+            # f + 2 g·p + pᵀ JᵀWJ p drops by -g·p there); below dtol·f the frame is converged
+            if -slope <= self.dtol * f and ok:
+                res.nit = it - 1
+                res.success, res.status = True, "converged"
+                res.message = "Gauss–Newton decrement below dtol"
+                break
+            alpha, accepted = 1.0, False
+            for _ in range(40):
+                xn = x + alpha * p
+                Vn = xn.reshape(-1, 3)
+                an = face_areas(Vn, T)
+                if np.all(an > a_floor):
+                    zn = lta_descriptors(Vn, T)
+                    fn, rn, wn = self.merit(zn, z_target, w)
+                    if fn <= f + 2e-4 * alpha * slope:      # Armijo; f'(0) = 2 g·p
+                        accepted = True
+                        break
+                    # minimiser of the quadratic through f, f'(0) = 2 g·p and fn, kept in
+                    # [0.1, 0.5] alpha (large-residual frames overshoot by a steady factor)
+                    curv = fn - f - 2.0 * alpha * slope
+                    q = -slope * alpha * alpha / curv if curv > 0 else 0.5 * alpha
+                    alpha = min(max(q, 0.1 * alpha), 0.5 * alpha)
+                    continue
+                alpha *= 0.5
+            if not accepted:
+                if not fresh:  # retry once with a preconditioner refreshed at this iterate
+                    self._stale = True
+                    continue
+                res.nit = it
+                gn_ = float(np.linalg.norm(g))
+                if gn_ <= self.gtol * g0 or gn_ <= g_tiny or f <= f_tiny:
+                    res.success, res.status = True, "converged"
+                    res.message = "converged (no further decrease at round-off level)"
+                else:
+                    res.message = (f"stalled: line search failed at |g|/|g0| = "
+                                   f"{gn_ / g0:.1e}")
+                break
+            x = xn
+            f_old, f = f, fn
+            J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
+            f, r, w_eff = self.merit(z, z_target, w)
+            g = J.T @ (w_eff * r)
+            g[self._dof_pinned] = 0.0
+            gn = float(np.linalg.norm(g))
+            res.energy.append(f)
+            res.grad_norm.append(gn)
+            res.nit = it
+            if gn <= self.gtol * g0 or gn <= g_tiny or f <= f_tiny:
+                res.success, res.status = True, "converged"
+                res.message = "gradient norm reduced below gtol"
+                break
+            # progress test: the energy stopped decreasing for 3 iterations in a row while
+            # the gradient criterion does not hold
+            stall = stall + 1 if f_old - f <= self.ftol * f_old else 0
+            if stall >= 3:
+                res.message = (f"stalled: energy decrease below ftol for 3 iterations at "
+                               f"|g|/|g0| = {gn / g0:.1e}")
+                break
+        else:
+            res.status = "limit"
+            res.message = (f"iteration limit ({self.max_iter}) reached at |g|/|g0| = "
+                           f"{res.grad_norm[-1] / g0:.1e}")
+        res.V = x.reshape(-1, 3)
+        res.factorizations = (self._chol.n_factorizations if self._chol is not None else 0) - facts0
+        if getattr(self, "_cycle", None) is not None:
+            self._cycle[1] += 1
+            self._last_cg = res.cg_iterations
+        return res
+
+
+class _LowerAssembler:
+    """Assembles the lower triangle of ``Jᵀ W J`` straight from the per-element gradient
+    blocks stored in the Jacobian's data array (lengths: 6, angles: 12, areas: 9 entries per
+    row), on a fixed CSC pattern.
+
+    Each element's DOFs are sorted once (a per-row permutation), so its lower-triangle pairs
+    are the same ``k(k+1)/2`` local index pairs for every element; ``values`` forms those
+    products and scatters them with ``bincount`` a chunk of elements at a time, so its
+    temporaries stay bounded (about 64 MB) however large the mesh. Persistent memory: one
+    int32 position per element pair (≈ 230 MB at 150k vertices; forked workers share it).
+    """
+
+    CHUNK = 4_000_000  # element pairs per bincount in ``values``
+
+    def __init__(self, T: Topology):
+        from .descriptors import pattern
+
+        P = pattern(T)
+        N = 3 * T.n_vertices
+        e, i, m = T.n_edges, T.n_interior, T.n_faces
+        self._blocks, r0, off = [], 0, 0
+        for rows, k in ((e, 6), (i, 12), (m, 9)):
+            cols = P.indices[off:off + rows * k].reshape(rows, k)
+            # DOFs of one vertex are consecutive: sorting by column sorts the vertices
+            perm = np.argsort(cols, axis=1, kind="stable").astype(np.int8)
+            a, b = np.tril_indices(k)  # sorted order: a >= b  <=>  col[a] >= col[b]
+            self._blocks.append((r0, rows, k, off, perm, a, b))
+            r0 += rows
+            off += rows * k
+        self.N = N
+
+        def block_keys(blk, lo, hi):
+            r0, rows, k, off, perm, a, b = blk
+            cols = np.take_along_axis(
+                P.indices[off:off + rows * k].reshape(rows, k)[lo:hi], perm[lo:hi], axis=1
+            ).astype(np.int64)
+            return (cols[:, b] * np.int64(N) + cols[:, a]).ravel()  # CSC key: col*N + row
+
+        diag_keys = np.arange(N, dtype=np.int64) * (N + 1)
+        keys = np.concatenate([block_keys(blk, 0, blk[1]) for blk in self._blocks] +
+                              [diag_keys])
+        keys.sort()
+        # sort-then-mask: numpy 2.4's np.unique is ~80x slower on large int64 arrays
+        keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+        self.indices = (keys % N).astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(keys // N, minlength=N))]
+                                     ).astype(np.int32)
+        self.nnz = len(keys)
+        self.diag_pos = np.searchsorted(keys, diag_keys)
+        self._pos = []  # per block: (rows, k(k+1)/2) int32 positions in the CSC data
+        for blk in self._blocks:
+            rows, npairs = blk[1], len(blk[5])
+            step = max(1, self.CHUNK // npairs)
+            self._pos.append(np.concatenate([
+                np.searchsorted(keys, block_keys(blk, lo, min(lo + step, rows))).astype(np.int32)
+                for lo in range(0, rows, step)]).reshape(rows, npairs) if rows else
+                np.zeros((0, npairs), dtype=np.int32))
+
+    def values(self, jdata, w):
+        """Lower-triangle values of ``Jᵀ diag(w) J`` and its diagonal."""
+        data = np.zeros(self.nnz)
+        for (r0, rows, k, off, perm, a, b), pos in zip(self._blocks, self._pos):
+            g_all = jdata[off:off + rows * k].reshape(rows, k)
+            step = max(1, self.CHUNK // len(a))
+            for lo in range(0, rows, step):
+                hi = min(lo + step, rows)
+                g = np.take_along_axis(g_all[lo:hi], perm[lo:hi], axis=1)
+                prod = (w[r0 + lo:r0 + hi, None] * g[:, a]) * g[:, b]
+                data += np.bincount(pos[lo:hi].ravel(), weights=prod.ravel(),
+                                    minlength=self.nnz)
+        return data, data[self.diag_pos].copy()
+
+
+def _edge_incidence(E, n):
+    """Unsigned vertex–edge incidence ``(n,e)`` sparse matrix (sums per-edge values onto both
+    end vertices)."""
+    e = len(E)
+    return sp.csr_matrix((np.ones(2 * e), (E.T.ravel(), np.tile(np.arange(e), 2))),
+                         shape=(n, e))
+
+
+def _vertex_rotations(Xa, Xb, E, incidence=None, F=None):
+    """Rotation part ``R_v`` of the local deformation gradient at every vertex from pose
+    ``Xa (n,3)`` to ``Xb (n,3)``. Returns ``(n,3,3)``.
+
+    The gradient is fitted to the incident edge vectors, ``A_v = (Σ e_b e_aᵀ)(Σ e_a e_aᵀ)⁻¹``
+    (with the vertex normals ``n_b n_aᵀ`` added when the faces ``F`` are given, so that a flat
+    one-ring still determines it), and ``R_v = polar(A_v)`` (determinant +1). Dividing by
+    ``Σ e_a e_aᵀ`` matters: the plain Procrustes rotation ``polar(Σ e_b e_aᵀ)`` of an
+    anisotropic one-ring turns under a pure stretch, and for a stiff membrane such spurious
+    rotations make the rotated preconditioner worse than none.
+    """
+    n = len(Xa)
+    ea = Xa[E[:, 1]] - Xa[E[:, 0]]
+    eb = Xb[E[:, 1]] - Xb[E[:, 0]]
+    if incidence is None:
+        incidence = _edge_incidence(E, n)
+    S = np.asarray(incidence @ (eb[:, :, None] * ea[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)
+    C = np.asarray(incidence @ (ea[:, :, None] * ea[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)
+    if F is not None:
+        def normals(X):
+            fn = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+            vn = np.stack([sum(np.bincount(F[:, c], fn[:, d], minlength=n) for c in range(3))
+                           for d in range(3)], axis=1)
+            return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+
+        na, nb = normals(Xa), normals(Xb)
+        sc = np.trace(C, axis1=1, axis2=2)[:, None, None] / 2.0
+        S = S + sc * (nb[:, :, None] * na[:, None, :])
+        C = C + sc * (na[:, :, None] * na[:, None, :])
+    scale = np.maximum(np.trace(C, axis1=1, axis2=2), 1e-300)[:, None, None]
+    # S (C + εI)⁻¹: the ridge keeps a flat one-ring (without F) or a vertex without edges
+    # solvable and does not change polar(A) of a rigid motion (C (C + εI)⁻¹ is symmetric)
+    ridge = 1e-9 * np.eye(3)
+    A = np.linalg.solve((C / scale + ridge).transpose(0, 2, 1),
+                        (S / scale).transpose(0, 2, 1)).transpose(0, 2, 1)
+    U, _, Vt = np.linalg.svd(A)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= np.where(d == 0, 1.0, d)[:, None]
+    return U @ Vt
+
+
+def _dot(a, b) -> float:
+    """Dot product without BLAS (no thread-pool start-up on small vectors)."""
+    return float(np.einsum("i,i->", a, b))
+
+
+def _rigid_basis(x):
+    """Orthonormal basis (3n,6) of the infinitesimal rigid motions at positions ``x`` (3n,)."""
+    return rigid_modes(x.reshape(-1, 3), slice(None), ())
+
+
+def reconstruct(z_target, weights, V_init, T: Topology, **options) -> ReconstructionResult:
+    """One-shot Gauss–Newton reconstruction (see :class:`GaussNewton` for the options).
+
+    Parameters
+    ----------
+    z_target : (e+i+m,) float64 array
+    weights : (e+i+m,) float64 array
+    V_init : (n,3) float64 array
+    T : Topology
+
+    Returns
+    -------
+    ReconstructionResult
+
+    Examples
+    --------
+    Recover a sphere's shape from its own descriptors, starting from a distorted copy:
+
+    >>> import numpy as np, trimesh
+    >>> from shellspline.mesh.topology import topology
+    >>> from shellspline.shells.descriptors import lta_descriptors, lta_weights
+    >>> m = trimesh.creation.icosphere(subdivisions=1)
+    >>> V, T = np.asarray(m.vertices), topology(m.faces)
+    >>> res = reconstruct(lta_descriptors(V, T), lta_weights(V, T), 1.1 * V, T)
+    >>> res.success, bool(np.allclose(lta_descriptors(res.V, T), lta_descriptors(V, T), atol=1e-6))
+    (True, True)
+    """
+    return GaussNewton(T, **options).solve(z_target, weights, V_init)
+
+
+def rigid_placement(V, V_target, weights=None, fixed=None):
+    """Rigidly move ``V`` onto ``V_target`` in the least-squares sense (Kabsch, no scaling).
+
+    Parameters
+    ----------
+    V : (n,3) float64 array
+    V_target : (n,3) float64 array
+    weights : (n,) float64 array, optional
+        Non-negative per-vertex weights.
+    fixed : (p,) int array, optional
+        Vertices that must not move (pinned vertices). Only the rigid motions that keep them
+        in place are used: a rotation about the point (one vertex), about the line (collinear
+        vertices), or none (three or more non-collinear vertices). They stay bit-identical.
+
+    Returns
+    -------
+    (n,3) float64 array
+        ``V @ R.T + t`` with the optimal rotation ``R`` (det +1) and translation ``t``.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    Y = np.asarray(V_target, dtype=np.float64)
+    w = np.ones(len(V)) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = w / w.sum()
+    if fixed is not None and len(fixed):
+        return _placement_about_fixed(V, Y, w, np.asarray(fixed, dtype=np.int64))
+    cx, cy = w @ V, w @ Y
+    H = (V - cx).T @ ((Y - cy) * w[:, None])
+    U, _, Wt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Wt.T @ U.T)) or 1.0])
+    R = Wt.T @ D @ U.T
+    return (V - cx) @ R.T + cy
+
+
+def _placement_about_fixed(V, Y, w, fixed):
+    P = V[fixed]
+    c = P.mean(axis=0)
+    sv = np.linalg.svd(P - c, compute_uv=False) if len(P) > 1 else np.zeros(3)
+    scale = max(np.abs(V - c).max(), 1e-300)
+    out = V.copy()
+    if sv[0] <= 1e-9 * scale:  # one point: rotation about it
+        H = (V - c).T @ ((Y - c) * w[:, None])
+        U, _, Wt = np.linalg.svd(H)
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Wt.T @ U.T)) or 1.0])
+        out = (V - c) @ (Wt.T @ D @ U.T).T + c
+    elif len(sv) < 2 or sv[1] <= 1e-9 * scale:  # collinear: rotation about the line
+        _, _, Vt = np.linalg.svd(P - c)
+        u = Vt[0]
+        a = (V - c) - np.outer((V - c) @ u, u)
+        b = (Y - c) - np.outer((Y - c) @ u, u)
+        th = np.arctan2(w @ np.einsum("ij,ij->i", np.cross(a, b), np.broadcast_to(u, a.shape)),
+                        w @ np.einsum("ij,ij->i", a, b))
+        K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+        R = np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * (K @ K)
+        out = (V - c) @ R.T + c
+    out[fixed] = V[fixed]
+    return out
