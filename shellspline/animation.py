@@ -353,6 +353,13 @@ def _parse_up(up) -> tuple[int, float]:
     return "xyz".index(s), sign
 
 
+def _body(motion: Motion) -> np.ndarray:
+    """The joints of the body ``(J,)`` bool: all but the roots (a root may be a ground
+    marker far from the body, as in the Bandai Namco files), unless that leaves < 2."""
+    body = motion.parents >= 0
+    return body if body.sum() >= 2 else np.ones(motion.n_joints, dtype=bool)
+
+
 def up_axis(motion: Motion, positions=None) -> tuple[int, float]:
     """The up axis of a motion, detected from the data.
 
@@ -377,10 +384,7 @@ def up_axis(motion: Motion, positions=None) -> tuple[int, float]:
     functions that take it when it fails (lying, crawling, quadrupeds).
     """
     P = forward_kinematics(motion)[0] if positions is None else np.asarray(positions)
-    body = motion.parents >= 0
-    if body.sum() < 2:
-        body = np.ones(motion.n_joints, dtype=bool)
-    B = P[:, body]
+    B = P[:, _body(motion)]
     ext = np.median(B.max(axis=1) - B.min(axis=1), axis=0)
     axis = int(np.argmax(ext))
     h = B[..., axis]
@@ -546,15 +550,15 @@ def foot_skate(motion: Motion, contacts: FootContacts | None = None, **kw) -> di
     dict
         ``drift``: the summed horizontal displacement of the planted point of every foot
         between consecutive frames where it is planted (file units; of the foot's planted
-        joints the one that moves least, so that a foot rolling over its toe pivots); ``drift_per_leg``: the same over
-        the leg length; ``speed``: the mean horizontal speed while planted (units/s);
+        joints the one that moves least, so that a foot rolling over its toe pivots);
+        ``drift_per_leg``: the same over the leg length; ``speed``: the mean horizontal speed while planted (units/s);
         ``speed_per_leg``: the same in leg lengths per second; ``contact_frames``: planted
         foot-steps counted.
     """
     if contacts is None:
         contacts = foot_contacts(motion, **kw)
     step, planted = _planted_steps(motion, contacts)
-    drift = float(step[planted].sum())
+    drift = float(np.linalg.norm(step, axis=-1)[planted].sum())
     n = int(planted.sum())
     leg = contacts.leg_length
     spd = drift / (n * motion.frame_time) if n else 0.0
@@ -597,8 +601,10 @@ def seam_gap(motion: Motion, *, up=None, root_motion: str = "keep") -> dict:
     -------
     dict
         ``rotation_rms`` and ``rotation_max``: angles of ``R_last R_first^T`` over the joints
-        (degrees); ``position_max``: the largest jump of a joint's world position (file units,
-        the root's horizontal travel removed for ``"keep"``); ``position_per_height``: the
+        (degrees); ``position_max``: the largest jump of a body joint's world position (roots
+        excluded, see :func:`up_axis`; file units;
+        for ``"keep"`` the horizontal travel of the body, the median jump over the joints,
+        removed); ``position_per_height``: the
         same over the body height; ``energy``: ``1/2 |log c(1) c(0)^-1|^2`` on the analysis
         curve (radians; position channels over the body height), the seed's closing energy.
     """
@@ -607,12 +613,12 @@ def seam_gap(motion: Motion, *, up=None, root_motion: str = "keep") -> dict:
     ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
     H = body_height(motion, P, ax)
     ang = so3.angle(c.R[-1] @ np.swapaxes(c.R[0], -1, -2))
-    jump = P[-1] - P[0]
-    if root_motion == "keep":
-        r = translation_root(motion)
-        travel = jump[r].copy()
+    body = _body(motion)  # a root may be a ground marker, not part of the body
+    jump = (P[-1] - P[0])[body]
+    if root_motion == "keep":  # poses compared up to the horizontal travel of the body
+        travel = np.median(jump, axis=0)
         travel[ax] = 0.0
-        jump[_subtree(motion, r)] -= travel
+        jump = jump - travel
     Xd = _detrend(c, ax) if root_motion == "keep" else c.X
     dx = (Xd[-1] - Xd[0]) / H
     energy = 0.5 * (float(np.sum(so3.log(c.R[-1] @ np.swapaxes(c.R[0], -1, -2)) ** 2))
@@ -629,10 +635,7 @@ def body_height(motion: Motion, positions=None, axis: int | None = None) -> floa
     P = forward_kinematics(motion)[0] if positions is None else positions
     if axis is None:
         axis = up_axis(motion, P)[0]
-    body = motion.parents >= 0
-    if body.sum() < 2:
-        body = np.ones(motion.n_joints, dtype=bool)
-    h = P[:, body, axis]
+    h = P[:, _body(motion), axis]
     H = float(np.median(h.max(axis=1) - h.min(axis=1)))
     return H if H > 0 else 1.0
 
@@ -647,16 +650,6 @@ def translation_root(motion: Motion) -> int:
                 return j
             col += 1
     return int(np.flatnonzero(motion.parents < 0)[0])
-
-
-def _subtree(motion: Motion, joint: int) -> np.ndarray:
-    """``joint`` and its descendants, as a boolean mask ``(J,)``."""
-    inside = np.zeros(motion.n_joints, dtype=bool)
-    inside[joint] = True
-    for j in range(joint + 1, motion.n_joints):  # parents come before children
-        p = motion.parents[j]
-        inside[j] = p >= 0 and inside[p]
-    return inside
 
 
 def _horizontal_cols(c: MotionCurve, ax: int) -> np.ndarray:

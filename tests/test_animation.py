@@ -289,3 +289,48 @@ def test_blend_across_frame_rates_and_layouts():
     assert abs((m.n_frames - 1) * m.frame_time - 1.25) <= m.frame_time
     with pytest.raises(ShellsplineError, match="align must be"):
         A.blend(a, b, 0.5, align="dtw")
+
+
+# ----------------------------------------------------------------------------------------
+# Closing
+# ----------------------------------------------------------------------------------------
+def test_closing_a_real_walk():
+    m = real()
+    out, r = A.close(m, iterations=10)
+    assert r.iterations <= 10 and r.history[0] >= 100 * r.history[-1]
+    assert r.gap_before["rotation_max"] > 20 and r.gap_after["rotation_max"] <= 1e-6
+    assert r.gap_after["position_max"] <= 1e-6 * A.body_height(m)
+    assert out.n_frames == m.n_frames and out.channels == m.channels
+    # the rest of the motion is kept: the middle frame moves little
+    Pm, Po = forward_kinematics(m)[0], forward_kinematics(out)[0]
+    mid = m.n_frames // 2
+    rel = lambda P: P[mid, 1:] - P[mid, 1:2]  # noqa: E731  (pose relative to the hips)
+    assert np.abs(rel(Pm) - rel(Po)).max() < 0.1 * A.body_height(m)
+    # the walk still travels (root motion kept), the planted feet slide less than before
+    hips = lambda P: P[-1, 1, [0, 2]] - P[0, 1, [0, 2]]  # noqa: E731
+    assert np.linalg.norm(hips(Po) - hips(Pm)) < 0.05 * np.linalg.norm(hips(Pm))
+    assert r.skate_after["speed"] < 0.1 * r.skate_before["speed"]
+    assert r.skate_after["speed"] < 0.1 * r.skate_closed["speed"]
+    # without planting, the closed clip is returned as closed
+    out2, r2 = A.close(m, iterations=10, plant=False)
+    assert r2.skate_after == r2.skate_closed
+
+
+def test_closing_c1_removes_the_velocity_jump():
+    m = real().frames(0, 120)
+    _, r0 = A.close(m, iterations=10)
+    _, r1 = A.close(m, iterations=10, c1=True)
+    assert r1.history[-1] <= 1e-9 * r1.history[0]
+    assert r1.velocity_jump[-1] < 1e-6 * r1.velocity_jump[0]
+    assert r0.velocity_jump[-1] > 100 * r1.velocity_jump[-1]
+
+
+def test_closing_with_the_root_closed_and_other_layouts():
+    m = synth.motion(fps=120.0, seconds=1.3, channels=3, order="mixed", up="z")
+    out, r = A.close(m, root_motion="close")
+    g = A.seam_gap(out, root_motion="close")
+    assert g["position_max"] <= 1e-6 * A.body_height(m) and g["rotation_max"] <= 1e-6
+    with pytest.raises(ShellsplineError, match="root_motion"):
+        A.close(m, root_motion="open")
+    with pytest.raises(ShellsplineError, match="3 frames"):
+        A.close(m.frames(0, 2))
