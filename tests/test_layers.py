@@ -25,7 +25,7 @@ LAYERS = {
     "curves": 4,
     "io": 5, "metrics": 5,
     "animation": 6, "pipeline": 6,
-    "viz": 7, "batch": 8,
+    "viz": 7, "motion_viz": 7, "batch": 8,
     "cli": 9,
     "integrations": 10,
 }

@@ -172,12 +172,14 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     # Other subcommands live in their own modules; each registers parsers that set `func`.
     from . import batch as _cli_batch
+    from . import motion as _cli_motion
     from . import path as _cli_path
     from . import viz as _cli_viz
 
     _cli_viz.add_parsers(sub)
     _cli_batch.add_parsers(sub)
     _cli_path.add_parsers(sub)
+    _cli_motion.add_parsers(sub)
     return p
 
 

@@ -1,0 +1,282 @@
+"""``shellspline motion``: distances, time alignment, blending and loop closing of BVH clips.
+
+Subcommands ``distance``, ``align``, ``blend`` and ``close`` (see :mod:`shellspline.animation`);
+pictures with ``--render STRIP.png|ANIM.gif`` (stick figures) and ``--plot PNG`` (feet, warp,
+seam gap). Outputs are written atomically and never replace an existing file without
+``--overwrite``. Errors are one line, exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ShellsplineError
+
+EXIT_OK, EXIT_WARN = 0, 1
+
+_EPILOG = """examples:
+  shellspline motion distance walk.bvh walk_tired.bvh --align dp --features contacts
+  shellspline motion align walk.bvh walk_tired.bvh -o warp.csv --plot warp.png
+  shellspline motion blend walk.bvh walk_happy.bvh --s 0.5 -o blend.bvh --render blend.gif
+  shellspline motion close walk.bvh -o loop.bvh --iterations 10 --c1 --plot loop.png
+
+features: 'contacts' pairs the foot touch-downs detected in both clips (feet and up axis found
+from the data; --up overrides the axis); a CSV file gives pairs 'time_a,time_b' in seconds,
+one per line ('#' comments); 'none' (default) aligns on the motion alone."""
+
+
+def add_parsers(sub) -> None:
+    """Register ``shellspline motion`` and its subcommands."""
+    p = sub.add_parser("motion", help="distance, align, blend and close skeletal motions (BVH)",
+                       description="Shape analysis of skeletal animations on SO(3)^d x R^m: "
+                                   "SRV distance, time alignment with feature points, "
+                                   "blending and loop closing.",
+                       epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ms = p.add_subparsers(dest="motion_command", metavar="{distance,align,blend,close}")
+    ms.required = True
+
+    def common(q, two=True, out=None):
+        if two:
+            q.add_argument("a", metavar="A", help="first BVH clip")
+            q.add_argument("b", metavar="B", help="second BVH clip (the same skeleton)")
+        else:
+            q.add_argument("a", metavar="IN", help="BVH clip")
+        if out:
+            q.add_argument("-o", "--out", required=True, metavar="OUT", help=out)
+        q.add_argument("--up", metavar="AXIS", default=None,
+                       help="up axis (x, y, z, -y, ...; default: detected from the data)")
+        q.add_argument("--render", metavar="STRIP.png|ANIM.gif",
+                       help="stick figures: a strip (.png/.svg/.pdf) or an animated .gif "
+                            "(needs the viz extra)")
+        q.add_argument("--plot", metavar="PNG",
+                       help="plot foot heights and contacts, the warp, the seam gap per "
+                            "iteration (needs the viz extra)")
+        q.add_argument("--overwrite", action="store_true",
+                       help="replace output files that exist")
+        q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+    def aligning(q, default="dp"):
+        q.add_argument("--align", choices=["dp", "none"], default=default,
+                       help=f"time alignment by dynamic programming or none (default {default})")
+        q.add_argument("--features", metavar="F", default="none",
+                       help="feature points: contacts, none, or a CSV of time pairs (seconds)")
+
+    q = ms.add_parser("distance", help="print the SRV distance of two clips",
+                      description="Print the SRV distance of two clips of one skeleton (the "
+                                  "symmetric shape distance with --align dp).")
+    common(q)
+    aligning(q)
+    q.set_defaults(func=_distance)
+
+    q = ms.add_parser("align", help="write the time warp aligning B to A",
+                      description="Write the warp phi aligning B to A as CSV: time_a,time_b "
+                                  "in seconds, one row per frame of the common grid.")
+    common(q, out="warp CSV file")
+    q.add_argument("--features", metavar="F", default="none",
+                   help="feature points: contacts, none, or a CSV of time pairs (seconds)")
+    q.set_defaults(func=_align)
+
+    q = ms.add_parser("blend", help="blend two clips into a new BVH",
+                      description="Blend two clips of one skeleton along the SRV geodesic, "
+                                  "aligned in time first (--align dp).")
+    common(q, out="BVH file to write")
+    q.add_argument("--s", type=float, default=0.5, metavar="S",
+                   help="weight of B (0: A, 1: B; default 0.5)")
+    aligning(q)
+    q.set_defaults(func=_blend)
+
+    q = ms.add_parser("close", help="make a clip loop seamlessly",
+                      description="Close a clip into a loop by the gradient flow of the seam "
+                                  "gap (seed 000), optionally C1, then keep planted feet from "
+                                  "sliding by moving the root.")
+    common(q, two=False, out="BVH file to write")
+    q.add_argument("--iterations", type=int, default=10, metavar="N",
+                   help="closing iterations (default 10)")
+    q.add_argument("--c1", action="store_true", help="also match the velocities at the seam")
+    q.add_argument("--root-motion", choices=["keep", "close"], default="keep",
+                   help="keep: the root's horizontal travel is the loop's root motion (a walk "
+                        "loops forward; default); close: the root returns to its start")
+    q.add_argument("--no-plant", action="store_true",
+                   help="do not correct the root where planted feet slide")
+    q.set_defaults(func=_close)
+
+
+def _say(args):
+    return (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
+
+
+def _check_outputs(args, *paths):
+    """Fail before any work on a bad --up, on an output that exists (without --overwrite),
+    whose folder is missing, or whose picture type is unknown."""
+    if args.up is not None and args.up.strip().lower().lstrip("+-") not in ("x", "y", "z"):
+        raise ShellsplineError(f"--up must be one of x, y, z (optionally signed, e.g. -z), got "
+                               f"{args.up!r}")
+    for path in paths:
+        if path is None:
+            continue
+        p = Path(path)
+        if p.exists() and not args.overwrite:
+            raise ShellsplineError(f"{path} exists (use --overwrite to replace it)")
+        if p.is_dir():
+            raise ShellsplineError(f"{path} is a folder, expected a file")
+        if not p.parent.is_dir():
+            raise ShellsplineError(f"{path}: the folder {p.parent} does not exist")
+    for path, kinds in ((args.render, (".png", ".svg", ".pdf", ".gif")),
+                        (args.plot, (".png", ".svg", ".pdf"))):
+        if path is not None and Path(path).suffix.lower() not in kinds:
+            raise ShellsplineError(f"{path}: expected one of {', '.join(kinds)}")
+    if args.render or args.plot:
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise ShellsplineError("--render/--plot need matplotlib: pip install "
+                                   "'shellspline[viz]'")
+
+
+def _read(path):
+    from ..io.bvh import read_bvh
+
+    p = Path(path)
+    if not p.is_file():
+        raise ShellsplineError(f"{path}: no such file")
+    return read_bvh(p)
+
+
+def _read_features(spec):
+    if spec in (None, "none", "contacts"):
+        return None if spec in (None, "none") else "contacts"
+    p = Path(spec)
+    if not p.is_file():
+        raise ShellsplineError(f"--features: expected 'contacts', 'none' or a CSV file, got "
+                               f"{spec!r} (no such file)")
+    rows = []
+    for i, line in enumerate(p.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+        s = line.split("#", 1)[0].strip()
+        if not s or s.lower().replace(" ", "") in ("time_a,time_b", "t_a,t_b"):
+            continue
+        parts = [x for x in s.replace(";", ",").replace("\t", ",").split(",") if x.strip()]
+        try:
+            vals = [float(x) for x in parts]
+        except ValueError:
+            raise ShellsplineError(f"{spec}:{i}: expected two times in seconds, got "
+                                   f"{s!r}") from None
+        if len(vals) != 2:
+            raise ShellsplineError(f"{spec}:{i}: expected two times in seconds, got {s!r}")
+        rows.append(vals)
+    if not rows:
+        raise ShellsplineError(f"{spec}: no feature pairs")
+    return np.array(rows)
+
+
+def _pictures(args, motions, say, *, warp=None, seam=None):
+    from ..animation import foot_contacts
+    from ..motion_viz import plot_motion, render_gif, render_strip
+
+    if args.render:
+        if Path(args.render).suffix.lower() == ".gif":
+            render_gif(motions, args.render, up=args.up)
+        else:
+            render_strip(motions, args.render, up=args.up)
+        say(f"  render      {args.render}")
+    if args.plot:
+        ms = motions if isinstance(motions, (list, tuple)) else [motions]
+        plot_motion(args.plot, motions=ms, contacts=[foot_contacts(m, up=args.up) for m in ms],
+                    warp=warp, seam_history=seam)
+        say(f"  plot        {args.plot}")
+
+
+def _distance(args) -> int:
+    from ..animation import distance
+
+    _check_outputs(args)
+    say = _say(args)
+    a, b = _read(args.a), _read(args.b)
+    d = distance(a, b, align=args.align, features=_read_features(args.features), up=args.up)
+    print(f"{d:.9g}")
+    say(f"  distance    SRV, align {args.align}, features {args.features}: {d:.6g}")
+    if args.render or args.plot:
+        _pictures(args, [a, b], say)
+    return EXIT_OK
+
+
+def _align(args) -> int:
+    from ..animation import align
+    from ..io.posefiles import write_text_atomic
+
+    _check_outputs(args, args.out)
+    say = _say(args)
+    a, b = _read(args.a), _read(args.b)
+    rep = align(a, b, features=_read_features(args.features), up=args.up)
+    lines = ["time_a,time_b"] + [f"{x!r},{y!r}" for x, y in rep.seconds.tolist()]
+    write_text_atomic(args.out, "\n".join(lines) + "\n")
+    nf = 0 if rep.features is None else rep.features.shape[0]
+    say(f"  align       {rep.t.size} frames, {nf} feature pairs: SRV distance "
+        f"{rep.distance_before:.4g} -> {rep.distance_after:.4g}")
+    say(f"  wrote       {args.out}")
+    if args.render or args.plot:
+        from ..animation import common_grid, warp_motion
+
+        a2, _ = common_grid(a, b, rep.t.size)
+        _pictures(args, [a2, warp_motion(b, rep.phi, a2.frame_time)], say,
+                  warp=(rep.t, rep.phi))
+    return _status(rep.result, say)
+
+
+def _status(result, say) -> int:
+    ok = getattr(result, "success", True)
+    if not ok:
+        say(f"  warning: {getattr(result, 'message', 'the solver did not converge')}")
+        return EXIT_WARN
+    return EXIT_OK
+
+
+def _blend(args) -> int:
+    from ..animation import blend, foot_skate
+    from ..io.bvh import write_bvh
+
+    _check_outputs(args, args.out)
+    say = _say(args)
+    a, b = _read(args.a), _read(args.b)
+    m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args.features),
+                   up=args.up)
+    write_bvh(m, args.out)
+    sk = foot_skate(m, up=args.up)
+    say(f"  blend       s = {args.s:g}, align {args.align}: {m.n_frames} frames at "
+        f"{m.fps:.4g} fps" + ("" if rep is None else
+                              f"; SRV distance {rep.distance_before:.4g} -> "
+                              f"{rep.distance_after:.4g} after alignment"))
+    say(f"  foot skate  {sk['speed']:.3g} units/s while planted "
+        f"({sk['speed_per_leg']:.3g} leg lengths/s)")
+    say(f"  wrote       {args.out}")
+    if args.render or args.plot:
+        _pictures(args, m, say, warp=None if rep is None else (rep.t, rep.phi))
+    return EXIT_OK if rep is None else _status(rep.result, say)
+
+
+def _close(args) -> int:
+    from ..animation import close
+    from ..io.bvh import write_bvh
+
+    if args.iterations < 0:
+        raise ShellsplineError(f"--iterations must be >= 0, got {args.iterations}")
+    _check_outputs(args, args.out)
+    say = _say(args)
+    m = _read(args.a)
+    out, rep = close(m, iterations=args.iterations, c1=args.c1, root_motion=args.root_motion,
+                     plant=not args.no_plant, up=args.up)
+    write_bvh(out, args.out)
+    g0, g1 = rep.gap_before, rep.gap_after
+    say(f"  seam gap    {g0['rotation_max']:.3g} -> {g1['rotation_max']:.3g} deg (largest "
+        f"joint), {g0['position_max']:.3g} -> {g1['position_max']:.3g} units (largest joint "
+        f"jump); energy {g0['energy']:.3g} -> {g1['energy']:.3g} in {rep.iterations} "
+        "iterations")
+    s0, s1, s2 = rep.skate_before, rep.skate_closed, rep.skate_after
+    say(f"  foot skate  {s0['speed']:.3g} (input) -> {s1['speed']:.3g} (closed) -> "
+        f"{s2['speed']:.3g} units/s (feet planted) while in contact")
+    say(f"  wrote       {args.out}")
+    if args.render or args.plot:
+        _pictures(args, out, say, seam=rep.history)
+    return _status(rep.result, say)

@@ -1,0 +1,126 @@
+"""``shellspline motion distance|align|blend|close``: outputs, exit codes, one-line errors."""
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+import data_synth.motion as synth
+from shellspline import animation as A
+from shellspline.cli.main import main
+from shellspline.io.bvh import read_bvh, write_bvh
+
+from conftest import shared_data
+
+HAVE_MPL = importlib.util.find_spec("matplotlib") is not None
+
+
+def walk(name="dataset-1_walk_normal_001.bvh"):
+    return str(shared_data("motion", name))
+
+
+def run(capsys, *argv):
+    code = main(["motion", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_distance_prints_the_number(capsys):
+    a, b = walk(), walk("dataset-1_walk_tired_001.bvh")
+    code, out, err = run(capsys, "distance", a, a, "--align", "none")
+    assert code == 0 and float(out) == 0.0
+    code, out, _ = run(capsys, "distance", a, b, "--align", "dp", "--features", "contacts", "-q")
+    assert code == 0
+    d = float(out)
+    assert np.isclose(d, A.distance(read_bvh(a), read_bvh(b), features="contacts"), rtol=1e-6)
+
+
+def test_align_writes_the_warp(capsys, tmp_path):
+    a = read_bvh(walk())
+    t = np.linspace(0, 1, a.n_frames)
+    write_bvh(A.warp_motion(a, t ** 1.5), tmp_path / "slow.bvh")
+    out = tmp_path / "warp.csv"
+    code, _, err = run(capsys, "align", tmp_path / "slow.bvh", walk(), "-o", out)
+    assert code == 0 and "align" in err
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    dur = (a.n_frames - 1) * a.frame_time
+    assert rows.shape[1] == 2 and np.allclose(rows[[0, -1]], [[0, 0], [dur, dur]], atol=1e-9)
+    assert np.abs(rows[:, 1] / dur - (rows[:, 0] / dur) ** 1.5).max() <= 0.005
+    # a feature file: pairs of times in seconds
+    feats = tmp_path / "f.csv"
+    feats.write_text("time_a,time_b\n# touch-downs\n1.0, 1.2\n3.0,3.1\n")
+    code, _, _ = run(capsys, "align", tmp_path / "slow.bvh", walk(), "-o", out, "--overwrite",
+                     "--features", feats)
+    assert code == 0
+
+
+def test_blend_writes_a_bvh_that_reads_back(capsys, tmp_path):
+    out = tmp_path / "blend.bvh"
+    code, _, err = run(capsys, "blend", walk(), walk("dataset-1_walk_happy_001.bvh"),
+                       "--s", "0.5", "-o", out)
+    assert code == 0 and "foot skate" in err
+    m = read_bvh(out)
+    src = read_bvh(walk())
+    assert m.channels == src.channels and m.names == src.names
+    # blending a clip with itself gives the clip
+    code, _, _ = run(capsys, "blend", walk(), walk(), "-o", out, "--overwrite", "-q")
+    assert code == 0 and np.abs(read_bvh(out).values - src.values).max() <= 1e-9
+
+
+def test_other_layouts_through_the_cli(capsys, tmp_path):
+    a = synth.motion(fps=120.0, seconds=1.0, channels=3, order="mixed", up="z")
+    b = synth.motion(fps=30.0, seconds=1.2, channels=3, order="mixed", up="z", cadence=0.8)
+    write_bvh(a, tmp_path / "a.bvh")
+    write_bvh(b, tmp_path / "b.bvh")
+    code, _, _ = run(capsys, "blend", tmp_path / "a.bvh", tmp_path / "b.bvh", "-o",
+                     tmp_path / "ab.bvh", "-q")
+    assert code == 0
+    m = read_bvh(tmp_path / "ab.bvh")
+    assert m.channels == a.channels and m.frame_time == a.frame_time
+
+
+def test_errors_are_one_line_with_exit_code_2(capsys, tmp_path):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n}\nMOTION\nFrames: 2\n")
+    out = tmp_path / "o.bvh"
+    cases = [("distance", bad, walk()),
+             ("distance", tmp_path / "missing.bvh", walk()),
+             ("blend", walk(), walk(), "-o", tmp_path / "nofolder" / "x.bvh"),
+             ("close", walk(), "-o", out, "--iterations", "-1"),
+             ("align", walk(), walk(), "-o", out, "--features", "nonsense"),
+             ("distance", walk(), walk(), "--up", "w")]
+    other = synth.motion(seconds=0.5)
+    write_bvh(other, tmp_path / "other.bvh")
+    cases.append(("distance", walk(), tmp_path / "other.bvh"))
+    for argv in cases:
+        code, out_s, err = run(capsys, *argv)
+        assert code == 2, argv
+        assert err.strip() and len(err.strip().splitlines()) == 1, (argv, err)
+    assert "different skeletons" in run(capsys, *cases[-1])[2]
+
+
+def test_outputs_are_not_replaced_without_overwrite(capsys, tmp_path):
+    out = tmp_path / "x.bvh"
+    out.write_text("keep me")
+    code, _, err = run(capsys, "blend", walk(), walk(), "-o", out)
+    assert code == 2 and "--overwrite" in err and out.read_text() == "keep me"
+
+
+@pytest.mark.skipif(not HAVE_MPL, reason="matplotlib (the viz extra) is not installed")
+def test_render_and_plot(capsys, tmp_path):
+    strip, gif, png = tmp_path / "s.png", tmp_path / "a.gif", tmp_path / "p.png"
+    code, _, _ = run(capsys, "align", walk(), walk("dataset-1_walk_tired_001.bvh"), "-o",
+                     tmp_path / "w.csv", "--render", strip, "--plot", png, "-q")
+    assert code == 0 and strip.stat().st_size > 1000 and png.stat().st_size > 1000
+    from PIL import Image
+
+    short = tmp_path / "short.bvh"
+    write_bvh(read_bvh(walk()).frames(0, 20), short)
+    code, _, _ = run(capsys, "blend", short, short, "-o", tmp_path / "b.bvh", "--render", gif,
+                     "-q")
+    assert code == 0
+    with Image.open(gif) as im:
+        assert im.n_frames == 20
+    code, _, err = run(capsys, "distance", walk(), walk(), "--render", tmp_path / "x.txt")
+    assert code == 2 and ".gif" in err
