@@ -453,17 +453,6 @@ def test_batch_writes_back_the_input_and_maps_pins(tmp_path, tube):
     assert np.array_equal(V[seam[:, 0]], V[seam[:, 1]])
 
 
-def test_docstring_examples_run():
-    """The examples in the docstrings of the read side and of the source map are doctests."""
-    import doctest
-
-    import shellspline.mesh.source_mesh as sm
-
-    for mod in (sm, sio.meshes, sio.keyframes, sio.sequences):
-        result = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
-        assert result.attempted > 0 and result.failed == 0, mod.__name__
-
-
 def test_cli_says_what_reading_changed(tmp_path, tube, capsys):
     from shellspline.cli.main import main
 
