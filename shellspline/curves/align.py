@@ -209,7 +209,15 @@ def _feature_terms(phi, feats, with_grad):
     return E, g
 
 
-def warp_energy(q0, q1, phi, feats=None) -> tuple[float, float]:
+def _public_features(q0, q1, features, lam, symmetric):
+    if features is None:
+        return None
+    N0, N1 = q0.shape[0] + 1, q1.shape[0] + 1
+    return _canonical_features(features, lam, symmetric, None, np.linspace(0, 1, N0),
+                               np.linspace(0, 1, N1), N0, N1)
+
+
+def warp_energy(q0, q1, phi, *, features=None, lam=0.0, symmetric=False):
     """Exact energy of a piecewise-linear warp (normalised time, uniform grids).
 
     Parameters
@@ -220,24 +228,27 @@ def warp_energy(q0, q1, phi, feats=None) -> tuple[float, float]:
         SRV of curve 1.
     phi : (N0,) array_like
         Increasing warp values at curve 0's vertices, ``phi[0] = 0``, ``phi[-1] = 1``.
-    feats : optional
-        Internal feature description (see :func:`align`).
+    features, lam, symmetric
+        Soft feature term as in :func:`align` (feature times in ``[0, 1]``).
 
     Returns
     -------
     total, elastic : float
         ``elastic = int |q0 - sqrt(phi') q1(phi)|^2``, ``total = elastic + feature terms``.
     """
-    E, _ = _energy(np.asarray(q0, float), np.asarray(q1, float), np.asarray(phi, float), feats,
-                   False)
+    q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+    feats = _public_features(q0, q1, features, lam, symmetric)
+    E, _ = _energy(q0, q1, np.asarray(phi, float), feats, False)
     return E
 
 
-def warp_energy_grad(q0, q1, phi, feats=None) -> tuple[float, np.ndarray]:
+def warp_energy_grad(q0, q1, phi, *, features=None, lam=0.0, symmetric=False):
     """Total energy of :func:`warp_energy` and its gradient w.r.t. ``phi``, ``(N0,)``
-    (zero at both ends, which are fixed)."""
-    (E, _), g = _energy(np.asarray(q0, float), np.asarray(q1, float), np.asarray(phi, float),
-                        feats, True)
+    (zero at both ends, which are fixed; right derivatives where a vertex sits on a sample of
+    curve 1)."""
+    q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+    feats = _public_features(q0, q1, features, lam, symmetric)
+    (E, _), g = _energy(q0, q1, np.asarray(phi, float), feats, True)
     return E, g
 
 
@@ -412,13 +423,17 @@ def _refine(q0, q1, phi, feats, max_iter, tol):
     h1 = 1.0 / q1.shape[0]
     phi[1:-1] += 0.1 * h1 * np.minimum(1.0, np.diff(phi)[-1] / h1)
     z = np.log(np.maximum(np.diff(phi), 1e-12))
+    z -= z.mean()
+    # slopes stay within e^{+-40} of each other (no under/overflow in sqrt(h0 / dphi))
+    bounds = [(-20.0, 20.0)] * z.size
+    z = np.clip(z, -20.0, 20.0)
     E = fun(z)[0]
     nit, ok, msg = 0, False, "no iteration"
     # the energy is only piecewise smooth (kinks where a vertex crosses a sample of curve 1):
     # a line search that fails on a kink is restarted (fresh quasi-Newton memory) while it
     # still makes progress
     for _ in range(_RESTARTS):
-        res = minimize(fun, z, jac=True, method="L-BFGS-B",
+        res = minimize(fun, z, jac=True, method="L-BFGS-B", bounds=bounds,
                        options={"maxiter": max(1, int(max_iter) - nit), "gtol": tol,
                                 "ftol": 1e-13})
         nit += int(res.nit)

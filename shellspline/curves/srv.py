@@ -372,7 +372,7 @@ def reparametrize(curve: ProductCurve, phi, t=None, *, periodic: bool = False) -
     s = np.clip((phi - T[j]) / (T[j + 1] - T[j]), 0.0, 1.0)
     inc = _increments(curve)                     # (N-1, 3d+m)
     d = curve.d
-    w = inc[j, :3 * d].reshape(-1, d, 3) * s[:, None, None]
+    w = inc[j, :3 * d].reshape(j.shape[0], d, 3) * s[:, None, None]
     R = so3.exp(w) @ curve.R[j]
     X = curve.X[j] + s[:, None] * inc[j, 3 * d:]
     return ProductCurve(R, X, t)
