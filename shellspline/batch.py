@@ -85,7 +85,7 @@ _DEFAULTS = {"frames": None, "K": None, "bc": "natural", "method": "lta", "eta":
              "formats": ["obj"], "keyframe_pattern": "pose_*.obj",
              "frames_file": "frames.txt", "pinned_file": "pinned.txt", "render": [],
              "plots": [], "delay": 0.0}
-_FORMATS = ("obj", "ply", "glb")
+_FORMATS = ("obj", "ply", "glb", "mdd", "pc2", "usd")  # io.sequences.SEQUENCE_FORMATS
 _RENDERS = ("strip", "gif")
 _PLOTS = ("half_axes",)
 _NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]{0,127}$")
@@ -978,11 +978,14 @@ def _run_sequence(spec: SequenceSpec, key: str | None, inner_workers: int = 1,
         # the input's polygons and vertex numbering written back (real exports)
         V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K,
                                                                    p["bc"])
+        from .io.usd import conventional_up_axis  # the input's convention, for a USD stage
+
+        up = "z" if spec.keyframes and conventional_up_axis(spec.keyframes[0]) == "z" else "y"
         write_sequence(staging, V_out, res.F, report, fmt=spec.formats[0],
-                          protect=protect, workers=inner_workers, source=res.source)
+                          protect=protect, workers=inner_workers, source=res.source, up_axis=up)
         for fmt in spec.formats[1:]:
             write_sequence(staging / fmt, V_out, res.F, report, fmt=fmt, protect=protect,
-                              workers=inner_workers, source=res.source)
+                              workers=inner_workers, source=res.source, up_axis=up)
         _write_json_atomic(staging / "metrics.json",
                            {**metrics, "keyframe_frames": [int(f) for f in res.frames]})
         if emit is not None:

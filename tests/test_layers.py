@@ -26,8 +26,8 @@ LAYERS = {
     "io": 5, "metrics": 5,
     "animation": 6, "pipeline": 6,
     "viz": 7, "motion_viz": 7, "batch": 8,
+    "integrations": 8,  # the Blender add-on (pipeline + io); `shellspline blender-addon` zips it
     "cli": 9,
-    "integrations": 10,
 }
 FORBIDDEN = {("shells", "groups"), ("groups", "shells"), ("curves", "shells"),
              ("io", "metrics"), ("metrics", "io")}

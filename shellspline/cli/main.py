@@ -162,16 +162,25 @@ def _build_parser() -> argparse.ArgumentParser:
                         "initialised from the prolonged result")
     q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
     q.add_argument("--max-iter", type=int, default=None, help="Gauss–Newton iteration limit")
-    q.add_argument("--format", default="obj", choices=["obj", "ply", "glb"],
-                   help="output: frame_*.obj (default, exact), frame_*.ply (binary, exact) or "
+    q.add_argument("--format", default="obj",
+                   choices=["obj", "ply", "glb", "mdd", "pc2", "usd"],
+                   help="output: frame_*.obj (default, exact), frame_*.ply (binary, exact), "
                         "one animation.glb (float32 morph-target animation for Blender, "
-                        "three.js, game engines)")
+                        "three.js, game engines), a point cache animation.mdd or animation.pc2 "
+                        "with mesh.obj (float32; Blender's Mesh Cache modifier, Maya, Houdini) "
+                        "or animation.usdc (USD, time-sampled points; needs usd-core)")
     q.add_argument("--fps", type=float, default=24.0,
-                   help="frames per second of the GLB animation (default 24)")
+                   help="frames per second of the GLB/USD animation and the MDD frame times; "
+                        "with --topology, turns MDD times into frames (default 24)")
+    q.add_argument("--topology", metavar="MESH",
+                   help="the keyframes are the samples of one point cache (KEYFRAMES is one "
+                        ".mdd or .pc2 file) on the vertices of MESH, at the cache's frames "
+                        "unless --frames")
     q.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     # Other subcommands live in their own modules; each registers parsers that set `func`.
     from . import batch as _cli_batch
+    from . import blender as _cli_blender
     from . import motion as _cli_motion
     from . import path as _cli_path
     from . import viz as _cli_viz
@@ -180,6 +189,7 @@ def _build_parser() -> argparse.ArgumentParser:
     _cli_batch.add_parsers(sub)
     _cli_path.add_parsers(sub)
     _cli_motion.add_parsers(sub)
+    _cli_blender.add_parsers(sub)
     return p
 
 
@@ -215,7 +225,15 @@ def _interpolate(args) -> int:
     except OverflowError:
         raise ShellsplineError(f"--frames {args.frames!r}: a frame number is too "
                                "large") from None
-    kf = read_keyframes(args.keyframes, frames=frames)
+    if args.topology:
+        from ..io.pointcache import keyframes_from_cache
+
+        if len(args.keyframes) != 1:
+            raise ShellsplineError(f"--topology: give one point cache (.mdd or .pc2), got "
+                                   f"{len(args.keyframes)} files")
+        kf = keyframes_from_cache(args.keyframes[0], args.topology, frames, fps=args.fps)
+    else:
+        kf = read_keyframes(args.keyframes, frames=frames)
     t_read = time.perf_counter() - t_read
     pinned = None
     if args.pinned:
@@ -267,7 +285,7 @@ def _interpolate(args) -> int:
             solver_options["ftol"] = args.ftol
     # the output location is checked before any computing (writable, not over an input,
     # room for the estimated output), so a bad -o costs no solve
-    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames)
+    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames, args.topology)
                                       if p and Path(p).is_file()]
     _, K_out = canonical_frames(kf.J, kf.frames, args.K, args.bc)
     check_output_dir(args.out, n_frames=K_out + 1, n_vertices=kf.n, n_faces=kf.m,
@@ -289,7 +307,8 @@ def _interpolate(args) -> int:
         res.report["source_mesh"] = res.source.summary()
     V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K, args.bc)
     out = write_sequence(args.out, V_out, res.F, res.report, overwrite=args.overwrite,
-                            protect=protect, fmt=args.format, fps=args.fps, source=res.source)
+                            protect=protect, fmt=args.format, fps=args.fps, source=res.source,
+                            up_axis=_usd_up_axis(args.topology or args.keyframes[0]))
     res.report["timings"]["write"] = time.perf_counter() - t0
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)
@@ -329,11 +348,22 @@ def _json_default(o):
     raise TypeError(type(o))
 
 
+def _usd_up_axis(path) -> str:
+    """The USD stage's up axis: the input's convention (OBJ y-up, PLY/OFF z-up); USD has no x."""
+    from ..io.usd import conventional_up_axis
+
+    return "z" if conventional_up_axis(path) == "z" else "y"
+
+
 def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
+    from ..io.sequences import ANIMATION_NAMES
+
     rep = res.report
     q = rep["quality"]
     gn = rep.get("gauss_newton")
     what = ("animation.glb (one morph target per frame)" if fmt == "glb"
+            else f"{ANIMATION_NAMES[fmt]} and mesh.obj" if fmt in ("mdd", "pc2")
+            else f"{ANIMATION_NAMES[fmt]} (time-sampled points)" if fmt == "usd"
             else f"frame_0000.{fmt} …")
     lines = [f"wrote {res.K + 1} frames to {out}/ as {what} and report.json"]
     if "multires" in rep:

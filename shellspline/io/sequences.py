@@ -21,17 +21,26 @@ from ..mesh.source_mesh import triangulate_polygons
 from .keyframes import check_same_polygons
 from .meshes import check_indices, read_polygons
 
-__all__ = ["write_sequence", "check_output_dir", "read_sequence", "GLB_NAME"]
+__all__ = ["write_sequence", "check_output_dir", "read_sequence", "GLB_NAME", "SEQUENCE_FORMATS",
+           "ANIMATION_NAMES", "MESH_NAME"]
 
 FRAME_RE = re.compile(r"^frame_(\d+)\.(obj|ply)$")
 GLB_NAME = "animation.glb"
 """File name of the sequence in an output directory written with ``fmt="glb"``."""
+SEQUENCE_FORMATS = ("obj", "ply", "glb", "mdd", "pc2", "usd")
+"""The ``fmt`` values of :func:`write_sequence`."""
+ANIMATION_NAMES = {"glb": GLB_NAME, "mdd": "animation.mdd", "pc2": "animation.pc2",
+                   "usd": "animation.usdc"}
+"""The one animation file of an output directory, by format (``obj``/``ply``: frame files)."""
+MESH_NAME = "mesh.obj"
+"""The mesh a point cache (``mdd``/``pc2``) animates, beside it in the output directory."""
 
 # ----------------------------------------------------------------------------------------
 # Writing sequences
 # ----------------------------------------------------------------------------------------
 def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: bool = False,
-                   protect=(), workers: int = 1, fps: float = 24.0, source=None) -> Path:
+                   protect=(), workers: int = 1, fps: float = 24.0, source=None,
+                   up_axis: str = "y") -> Path:
     """Write a sequence of poses as ``frame_0000.obj ...`` plus ``report.json``, atomically.
 
     Everything is written into a temporary sibling directory
@@ -51,12 +60,17 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     report : dict, optional
         Written as ``report.json`` (indent 2); numpy arrays and scalars, paths, tuples and
         dataclasses are converted. Default ``{}``.
-    fmt : {"obj", "ply", "glb"}
+    fmt : {"obj", "ply", "glb", "mdd", "pc2", "usd"}
         ``"obj"``: text, coordinates with 17 significant digits (``%.17g``), so that every
         float64 reads back bit-identically. ``"ply"``: binary little-endian PLY with
         ``double`` coordinates (exact, smaller and faster). ``"glb"``: one file
         ``animation.glb`` (binary glTF: frame 0 as the base mesh, one morph target per later
         frame, an animation playing them at ``fps``; float32, see :mod:`shellspline.io.gltf`).
+        ``"mdd"``/``"pc2"``: a point cache ``animation.mdd`` / ``animation.pc2`` (float32,
+        :mod:`shellspline.io.pointcache`; MDD times ``k / fps``, PC2 start frame 0 and one
+        sample per frame) and the mesh it animates, ``mesh.obj`` (frame 0). ``"usd"``:
+        ``animation.usdc``, one mesh with time-sampled points at ``fps``
+        (:mod:`shellspline.io.usd`, needs ``pxr``).
     overwrite : bool
         Replace an existing ``out_dir``. Only a directory that is empty or holds a
         ``report.json`` (i.e. looks like an earlier output) is ever replaced.
@@ -69,11 +83,13 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         workers (:func:`shellspline.parallel.process_pool`) die with this process and are
         stopped at once on Ctrl-C or SIGTERM (the temporary directory is then removed).
     fps : float
-        Frames per second of the GLB animation (``fmt="glb"`` only).
+        Frames per second of the GLB animation, the MDD frame times and the USD stage.
     source : SourceMesh, optional
         Write the input's mesh back (:attr:`Keyframes.source`): ``V`` is then
         ``(K+1,n_source,3)`` in the input's vertex indexing (:meth:`SourceMesh.expand`), and
         OBJ and PLY frames get the input's polygons, GLB its triangles; ``F`` is not used.
+    up_axis : {"y", "z"}
+        The USD stage's up axis (``fmt="usd"`` only).
 
     Returns
     -------
@@ -128,12 +144,16 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         raise ShellsplineError(f"F indexes vertices outside [0, {n}): range "
                                f"[{F.min()}, {F.max()}]")
     fmt = str(fmt).lower().lstrip(".")
-    if fmt not in ("obj", "ply", "glb"):
-        raise ShellsplineError(f"fmt must be 'obj', 'ply' or 'glb', got {fmt!r}")
+    if fmt not in SEQUENCE_FORMATS:
+        raise ShellsplineError(f"fmt must be one of {', '.join(SEQUENCE_FORMATS)}, got {fmt!r}")
     if fmt == "glb":
         from .gltf import glb_bytes
 
         glb = glb_bytes(V, F, fps=fps)  # validates fps before anything is created
+    elif fmt in ("mdd", "pc2"):
+        from .pointcache import mdd_bytes, pc2_bytes
+
+        glb = mdd_bytes(V, fps=fps) if fmt == "mdd" else pc2_bytes(V)  # validated here
     workers = int(workers)
     if workers < 1:
         raise ShellsplineError(f"workers must be >= 1, got {workers}")
@@ -150,8 +170,15 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     except OSError as exc:
         raise _on_user_path(exc, None, out, "creating") from None
     try:
-        if fmt == "glb":
-            (tmp / GLB_NAME).write_bytes(glb)
+        if fmt in ("glb", "mdd", "pc2"):
+            (tmp / ANIMATION_NAMES[fmt]).write_bytes(glb)
+            if fmt != "glb":
+                _write_frames([tmp / MESH_NAME], V[:1], F, "obj", 1, polygons)
+        elif fmt == "usd":
+            from .usd import write_usd
+
+            write_usd(tmp / ANIMATION_NAMES[fmt], V, F, fps=fps, up_axis=up_axis,
+                      polygons=None if polygons is None else polygons[:2])
         else:
             K = V.shape[0] - 1
             width = max(4, len(str(K)))
@@ -173,9 +200,10 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
 #: Lower estimates of the bytes per vertex and per face of one frame (the space check must
 #: never refuse an output that fits): OBJ ``v x y z`` lines with 17 significant digits are
 #: 55-65 bytes, a face line ``f a b c`` 8 bytes and more; PLY stores 3 doubles per vertex and
-#: 13 bytes per face; GLB 24 bytes per vertex and frame (float32 position and normal deltas).
-_BYTES_PER_VERTEX = {"obj": 50, "ply": 24, "glb": 24}
-_BYTES_PER_FACE = {"obj": 8, "ply": 13, "glb": 0}
+#: 13 bytes per face; GLB 24 bytes per vertex and frame (float32 position and normal deltas);
+#: MDD, PC2 and USD 12 (float32 positions; the faces are written once).
+_BYTES_PER_VERTEX = {"obj": 50, "ply": 24, "glb": 24, "mdd": 12, "pc2": 12, "usd": 12}
+_BYTES_PER_FACE = {"obj": 8, "ply": 13, "glb": 0, "mdd": 0, "pc2": 0, "usd": 0}
 
 
 def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces: int = 0,
@@ -227,7 +255,7 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
     out = Path(out_dir)
     fmt = str(fmt).lower().lstrip(".")
     if fmt not in _BYTES_PER_VERTEX:
-        raise ShellsplineError(f"fmt must be 'obj', 'ply' or 'glb', got {fmt!r}")
+        raise ShellsplineError(f"fmt must be one of {', '.join(SEQUENCE_FORMATS)}, got {fmt!r}")
     target = out.resolve()
     _check_destination(target, out, overwrite, protect)
     base = target.parent
@@ -461,7 +489,8 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
     """Read a directory written by :func:`write_sequence`, or a ``.glb`` animation file.
 
     Frame files (``frame_*.obj`` / ``frame_*.ply``) are read when present, else
-    ``animation.glb`` (float32 coordinates, see :func:`shellspline.io.gltf.read_glb`). Frames
+    ``animation.glb`` (float32 coordinates, see :func:`shellspline.io.gltf.read_glb`), else
+    ``animation.mdd`` / ``animation.pc2`` with ``mesh.obj``, else ``animation.usdc``. Frames
     written with the input's polygons are triangulated once for the whole sequence
     (:func:`shellspline.mesh.source_mesh.triangulate_polygons`).
 
@@ -513,7 +542,11 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
             except ShellsplineError as exc:
                 raise MeshError(str(exc)) from None
             return Vg, Fg, _read_report(d)
-        raise MeshError(f"{d}: no frame_*.obj, frame_*.ply or {GLB_NAME} files")
+        for fmt in ("mdd", "pc2", "usd"):
+            if (d / ANIMATION_NAMES[fmt]).is_file():
+                return (*_read_animation(d, fmt), _read_report(d))
+        raise MeshError(f"{d}: no frame_*.obj, frame_*.ply or "
+                        f"{', '.join(ANIMATION_NAMES.values())} files")
     ks = sorted(found)
     if ks != list(range(len(ks))):
         missing = sorted(set(range(ks[-1] + 1)) - set(ks))
@@ -535,6 +568,31 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
     V = np.stack(Vs)
     F, _ = triangulate_polygons(V, off0, idx0, name0)
     return V, F, _read_report(d)
+
+
+def _read_animation(d: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
+    """Poses and triangles of a point cache with its ``mesh.obj``, or of a USD file."""
+    p = d / ANIMATION_NAMES[fmt]
+    try:
+        if fmt == "usd":
+            from .usd import read_usd
+
+            V, offsets, indices, _ = read_usd(p)
+            name = str(p)
+        else:
+            from .pointcache import read_mdd, read_pc2
+
+            V = read_mdd(p)[0] if fmt == "mdd" else read_pc2(p)[0]
+            name = str(d / MESH_NAME)
+            V0, offsets, indices, _ = read_polygons(d / MESH_NAME)
+            if V0.shape[0] != V.shape[1]:
+                raise MeshError(f"{p} has {V.shape[1]} points but {name} has {V0.shape[0]} "
+                                "vertices")
+    except ShellsplineError as exc:
+        raise MeshError(str(exc)) from None
+    check_indices(offsets, indices, V.shape[1], name)
+    F, _ = triangulate_polygons(V, offsets, indices, name)
+    return V, F
 
 
 def _read_report(d: Path) -> dict:

@@ -1,0 +1,218 @@
+"""The Blender add-on: the installable zip, its engine (no bpy), and the operator run headless in
+Blender as a Python module (``pip install 'shellspline[blender]'``; skipped without it)."""
+import importlib
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import shellspline as ss
+from shellspline.errors import ShellsplineError
+from shellspline.integrations.blender import ADDON_PACKAGE, write_addon_zip
+from shellspline.integrations.blender.addon import engine
+
+
+def _strip(nx=6, ny=2):
+    """A flat triangulated strip along x, (n,3) vertices and (m,3) triangles."""
+    x, y = np.meshgrid(np.linspace(0, 3, nx + 1), np.linspace(0, 1, ny + 1))
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    idx = np.arange(x.size).reshape(ny + 1, nx + 1)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]
+    F = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                        np.stack([a, c, d], -1).reshape(-1, 3)])
+    return V, F
+
+
+def _bent(V, angle):
+    """The strip rolled up around the y axis by ``angle`` over its length (isometric)."""
+    if angle == 0:
+        return V.copy()
+    r = 3.0 / angle
+    t = V[:, 0] / r
+    return np.stack([r * np.sin(t), V[:, 1], r * (1 - np.cos(t))], axis=1)
+
+
+def test_addon_zip_holds_the_addon_sources(tmp_path):
+    p = write_addon_zip(tmp_path / "shellspline_addon.zip")
+    with zipfile.ZipFile(p) as zf:
+        names = sorted(zf.namelist())
+        init = zf.read(f"{ADDON_PACKAGE}/__init__.py").decode()
+    assert names == [f"{ADDON_PACKAGE}/__init__.py", f"{ADDON_PACKAGE}/engine.py"]
+    assert "bl_info" in init and '"blender": (4, 2, 0)' in init
+    assert "from . import engine" in init and "shellspline.integrations" not in init
+    with pytest.raises(FileExistsError):
+        write_addon_zip(p)
+    write_addon_zip(p, overwrite=True)
+    with pytest.raises(ShellsplineError, match=r"\.zip"):
+        write_addon_zip(tmp_path / "addon.tar")
+
+
+def test_engine_pc2_matches_the_library_writer(tmp_path):
+    from shellspline.io.pointcache import pc2_bytes
+
+    V = np.random.default_rng(1).standard_normal((4, 5, 3))
+    engine.write_pc2(tmp_path / "e.pc2", V, start_frame=7)
+    assert (tmp_path / "e.pc2").read_bytes() == pc2_bytes(V, start_frame=7)
+    np.testing.assert_array_equal(engine.read_pc2(tmp_path / "e.pc2"), V.astype(np.float32))
+
+
+def test_engine_problems_lists_what_the_report_flags():
+    rep = {"gauss_newton": {"stalled": [3, 4], "iteration_limit": []},
+           "quality": {"keyframes_exact": True, "flipped_faces": 2, "folded_edges": 0,
+                       "pop": 3.5, "pop_limit": 2.0, "pop_frame": 9, "worst_frames": [4]},
+           "nonlinear": {"success": False, "message": "time limit"}}
+    lines = engine.problems(rep)
+    assert any("stalled at frames [3, 4]" in s for s in lines)
+    assert any("2 new flipped faces" in s for s in lines)
+    assert any("pop 3.50 at frame 9" in s for s in lines)
+    assert any("nonlinear" in s and "time limit" in s for s in lines)
+    assert not any("folded" in s for s in lines)
+    assert engine.problems({}) == []
+
+
+def test_engine_library_and_cli_back_ends_agree():
+    V0, F = _strip()
+    keys = np.stack([_bent(V0, a) for a in (0.0, 1.5, 0.5)])
+    opts = engine.Options(method="linear")
+    lib = engine.interpolate(keys, F, [5, 9, 15], options=opts, backend="library")
+    assert lib.start == 5 and lib.V.shape == (11, V0.shape[0], 3)
+    ref = ss.interpolate(ss.keyframes_from_arrays(keys, F, frames=[0, 4, 10]), method="linear")
+    np.testing.assert_array_equal(lib.V, ref.V)
+    cli = engine.interpolate(keys, F, [5, 9, 15], options=opts, backend="cli")
+    # the CLI reads OBJ keyframes written with 9 significant digits and writes float32
+    np.testing.assert_allclose(cli.V, ref.V, rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        engine.interpolate(keys, F, [5, 5, 15], options=opts)
+    with pytest.raises(ValueError, match="method"):
+        engine.Options(method="cubic")
+
+
+# --- headless Blender ----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def addon(tmp_path_factory):
+    bpy = pytest.importorskip("bpy", reason="Blender as a Python module (pip install "
+                                            "'shellspline[blender]') is not installed")
+    d = tmp_path_factory.mktemp("addon")
+    with zipfile.ZipFile(write_addon_zip(d / "shellspline_addon.zip")) as zf:
+        zf.extractall(d)  # installed from the zip, as Blender would
+    sys.path.insert(0, str(d))
+    try:
+        mod = importlib.import_module(ADDON_PACKAGE)
+        mod.register()
+        yield bpy, mod
+        mod.unregister()
+    finally:
+        sys.path.remove(str(d))
+        sys.modules.pop(f"{ADDON_PACKAGE}.engine", None)
+        sys.modules.pop(ADDON_PACKAGE, None)
+
+
+def _scene_with_keyed_strip(bpy, pin=False):
+    """A strip with shape keys 'a' and 'b' keyed: basis at frame 1, a at 9, b at 21."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    V0, F = _strip()
+    me = bpy.data.meshes.new("strip")
+    me.from_pydata(V0.tolist(), [], F.tolist())
+    ob = bpy.data.objects.new("strip", me)
+    bpy.context.scene.collection.objects.link(ob)
+    bpy.context.view_layer.objects.active = ob
+    ob.shape_key_add(name="Basis")
+    keys = {"a": _bent(V0, 1.5), "b": _bent(V0, 0.5)}
+    for name, V in keys.items():
+        kb = ob.shape_key_add(name=name, from_mix=False)
+        kb.data.foreach_set("co", V.ravel())
+    kb = ob.data.shape_keys.key_blocks
+    for frame, (a, b) in ((1, (0, 0)), (9, (1, 0)), (21, (0, 1))):
+        kb["a"].value, kb["b"].value = a, b
+        kb["a"].keyframe_insert("value", frame=frame)
+        kb["b"].keyframe_insert("value", frame=frame)
+    if pin:
+        vg = ob.vertex_groups.new(name="base")
+        vg.add([0, 7, 14], 1.0, "REPLACE")  # the x = 0 edge
+    Vkeys = np.stack([V0, keys["a"], keys["b"]]).astype(np.float32).astype(np.float64)
+    return ob, Vkeys, F
+
+
+def _evaluated(bpy, ob, frame):
+    bpy.context.scene.frame_set(frame)
+    ev = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    co = np.zeros(3 * len(me.vertices))
+    me.vertices.foreach_get("co", co)
+    ev.to_mesh_clear()
+    return co.reshape(-1, 3)
+
+
+@pytest.mark.parametrize("output", ["SHAPE_KEYS", "CACHE"])
+def test_operator_bakes_the_librarys_result(addon, tmp_path, output):
+    bpy, mod = addon
+    ob, Vkeys, F = _scene_with_keyed_strip(bpy)
+    # the keyframes as Blender shows them (basis + 1.0 * (key - basis) in float32)
+    Vkeys = np.stack([_evaluated(bpy, ob, f) for f in (1, 9, 21)])
+    ref = ss.interpolate(ss.keyframes_from_arrays(Vkeys, F, frames=[0, 8, 20]), coarse="none")
+    kw = {"cache_path": str(tmp_path / "strip.pc2")} if output == "CACHE" else {}
+    assert bpy.ops.object.shellspline_interpolate(timing="KEYED", output=output,
+                                                  coarse="none", **kw) == {"FINISHED"}
+    scale = np.abs(ref.V).max()
+    for k in range(21):
+        got = _evaluated(bpy, ob, 1 + k)
+        if output == "CACHE":  # the cache holds float32(V) and Blender plays it as it is
+            np.testing.assert_array_equal(got, ref.V[k].astype(np.float32))
+        else:  # basis + 1.0 * (key - basis), in float32
+            np.testing.assert_allclose(got, ref.V[k], rtol=0, atol=4e-7 * scale)
+    keys = ob.data.shape_keys.key_blocks
+    baked = [kb.name for kb in keys if kb.name.startswith(mod.PREFIX)]
+    assert len(baked) == (21 if output == "SHAPE_KEYS" else 0)
+    assert keys["a"].mute == (output == "SHAPE_KEYS")
+    if output == "CACHE":
+        assert ob.modifiers[0].name == mod.MODIFIER and ob.modifiers[0].cache_format == "PC2"
+        np.testing.assert_array_equal(engine.read_pc2(tmp_path / "strip.pc2"),
+                                      ref.V.astype(np.float32))
+
+
+def test_operator_rerun_replaces_the_bake_and_pins_a_group(addon):
+    bpy, mod = addon
+    ob, Vkeys, F = _scene_with_keyed_strip(bpy, pin=True)
+    bpy.ops.object.shellspline_interpolate(timing="KEYED", method="linear")
+    assert bpy.ops.object.shellspline_interpolate(
+        timing="EVEN", use_basis=True, frame_start=1, frame_step=4, pin_group="base",
+        coarse="none", frame_end=13) == {"FINISHED"}
+    keys = ob.data.shape_keys.key_blocks
+    assert sum(kb.name.startswith(mod.PREFIX) for kb in keys) == 13  # frames 1..13, not 21+13
+    ref = ss.interpolate(ss.keyframes_from_arrays(Vkeys, F, frames=[0, 4, 8],
+                                                  pinned=[0, 7, 14]), K=12, coarse="none")
+    for k in (2, 6, 12):
+        got = _evaluated(bpy, ob, 1 + k)
+        np.testing.assert_allclose(got, ref.V[k], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(got[[0, 7, 14]], Vkeys[0][[0, 7, 14]], atol=1e-6)
+
+
+def test_operator_reports_problems_as_errors(addon):
+    bpy, _ = addon
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    me = bpy.data.meshes.new("plain")
+    me.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [], [(0, 1, 2)])
+    ob = bpy.data.objects.new("plain", me)
+    bpy.context.scene.collection.objects.link(ob)
+    bpy.context.view_layer.objects.active = ob
+    with pytest.raises(RuntimeError, match="needs shape keys"):
+        bpy.ops.object.shellspline_interpolate()
+    ob.shape_key_add(name="Basis")
+    ob.shape_key_add(name="k1", from_mix=False)
+    with pytest.raises(RuntimeError, match="keyed at 0 frame"):
+        bpy.ops.object.shellspline_interpolate(timing="KEYED")
+    with pytest.raises(RuntimeError, match="vertex group 'nope'"):
+        bpy.ops.object.shellspline_interpolate(timing="EVEN", pin_group="nope")
+
+
+def test_cli_writes_the_addon_zip(tmp_path):
+    from shellspline.cli.main import main
+
+    p = tmp_path / "shellspline_addon.zip"
+    assert main(["blender-addon", "-o", str(p), "-q"]) == 0
+    assert zipfile.ZipFile(p).read(f"{ADDON_PACKAGE}/engine.py") == \
+        (Path(engine.__file__)).read_bytes()
+    assert main(["blender-addon", "-o", str(p), "-q"]) == 2  # exists
+    assert main(["blender-addon", "-o", str(p), "--overwrite", "-q"]) == 0
