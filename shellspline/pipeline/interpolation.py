@@ -314,7 +314,7 @@ def _solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
                     > 1e-6 * np.maximum(z[gn.T.descriptor_slices()[2]], 0.0)):
                 v = vw
         r = gn.solve(z, w, v)
-        if worse_than is not None and not r.energy[-1] < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
+        if worse_than is not None and not r.energy < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
             break
         prev2, prev, prev_init = prev, r.V, v0
         rec = r.summary()

@@ -30,6 +30,7 @@ import scipy.sparse as sp
 
 from ..errors import ShellsplineError
 from ..numerics.linalg import SparseCholesky
+from ..numerics.result import SolverResult
 from ..timeline import canonical_bc, checked_frames, checked_K
 from .energy import DiscreteShells, HessianPattern, checked_pose
 from ..mesh.pinned import canonical_pinned
@@ -54,31 +55,30 @@ _EPS_SHIFT = 1e-10
 _TAUS = (0.0, 1e-8) + tuple(float(f"{10.0 ** (e / 2):.0e}") for e in range(-15, 5))
 
 
-@dataclass
-class GeodesicResult:
-    """What :meth:`PathSolver.solve` and :func:`discrete_geodesic` return.
+@dataclass(kw_only=True)
+class GeodesicResult(SolverResult):
+    """What :meth:`PathSolver.solve` and :func:`discrete_geodesic` return (a
+    :class:`~shellspline.numerics.result.SolverResult`).
 
     Attributes
     ----------
     V : (K+1,n,3) float64 array
         The path including the end shells.
-    energy : float
-        Path energy ``E^K = K Σ_k W[s_{k-1}, s_k]`` (eq. 3).
-    success : bool
-    nit : int
-        Newton iterations.
+    status : {"converged", "stalled", "limit", "failed"}
+        ``"limit"``: the iteration limit or the deadline; ``"stalled"``: the line search
+        failed. ``success`` is ``status == "converged"``.
+    iterations : int
+        Newton iterations (also ``nit``).
+    energies : (it+1,) float64 array
+        Path energy ``E^K = K Σ_k W[s_{k-1}, s_k]`` (eq. 3) at the start and after every
+        Newton iteration; ``energy`` is the last one (at ``V``).
+    grad_norms : (it+1,) float64 array
+        Max-norm of the gradient of ``Σ_k W[s_{k-1}, s_k]`` w.r.t. the inner shells at the
+        same points.
     message : str
-    grad_norms : list of float
-        Max-norm of the gradient of ``Σ_k W[s_{k-1}, s_k]`` w.r.t. the inner shells, per
-        iteration (the last one is at ``V``).
     """
 
     V: np.ndarray
-    energy: float
-    success: bool
-    nit: int
-    message: str
-    grad_norms: list = field(default_factory=list)
 
 
 class PathSolver:
@@ -312,7 +312,9 @@ class PathSolver:
         X = np.array(X0, dtype=np.float64).reshape(m, self.n, 3)
         gscale = tol * 0.5 * (W.scale(A) + W.scale(B))
         E = self.path_energy(A, X, B)
-        norms, message, success = [], "maximum number of iterations reached", False
+        K = m + 1
+        res = GeodesicResult(V=X, status="limit", energies=[K * E],
+                             message="maximum number of iterations reached")
         nit = 0
         g_next = None  # the gradient at X when a round-off-level step already computed it
         for nit in range(max_iter + 1):
@@ -321,19 +323,22 @@ class PathSolver:
             g = self.gradient(A, X, B)[:, self.free] if g_next is None else g_next
             g_next = None
             gn = float(np.abs(g).max())
-            norms.append(gn)
+            res.record(grad_norm=gn)
+            if nit:
+                res.record(energy=K * E)
+            norms = res.grad_norms
             if gn <= gscale:
-                success, message = True, "converged"
+                res.stop("converged", "converged")
                 break
             if nit >= 2 and gn <= 1e3 * gscale and gn >= 0.5 * norms[-3]:
                 # two steps without progress near the tolerance: the gradient is at its
                 # round-off floor (Armijo accepts steps below the energy's last digit)
-                success, message = True, "converged (gradient at round-off level)"
+                res.stop("converged", "converged (gradient at round-off level)")
                 break
             if nit == max_iter:
                 break
             if deadline is not None and time.perf_counter() > deadline:
-                message = "time limit reached"
+                res.stop("limit", "time limit reached")
                 break
             modes = self._modes(X)
             data = self.hessian_data(A, X, B)
@@ -372,15 +377,14 @@ class PathSolver:
             if not accepted:
                 # no decrease within round-off: accept if the gradient is already tiny
                 if gn <= 1e3 * gscale:
-                    success, message = True, "converged (energy stagnates at round-off level)"
+                    res.stop("converged", "converged (energy stagnates at round-off level)")
                 else:
-                    message = "line search failed"
+                    res.stop("stalled", "line search failed")
                 break
             X, E = Xn, En
-        V = np.concatenate([A[None], X, B[None]])
-        K = m + 1
-        return GeodesicResult(V=V, energy=K * E, success=success, nit=nit, message=message,
-                              grad_norms=norms)
+        res.V = np.concatenate([A[None], X, B[None]])
+        res.iterations = nit
+        return res
 
 
 def _lerp(A, B, K):
@@ -449,8 +453,8 @@ def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 
     VA = checked_pose(VA, n, "VA")
     VB = checked_pose(VB, n, "VB")
     if K == 1:
-        return GeodesicResult(V=np.stack([VA, VB]), energy=W.energy(VA, VB), success=True,
-                              nit=0, message="no inner shells")
+        return GeodesicResult(V=np.stack([VA, VB]), status="converged",
+                              energies=[W.energy(VA, VB)], message="no inner shells")
     if init is None:
         init = _lerp(VA, VB, K)
     init = np.asarray(init, dtype=np.float64)
@@ -461,19 +465,26 @@ def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 
         VA, VB, init, tol=tol, max_iter=max_iter)
 
 
-@dataclass
-class GeodesicInterpolationResult:
-    """What :func:`geodesic_interpolation` returns.
+@dataclass(kw_only=True)
+class GeodesicInterpolationResult(SolverResult):
+    """What :func:`geodesic_interpolation` returns (a
+    :class:`~shellspline.numerics.result.SolverResult` over all segments).
 
     Attributes
     ----------
     V : (K+1,n,3) float64 array
         Piecewise discrete geodesic; ``V[frames[j]]`` is keyframe ``j``.
     frames : (J,) int64 array
-    success : bool
-        All segments converged.
-    nit : int
-        Total Newton iterations.
+    status : {"converged", "stalled", "limit", "failed"}
+        ``"converged"`` when all segments converged, else the status of the first segment
+        that did not. ``success`` is ``status == "converged"``.
+    iterations : int
+        Total Newton iterations (also ``nit``).
+    energies : (1,) float64 array
+        The sum of the segments' path energies (``energy``); per-segment histories are in
+        ``segments``.
+    grad_norms : (1,) float64 array
+        The largest final gradient max-norm over the segments.
     message : str
     segment_energies : list of float
         Path energy ``E^{K_j}`` of every segment (eq. 3 with its own number of steps).
@@ -482,9 +493,6 @@ class GeodesicInterpolationResult:
 
     V: np.ndarray
     frames: np.ndarray
-    success: bool
-    nit: int
-    message: str
     segment_energies: list = field(default_factory=list)
     segments: list = field(default_factory=list)
 
@@ -569,7 +577,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
             if deadline is not None and time.perf_counter() > deadline:
                 E0 = solvers[steps].path_energy(Vkey[ja], X0, Vkey[jb])
                 res = GeodesicResult(V=np.concatenate([Vkey[ja][None], X0, Vkey[jb][None]]),
-                                     energy=steps * E0, success=False, nit=0,
+                                     status="limit", energies=[steps * E0],
                                      message="time limit reached before the segment started "
                                              "(linear blend)")
             else:
@@ -577,8 +585,8 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                                            max_iter=max_iter, deadline=deadline)
             V[fa + 1:fb] = res.V[1:-1]
         else:
-            res = GeodesicResult(V=np.stack([Vkey[ja], Vkey[jb]]),
-                                 energy=W.energy(Vkey[ja], Vkey[jb]), success=True, nit=0,
+            res = GeodesicResult(V=np.stack([Vkey[ja], Vkey[jb]]), status="converged",
+                                 energies=[W.energy(Vkey[ja], Vkey[jb])],
                                  message="no inner shells")
         results.append(res)
         ok &= res.success
@@ -595,7 +603,11 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                                                for i, r in enumerate(results) if not r.success)
     if not ok:
         warnings.warn(f"geodesic_interpolation: {message}", RuntimeWarning, stacklevel=2)
-    return GeodesicInterpolationResult(V=V, frames=frames, success=bool(ok), nit=nit,
+    status = next((r.status for r in results if not r.success), "converged")
+    finals = [r.grad_norms[-1] for r in results if r.grad_norms.size]
+    return GeodesicInterpolationResult(V=V, frames=frames, status=status, iterations=nit,
                                        message=message,
+                                       energies=[sum(r.energy for r in results)],
+                                       grad_norms=[max(finals)] if finals else [],
                                        segment_energies=[r.energy for r in results],
                                        segments=results)

@@ -31,7 +31,7 @@ because the gradient is orthogonal to it); :func:`rigid_placement` then places e
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -39,6 +39,7 @@ import scipy.sparse as sp
 from ..errors import ShellsplineError
 from ..mesh.rigid import rigid_modes
 from ..numerics.linalg import SparseCholesky, available_backends, nested_dissection
+from ..numerics.result import SolverResult
 from .descriptors import face_areas, lta_descriptors, lta_jacobian, wrap_angle
 from ..mesh.topology import Topology
 
@@ -49,28 +50,28 @@ __all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placemen
 LARGE_MESH = 20_000
 
 
-@dataclass
-class ReconstructionResult:
-    """Outcome of one Gauss–Newton reconstruction.
+@dataclass(kw_only=True)
+class ReconstructionResult(SolverResult):
+    """Outcome of one Gauss–Newton reconstruction (a :class:`~shellspline.numerics.result.
+    SolverResult`).
 
     Attributes
     ----------
     V : (n,3) float64 array
         Reconstructed vertex positions.
-    success : bool
-        True when the gradient criterion holds (``status == "converged"``).
     status : {"converged", "stalled", "limit", "failed"}
         ``"converged"``: ``|g| <= gtol |g_0|`` (or the gradient is at the energy's round-off
         level); ``"stalled"``: the line search failed or the energy stopped decreasing before
         that; ``"limit"``: the iteration limit; ``"failed"``: a degenerate initial guess.
-    nit : int
-        Gauss–Newton iterations performed.
+        ``success`` is ``status == "converged"``.
+    iterations : int
+        Gauss–Newton iterations performed (also ``nit``).
     message : str
         Which test stopped the iteration.
-    energy : list of float
-        ``f`` after each iteration (first entry: the initial guess).
-    grad_norm : list of float
-        ``|Jᵀ W r|`` after each iteration.
+    energies : (it+1,) float64 array
+        ``f`` at the initial guess and after each iteration.
+    grad_norms : (it+1,) float64 array
+        ``|Jᵀ W r|`` at the same points.
     cg_iterations : int
         Total preconditioned-CG iterations.
     factorizations : int
@@ -78,28 +79,13 @@ class ReconstructionResult:
     """
 
     V: np.ndarray
-    success: bool
-    nit: int
-    message: str
-    energy: list = field(default_factory=list)
-    grad_norm: list = field(default_factory=list)
     cg_iterations: int = 0
     factorizations: int = 0
-    status: str = "stalled"
 
     def summary(self) -> dict:
         """JSON-friendly record (no arrays)."""
-        return {
-            "success": bool(self.success),
-            "status": self.status,
-            "nit": int(self.nit),
-            "message": self.message,
-            "energy_initial": float(self.energy[0]) if self.energy else None,
-            "energy_final": float(self.energy[-1]) if self.energy else None,
-            "grad_norm_final": float(self.grad_norm[-1]) if self.grad_norm else None,
-            "cg_iterations": int(self.cg_iterations),
-            "factorizations": int(self.factorizations),
-        }
+        return {**super().summary(), "cg_iterations": int(self.cg_iterations),
+                "factorizations": int(self.factorizations)}
 
 
 class GaussNewton:
@@ -211,6 +197,13 @@ class GaussNewton:
         but those reach the converged frame by different paths)."""
         self._stale = True
         self._last_cg = 0
+
+    def prepare(self, V) -> None:
+        """Build what every later :meth:`solve` reuses, now: the assembly pattern and the DOF
+        elimination order (computed from the pose ``V (n,3)``). Call it before forking worker
+        processes so that they inherit both instead of each building them."""
+        self._assembler()
+        self._dof_order(np.asarray(V, dtype=np.float64).ravel())
 
     # -- pieces -------------------------------------------------------------------------
     def merit(self, z, z_target, w):
@@ -439,8 +432,8 @@ class GaussNewton:
         g = J.T @ (w_eff * r)
         g[self._dof_pinned] = 0.0
         g0 = float(np.linalg.norm(g))
-        res = ReconstructionResult(V=x.reshape(-1, 3), success=False, nit=0, message="",
-                                   energy=[f], grad_norm=[g0], status="stalled")
+        res = ReconstructionResult(V=x.reshape(-1, 3), energies=[f], grad_norms=[g0],
+                                   status="stalled")
         facts0 = self._chol.n_factorizations if self._chol is not None else 0
         if not (np.isfinite(f) and np.isfinite(g0)):
             res.status = "failed"
@@ -451,7 +444,7 @@ class GaussNewton:
         f_tiny = 1e-20 * float(w @ (z_target * z_target))
         g_tiny = 1e-12 * np.sqrt(max(f, 0.0) * float(w.sum())) + 1e-300
         if g0 <= g_tiny or f <= f_tiny:
-            res.success, res.status = True, "converged"
+            res.status = "converged"
             res.message = "initial guess is stationary"
             return res
         cycle = getattr(self, "_cycle", None)
@@ -486,8 +479,8 @@ class GaussNewton:
             # minimiser p (f = Σ w ρ², g = Jᵀ W ρ is half its gradient: the model
             # f + 2 g·p + pᵀ JᵀWJ p drops by -g·p there); below dtol·f the frame is converged
             if -slope <= self.dtol * f and ok:
-                res.nit = it - 1
-                res.success, res.status = True, "converged"
+                res.iterations = it - 1
+                res.status = "converged"
                 res.message = "Gauss–Newton decrement below dtol"
                 break
             alpha, accepted = 1.0, False
@@ -512,10 +505,10 @@ class GaussNewton:
                 if not fresh:  # retry once with a preconditioner refreshed at this iterate
                     self._stale = True
                     continue
-                res.nit = it
+                res.iterations = it
                 gn_ = float(np.linalg.norm(g))
                 if gn_ <= self.gtol * g0 or gn_ <= g_tiny or f <= f_tiny:
-                    res.success, res.status = True, "converged"
+                    res.status = "converged"
                     res.message = "converged (no further decrease at round-off level)"
                 else:
                     res.message = (f"stalled: line search failed at |g|/|g0| = "
@@ -528,11 +521,10 @@ class GaussNewton:
             g = J.T @ (w_eff * r)
             g[self._dof_pinned] = 0.0
             gn = float(np.linalg.norm(g))
-            res.energy.append(f)
-            res.grad_norm.append(gn)
-            res.nit = it
+            res.record(f, gn)
+            res.iterations = it
             if gn <= self.gtol * g0 or gn <= g_tiny or f <= f_tiny:
-                res.success, res.status = True, "converged"
+                res.status = "converged"
                 res.message = "gradient norm reduced below gtol"
                 break
             # progress test: the energy stopped decreasing for 3 iterations in a row while
@@ -545,7 +537,7 @@ class GaussNewton:
         else:
             res.status = "limit"
             res.message = (f"iteration limit ({self.max_iter}) reached at |g|/|g0| = "
-                           f"{res.grad_norm[-1] / g0:.1e}")
+                           f"{res.grad_norms[-1] / g0:.1e}")
         res.V = x.reshape(-1, 3)
         res.factorizations = (self._chol.n_factorizations if self._chol is not None else 0) - facts0
         if getattr(self, "_cycle", None) is not None:
