@@ -17,6 +17,11 @@ Functions taking several sources accept a list of them.
 Colours follow the paper's figures: keyframes gray, in-betweens coloured, one colour per
 source (orange, green, blue, ...: e.g. spline orange and piecewise geodesic green).
 
+Up axis: cameras are placed around the scene's up axis (``up="x"|"y"|"z"``), by default the
+one the source's files imply (:func:`scene_up_axis`): OBJ and glTF are y-up (Blender's OBJ
+export, the deformation-transfer animals; glTF by its specification), USD says so in its
+metadata, PLY/OFF and in-memory arrays are taken as z-up.
+
 Off-screen rendering needs no display: on Linux without ``DISPLAY``/``WAYLAND_DISPLAY`` VTK is
 pointed at its EGL window (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``, set before
 pyvista is first imported), which renders through Mesa's software renderer.
@@ -35,7 +40,8 @@ from .errors import ShellsplineError
 
 __all__ = ["SequenceViewer", "load_source", "preview", "render_frames", "render_animation",
            "render_strip", "plot", "plot_figure", "plot_half_axes", "half_axes_figure",
-           "default_strip_frames", "export_glb", "fitted_camera", "KEYFRAME_COLOR",
+           "default_strip_frames", "export_glb", "fitted_camera", "scene_up_axis", "UP_AXES",
+           "KEYFRAME_COLOR",
            "PALETTE"]
 
 KEYFRAME_COLOR = "#a6a6a6"
@@ -53,8 +59,17 @@ _VIEWS = {
     "xz": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
     "yz": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
 }
+_PLANE_VIEWS = ("xy", "xz", "yz")  # named by the file's axes: not turned with the up axis
+UP_AXES = ("x", "y", "z")
+"""The scene up axes the cameras understand."""
+#: Rotations taking the z-up frame in which :data:`_VIEWS` are written to a scene whose up
+#: axis is x, y or z (proper rotations: y-up is Blender's OBJ export, (x, y, z) -> (x, z, -y)).
+_UP_FRAMES = {"z": np.eye(3),
+              "y": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+              "x": np.array([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]])}
 _VIEW_ANGLE = 30.0  # VTK's default vertical view angle, degrees
-_FRAME_FILE_NAMES = ("report.json", "animation.glb")
+_FRAME_FILE_NAMES = ("report.json", "animation.glb", "animation.mdd", "animation.pc2",
+                     "animation.usdc", "mesh.obj")  # io.sequences.ANIMATION_NAMES, MESH_NAME
 _ANIMATION_SUFFIXES = (".gif", ".mp4")
 
 
@@ -302,28 +317,86 @@ def _polydata(pv, V: np.ndarray, F: np.ndarray):
     return mesh
 
 
-def view_vectors(view):
+def checked_up(up) -> str:
+    """``up`` as ``"x"``, ``"y"`` or ``"z"`` (case and a leading ``+`` ignored)."""
+    key = str(up).strip().lower().lstrip("+")
+    if key not in UP_AXES:
+        raise ShellsplineError(f"up must be x, y or z, got {up!r}")
+    return key
+
+
+def view_vectors(view, up="z"):
+    """Unit direction towards the camera ``d (3,)`` and view-up vector ``u (3,)`` (``u ⊥ d``).
+
+    Named views (``iso``, ``front``, ``side``, ``top``) are turned with the scene's up axis
+    (``front`` of a y-up scene looks along −z with y up, as Blender's front view of the
+    exported file); plane views (``xy``, ``xz``, ``yz``) and directions are the file's axes,
+    with the up axis on screen up where it is not the viewing direction.
+    """
+    R = _UP_FRAMES[checked_up(up)]
     if isinstance(view, str):
         key = view.strip().lower()
         if key not in _VIEWS:
             raise ShellsplineError(f"view must be one of {', '.join(_VIEWS)} or a direction "
                                    f"(x, y, z), got {view!r}")
-        d, up = _VIEWS[key]
+        d, u = _VIEWS[key]
+        if key in _PLANE_VIEWS:
+            u = R[:, 2]
+        else:
+            d, u = R @ d, R @ u
     else:
         d = tuple(float(x) for x in view)
         if len(d) != 3 or not np.isfinite(d).all() or not any(d):
             raise ShellsplineError(f"view direction must be three finite numbers, got {view!r}")
-        up = (0.0, 0.0, 1.0)
+        u = R[:, 2]
     d = np.asarray(d, dtype=np.float64)
     d /= np.linalg.norm(d)
-    up = np.asarray(up, dtype=np.float64)
-    up = up - (up @ d) * d
-    if np.linalg.norm(up) < 1e-8:  # looking along the up axis
-        up = np.array([0.0, 1.0, 0.0]) - d[1] * d
-    return d, up / np.linalg.norm(up)
+    u = np.asarray(u, dtype=np.float64)
+    u = u - (u @ d) * d
+    if np.linalg.norm(u) < 1e-8:  # looking along the up axis: the scene's "forward" is up
+        u = R[:, 1] - (R[:, 1] @ d) * d
+    return d, u / np.linalg.norm(u)
 
 
-def fitted_camera(points, aspect: float, view="iso", margin: float = 1.06):
+def scene_up_axis(source) -> str:
+    """The up axis a source's files imply: ``"x"``, ``"y"`` or ``"z"``.
+
+    The heuristic, first match wins:
+
+    1. the keyframe files named in ``report.json`` (``mesh.names``, as ``interpolate``
+       records them), by :func:`shellspline.io.usd.conventional_up_axis`: ``.obj`` y-up
+       (Blender's OBJ export by default, Maya, the deformation-transfer animals), ``.glb`` /
+       ``.gltf`` y-up (the glTF specification), ``.usd*`` the stage's ``upAxis``, ``.ply`` /
+       ``.off`` z-up (scanners and CAD write them);
+    2. the output's own files: ``animation.usdc`` (its metadata), ``animation.glb`` or a
+       ``.glb`` file (y), the frame files or ``mesh.obj`` (by extension);
+    3. otherwise (arrays in memory) z-up.
+
+    Parameters
+    ----------
+    source : a source (see the module docstring)
+
+    Returns
+    -------
+    str
+    """
+    from .io.usd import UP_AXIS_CONVENTIONS, USD_EXTENSIONS, conventional_up_axis
+
+    seq = load_source(source)
+    known = set(UP_AXIS_CONVENTIONS) | set(USD_EXTENSIONS)
+    for name in (seq.report.get("mesh") or {}).get("names") or []:
+        if Path(str(name)).suffix.lower() in known:
+            return conventional_up_axis(name)
+    files = sorted(seq.inputs)
+    if seq.path is not None and seq.path.is_file():
+        files = [seq.path]
+    for f in files:
+        if f.suffix.lower() in known:
+            return conventional_up_axis(f)
+    return "z"
+
+
+def fitted_camera(points, aspect: float, view="iso", margin: float = 1.06, up="z"):
     """A camera that shows all ``points`` from direction ``view`` in a window of ``aspect``.
 
     Parameters
@@ -337,6 +410,8 @@ def fitted_camera(points, aspect: float, view="iso", margin: float = 1.06):
         a direction from the focal point towards the camera.
     margin : float
         Extra distance factor (1 = points touch the border).
+    up : {"x", "y", "z"}
+        The scene's up axis (see :func:`view_vectors`).
 
     Returns
     -------
@@ -344,7 +419,7 @@ def fitted_camera(points, aspect: float, view="iso", margin: float = 1.06):
         For ``plotter.camera_position``; perspective with a 30° vertical view angle.
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    d, up = view_vectors(view)
+    d, up = view_vectors(view, up)
     right = np.cross(d, up)
     c = 0.5 * (P.min(axis=0) + P.max(axis=0))
     R = P - c
@@ -387,6 +462,8 @@ class SequenceViewer:
         Pixels; default 600×600 per source plus a control strip.
     view : str or (3,) array
         Camera direction, see :func:`fitted_camera`.
+    up : {"x", "y", "z"}, optional
+        The scene's up axis; default that of the first source (:func:`scene_up_axis`).
     widgets : bool
         Add the frame slider, play/pause checkbox and key bindings (needs an interactor;
         off by default off-screen).
@@ -414,8 +491,10 @@ class SequenceViewer:
 
     def __init__(self, sources, *, track=None, fps: float = 24.0, loop: bool = True,
                  labels=None, off_screen: bool = False, window_size=None, view="iso",
-                 widgets: bool | None = None, annotate: bool = True, titles: bool = True):
+                 widgets: bool | None = None, annotate: bool = True, titles: bool = True,
+                 up=None):
         self.seqs = _load_all(sources, labels)
+        self.up = scene_up_axis(self.seqs[0]) if up is None else checked_up(up)
         self.track = _track_indices(track, self.seqs)
         fps = float(fps)
         if not (np.isfinite(fps) and fps > 0):
@@ -468,7 +547,7 @@ class SequenceViewer:
         w_view = self.window_size[0] / S
         self.camera_position = fitted_camera(np.concatenate([s.V.reshape(-1, 3)
                                                              for s in self.seqs]),
-                                             w_view / h_view, view)
+                                             w_view / h_view, view, up=self.up)
         for i in range(S):
             pl.subplot(0, i)
             pl.camera_position = self.camera_position
@@ -619,7 +698,8 @@ class SequenceViewer:
 
 
 def preview(*sources, track=None, fps: float = 24.0, loop: bool = True, labels=None,
-            off_screen: bool = False, window_size=None, view="iso") -> SequenceViewer:
+            off_screen: bool = False, window_size=None, view="iso",
+            up=None) -> SequenceViewer:
     """Open a window that plays one or several sequences side by side.
 
     Controls: frame slider and play/pause button under the views; keys ``space`` play/pause,
@@ -629,7 +709,7 @@ def preview(*sources, track=None, fps: float = 24.0, loop: bool = True, labels=N
     Parameters
     ----------
     *sources : sources (see the module docstring)
-    track, fps, loop, labels, window_size, view
+    track, fps, loop, labels, window_size, view, up
         See :class:`SequenceViewer`.
     off_screen : bool
         Build everything without opening a window (for tests and screenshots); the window
@@ -653,7 +733,7 @@ def preview(*sources, track=None, fps: float = 24.0, loop: bool = True, labels=N
                                "instead: shellspline render OUT --gif out.gif --strip out.png")
     viewer = SequenceViewer(list(sources), track=track, fps=fps, loop=loop, labels=labels,
                             off_screen=off_screen, window_size=window_size, view=view,
-                            widgets=True)
+                            widgets=True, up=up)
     if not off_screen:
         viewer.plotter.show(title="shellspline preview")
     return viewer
@@ -689,7 +769,7 @@ def checked_size(window_size, default):
 
 
 def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
-                  annotate: bool = True) -> np.ndarray:
+                  annotate: bool = True, up=None) -> np.ndarray:
     """Render frames of one source off-screen with one camera fitted to the whole sequence.
 
     Parameters
@@ -702,21 +782,23 @@ def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
         See :func:`fitted_camera`.
     annotate : bool
         Write the frame number into the image.
+    up : {"x", "y", "z"}, optional
+        The scene's up axis; default :func:`scene_up_axis` of the source.
 
     Returns
     -------
     (p, h, w, 3) uint8 array
     """
     return np.stack(list(_iter_frames(load_source(source), frames, window_size, view,
-                                      annotate)))
+                                      annotate, up)))
 
 
-def _iter_frames(seq, frames, window_size, view, annotate):
+def _iter_frames(seq, frames, window_size, view, annotate, up=None):
     """Yield rendered frames one at a time (the viewer is closed at the end)."""
     frames = np.arange(seq.K + 1) if frames is None else checked_frames(frames, seq.K)
     size = checked_size(window_size, (640, 480))
     viewer = SequenceViewer(seq, off_screen=True, window_size=size, view=view, widgets=False,
-                            annotate=annotate, titles=False)
+                            annotate=annotate, titles=False, up=up)
     try:
         for k in frames:
             viewer.set_frame(k)
@@ -726,7 +808,7 @@ def _iter_frames(seq, frames, window_size, view, annotate):
 
 
 def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), frames=None, *,
-                     view="iso", annotate: bool = True) -> Path:
+                     view="iso", annotate: bool = True, up=None) -> Path:
     """Render a sequence off-screen to an animated GIF or an MP4 movie (by ``path``'s suffix).
 
     Parameters
@@ -741,7 +823,7 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
         Pixels (MP4 sizes are rounded up to even numbers).
     frames : (p,) int array-like, optional
         Frames to show, default all.
-    view, annotate
+    view, annotate, up
         See :func:`render_frames`.
 
     Returns
@@ -750,6 +832,7 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
         The absolute path written.
     """
     seq = load_source(source)
+    up = None if up is None else checked_up(up)
     fps = float(fps)
     if not (np.isfinite(fps) and fps > 0):
         raise ShellsplineError(f"fps must be a positive number, got {fps!r}")
@@ -765,7 +848,7 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
     frames = None if frames is None else checked_frames(frames, seq.K)
 
     def write(tmp):
-        imgs = _iter_frames(seq, frames, size, view, annotate)
+        imgs = _iter_frames(seq, frames, size, view, annotate, up)
         if suffix == ".gif":  # Pillow needs every frame at once
             iio.imwrite(tmp, np.stack(list(imgs)), extension=".gif", duration=1000.0 / fps,
                         loop=0)
@@ -819,7 +902,7 @@ def _compose(panels: np.ndarray, columns: int, gap: int, background=255) -> np.n
 
 
 def render_strip(source, path, frames=None, columns=None, window_size=(240, 240), *,
-                 gap: int = 8, view="iso", annotate: bool = True) -> Path:
+                 gap: int = 8, view="iso", annotate: bool = True, up=None) -> Path:
     """A PNG filmstrip of chosen frames, like the paper's figures.
 
     Keyframes are gray, in-betweens coloured; every panel uses the same camera (fitted to the
@@ -838,7 +921,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
         Pixels of one panel.
     gap : int
         White pixels between panels.
-    view, annotate
+    view, annotate, up
         See :func:`render_frames`.
 
     Returns
@@ -848,6 +931,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
         ``rows × h + (rows−1) × gap`` by ``columns × w + (columns−1) × gap`` pixels.
     """
     seq = load_source(source)
+    up = None if up is None else checked_up(up)
     checked_output(path, (".png",), [seq], "filmstrip")
     frames = default_strip_frames(seq.K, seq.frames) if frames is None else \
         checked_frames(frames, seq.K)
@@ -864,7 +948,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
         import imageio.v3 as iio
     except ImportError:
         raise ShellsplineError(f"render_strip needs the viz extra: {_EXTRA}") from None
-    panels = render_frames(seq, frames, window_size=size, view=view, annotate=annotate)
+    panels = render_frames(seq, frames, window_size=size, view=view, annotate=annotate, up=up)
     strip = _compose(panels, min(columns, len(frames)), gap)
     return _write_atomically(path, lambda tmp: iio.imwrite(tmp, strip, extension=".png"),
                              [seq], (".png",), "filmstrip")

@@ -471,3 +471,84 @@ def test_unwritable_output_is_one_line_before_any_work(seq, tmp_path, monkeypatc
         viz.render_strip(seq, tmp_path / "blocker" / "s.png")
     with pytest.raises(ShellsplineError, match=r"animation '.*a\.mp4': cannot write in"):
         viz.render_animation(seq, tmp_path / "blocker" / "a.mp4")
+
+
+# --- the scene's up axis ----------------------------------------------------------------
+@pytest.mark.parametrize("up", ["x", "y", "z"])
+def test_view_vectors_turn_with_the_up_axis(up):
+    e = {"x": np.eye(3)[0], "y": np.eye(3)[1], "z": np.eye(3)[2]}
+    for view in ("iso", "front", "side", "top", "xy", "xz", "yz", (1.0, 2.0, 3.0)):
+        d, u = viz.view_vectors(view, up)
+        assert np.isclose(np.linalg.norm(d), 1) and np.isclose(np.linalg.norm(u), 1)
+        assert abs(d @ u) < 1e-12
+        if abs(d @ e[up]) < 1 - 1e-9:  # the up axis points up on screen where it can
+            assert u @ e[up] > 0.5
+    # top looks down the up axis; front and side look horizontally
+    np.testing.assert_allclose(viz.view_vectors("top", up)[0], e[up], atol=1e-12)
+    for view in ("front", "side"):
+        assert abs(viz.view_vectors(view, up)[0] @ e[up]) < 1e-12
+    # a proper rotation of the z-up views: the screen's right in the front view is x for a
+    # z-up or y-up scene (Blender's front view of the OBJ it exported) and y for x-up
+    d, u = viz.view_vectors("front", up)
+    right = np.cross(-d, u)
+    np.testing.assert_allclose(right, e["y"] if up == "x" else e["x"], atol=1e-12)
+    with pytest.raises(ShellsplineError, match="up must be x, y or z"):
+        viz.view_vectors("iso", "w")
+
+
+def test_up_z_keeps_the_former_views():
+    for view, (d, u) in {"front": ((0, -1, 0), (0, 0, 1)), "top": ((0, 0, 1), (0, 1, 0)),
+                         "side": ((1, 0, 0), (0, 0, 1))}.items():
+        got = viz.view_vectors(view)
+        np.testing.assert_allclose(got[0], d, atol=1e-12)
+        np.testing.assert_allclose(got[1], u, atol=1e-12)
+
+
+def test_scene_up_axis_from_the_files(seq, tmp_path):
+    V, F = seq
+    rep = {"mesh": {"names": ["keys/cactus0.ply", "keys/cactus1.ply"]}}
+    assert viz.scene_up_axis(ss.write_sequence(tmp_path / "a", V, F, rep)) == "z"
+    rep = {"mesh": {"names": ["keys/horse-01.OBJ"]}}
+    assert viz.scene_up_axis(ss.write_sequence(tmp_path / "b", V, F, rep, fmt="ply")) == "y"
+    # no report: the output's own files
+    assert viz.scene_up_axis(ss.write_sequence(tmp_path / "c", V, F)) == "y"
+    assert viz.scene_up_axis(ss.write_sequence(tmp_path / "d", V, F, fmt="ply")) == "z"
+    assert viz.scene_up_axis(ss.write_sequence(tmp_path / "e", V, F, fmt="glb")) == "y"
+    assert viz.scene_up_axis(ss.write_sequence(tmp_path / "f", V, F, fmt="pc2")) == "y"
+    assert viz.scene_up_axis((V, F)) == "z"
+    pytest.importorskip("pxr", reason="USD metadata needs usd-core")
+    out = ss.write_sequence(tmp_path / "g", V, F, fmt="usd", up_axis="z")
+    assert viz.scene_up_axis(out) == "z"
+
+
+def _extent(img):
+    rows, cols = np.nonzero(_mask(img))
+    return rows.max() - rows.min(), cols.max() - cols.min()
+
+
+def test_a_y_up_figure_stands_in_the_picture(tmp_path):
+    """An ellipsoid long along y, written as OBJ frames (y-up by convention), renders taller
+    than wide; forced to z-up it lies on its side."""
+    V0, F = icosphere(2)
+    V = (V0 * np.array([0.4, 1.5, 0.25]))[None]
+    out = ss.write_sequence(tmp_path / "figure", np.concatenate([V, V + 0.01]), F)
+    h, w = _extent(viz.render_frames(out, [0], window_size=(200, 200), annotate=False)[0])
+    assert h > 2 * w
+    h, w = _extent(viz.render_frames(out, [0], window_size=(200, 200), annotate=False,
+                                     up="z")[0])
+    assert w > 1.5 * h
+    for view in ("front", "side"):  # from any side it stands
+        h, w = _extent(viz.render_frames(out, [0], window_size=(200, 200), view=view,
+                                         annotate=False)[0])
+        assert h > 2 * w
+
+
+def test_cli_up_option(outdir, tmp_path, capsys):
+    from shellspline.cli.main import main
+
+    strip = tmp_path / "s.png"
+    assert main(["render", str(outdir), "--strip", str(strip), "--up", "x", "--size", "64x64",
+                 "-q"]) == 0 and strip.is_file()
+    with pytest.raises(SystemExit):  # argparse: not one of x, y, z
+        main(["render", str(outdir), "--strip", str(tmp_path / "t.png"), "--up", "w"])
+    assert "invalid choice" in capsys.readouterr().err

@@ -32,6 +32,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--no-loop", action="store_true", help="stop at the last frame")
     p.add_argument("--view", default="iso",
                    help="camera direction: iso (default), front, side, top")
+    p.add_argument("--up", choices=["x", "y", "z"],
+                   help="the scene's up axis (default from the files: OBJ and glTF y, USD its "
+                        "metadata, PLY/OFF z)")
     p.add_argument("--size", help="window size WxH in pixels")
     p.set_defaults(func=_preview)
 
@@ -54,6 +57,9 @@ def add_parsers(sub) -> None:
     r.add_argument("--columns", type=int, help="strip panels per row (default one row, <= 8)")
     r.add_argument("--fps", type=float, default=24.0, help="frames per second (default 24)")
     r.add_argument("--view", default="iso", help="camera direction: iso, front, side, top")
+    r.add_argument("--up", choices=["x", "y", "z"],
+                   help="the scene's up axis (default from the files: OBJ and glTF y, USD its "
+                        "metadata, PLY/OFF z)")
     r.add_argument("--no-labels", action="store_true", help="no frame numbers in the images")
     r.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     r.set_defaults(func=_render)
@@ -91,7 +97,7 @@ def _preview(args) -> int:
 
     viz.preview(*args.outs, track=args.track, fps=args.fps, loop=not args.no_loop,
                 labels=args.labels, window_size=args.size and viz.checked_size(args.size, None),
-                view=args.view)
+                view=args.view, up=args.up)
     return 0
 
 
@@ -109,7 +115,7 @@ def _render(args) -> int:
         if path:
             viz.checked_output(path, suffixes, [seq], option)
     viz.checked_size(args.size, None)
-    viz.view_vectors(args.view)
+    viz.view_vectors(args.view, args.up or "z")
     if not (math.isfinite(args.fps) and args.fps > 0):
         raise ShellsplineError(f"--fps must be a positive number, got {args.fps}")
     if args.columns is not None and args.columns < 1:
@@ -119,12 +125,12 @@ def _render(args) -> int:
         if path:
             out = viz.render_animation(seq, path, fps=args.fps, frames=frames,
                                        window_size=args.size or (640, 480), view=args.view,
-                                       annotate=annotate)
+                                       annotate=annotate, up=args.up)
             _say(args, f"wrote {out}")
     if args.strip:
         out = viz.render_strip(seq, args.strip, frames=frames, columns=args.columns,
                                window_size=args.size or (240, 240), view=args.view,
-                               annotate=annotate)
+                               annotate=annotate, up=args.up)
         _say(args, f"wrote {out}")
     if args.glb:
         out = viz.export_glb(seq, args.glb, fps=args.fps, frames=frames)
