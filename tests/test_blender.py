@@ -11,7 +11,7 @@ import pytest
 import shellspline as ss
 from shellspline.errors import ShellsplineError
 from shellspline.integrations.blender import ADDON_PACKAGE, write_addon_zip
-from shellspline.integrations.blender.addon import engine
+from shellspline.integrations.blender import engine
 
 
 def _strip(nx=6, ny=2):

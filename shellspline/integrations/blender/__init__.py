@@ -1,5 +1,10 @@
-"""The Blender add-on: its sources (:mod:`.addon`, imported only inside Blender) and the zip
-that Blender installs (:func:`write_addon_zip`, ``shellspline blender-addon -o FILE.zip``).
+"""The Blender add-on: its sources and the zip that Blender installs (:func:`write_addon_zip`,
+``shellspline blender-addon -o FILE.zip``).
+
+The zip holds one package ``shellspline_addon``: ``__init__.py`` is :file:`addon.py` (the
+operator, panel and preferences; imports ``bpy``, so only Blender imports it) and
+``engine.py`` is :mod:`.engine` (no ``bpy``: keyframe arrays in, frames out, through the
+library or an external ``shellspline`` command), importable and tested without Blender.
 
 The add-on interpolates a mesh's shape keys (keyed on the timeline or evenly spaced) and
 bakes the in-betweens back as keyed shape keys or as a PC2 point cache with a Mesh Cache
@@ -20,13 +25,13 @@ __all__ = ["ADDON_PACKAGE", "write_addon_zip", "addon_files"]
 ADDON_PACKAGE = "shellspline_addon"
 """Name of the add-on's package inside Blender (the folder in the zip)."""
 
-_SOURCES = ("__init__.py", "engine.py")
+_SOURCES = {"__init__.py": "addon.py", "engine.py": "engine.py"}  # name in the zip: source
 
 
 def addon_files() -> dict:
     """The add-on's files: ``{name in the zip: bytes}``."""
-    here = Path(__file__).parent / "addon"
-    return {f"{ADDON_PACKAGE}/{name}": (here / name).read_bytes() for name in _SOURCES}
+    here = Path(__file__).parent
+    return {f"{ADDON_PACKAGE}/{name}": (here / src).read_bytes() for name, src in _SOURCES.items()}
 
 
 def write_addon_zip(path, *, overwrite: bool = False) -> Path:

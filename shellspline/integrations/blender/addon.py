@@ -26,7 +26,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from . import engine
+from . import engine  # shellspline_addon/engine.py in the zip (integrations/blender/engine.py)
 
 bl_info = {
     "name": "shellspline",
