@@ -81,8 +81,8 @@ def test_engine_library_and_cli_back_ends_agree():
     ref = ss.interpolate(ss.keyframes_from_arrays(keys, F, frames=[0, 4, 10]), method="linear")
     np.testing.assert_array_equal(lib.V, ref.V)
     cli = engine.interpolate(keys, F, [5, 9, 15], options=opts, backend="cli")
-    # the CLI reads OBJ keyframes written with 9 significant digits and writes float32
-    np.testing.assert_allclose(cli.V, ref.V, rtol=0, atol=1e-6)
+    assert cli.backend == "cli" and cli.start == 5
+    np.testing.assert_array_equal(cli.V, ref.V.astype(np.float32))  # exact, through float32
     with pytest.raises(ValueError, match="strictly increasing"):
         engine.interpolate(keys, F, [5, 5, 15], options=opts)
     with pytest.raises(ValueError, match="method"):
@@ -216,3 +216,49 @@ def test_cli_writes_the_addon_zip(tmp_path):
         (Path(engine.__file__)).read_bytes()
     assert main(["blender-addon", "-o", str(p), "-q"]) == 2  # exists
     assert main(["blender-addon", "-o", str(p), "--overwrite", "-q"]) == 0
+
+
+_INSTALL_AND_RUN = r"""
+import json, sys
+import bpy  # first: it puts addon_utils on the path
+import addon_utils
+import numpy as np
+sys.path.insert(0, sys.argv[2])
+from test_blender import _evaluated, _scene_with_keyed_strip
+
+ob, Vkeys, F = _scene_with_keyed_strip(bpy)  # first: factory settings drop user add-ons
+assert bpy.ops.preferences.addon_install(filepath=sys.argv[1]) == {"FINISHED"}
+addon_utils.enable("shellspline_addon", default_set=True, handle_error=None)
+prefs = bpy.context.preferences.addons["shellspline_addon"].preferences
+prefs.backend = "cli"  # the external command, as without shellspline in Blender's Python
+keys = [_evaluated(bpy, ob, f).tolist() for f in (1, 9, 21)]
+bpy.ops.object.shellspline_interpolate(timing="KEYED", method="linear", output="CACHE",
+                                       cache_path=sys.argv[3])
+frames = [_evaluated(bpy, ob, 1 + k).tolist() for k in range(21)]
+print(json.dumps({"keys": keys, "frames": frames, "modifier": ob.modifiers[0].name}))
+"""
+
+
+def test_addon_installed_from_the_zip_runs_the_external_cli(addon, tmp_path):
+    """Blender's own installer (Preferences > Install from Disk) on the zip, the add-on's
+    preferences set to the external ``shellspline`` command, the operator baking a PC2 cache;
+    in a fresh Blender process with its user folder under tmp_path."""
+    import json
+    import os
+    import subprocess
+
+    zp = write_addon_zip(tmp_path / "shellspline_addon.zip")
+    script = tmp_path / "run.py"
+    script.write_text(_INSTALL_AND_RUN)
+    env = dict(os.environ, HOME=str(tmp_path))  # Blender's user scripts go to $HOME/.config
+    proc = subprocess.run([sys.executable, str(script), str(zp), str(Path(__file__).parent),
+                           str(tmp_path / "cache.pc2")], capture_output=True, text=True,
+                          env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert (tmp_path / ".config").is_dir() and got["modifier"] == "shellspline"
+    Vkeys = np.array(got["keys"])
+    ref = ss.interpolate(ss.keyframes_from_arrays(Vkeys, _strip()[1], frames=[0, 8, 20]),
+                         method="linear")
+    # the keyframes reach the CLI exactly (OBJ with 17 digits); the cache is float32
+    np.testing.assert_array_equal(np.array(got["frames"]), ref.V.astype(np.float32))

@@ -180,7 +180,7 @@ def _run_library(Vkeys, F, frames, K, options, pinned, progress):
 
 
 def _write_obj(path, V, F) -> None:
-    lines = ["v %.9g %.9g %.9g" % tuple(v) for v in V.tolist()]
+    lines = ["v %.17g %.17g %.17g" % tuple(v) for v in V.tolist()]  # exact float64
     lines += ["f %d %d %d" % tuple(f) for f in (F + 1).tolist()]
     with open(path, "w", encoding="ascii") as fh:
         fh.write("\n".join(lines) + "\n")
