@@ -11,10 +11,15 @@ import numpy as np
 from .errors import ShellsplineError
 
 __all__ = ["keyframe_bracket", "keyframe_gap", "canonical_bc", "checked_K", "checked_frames",
-           "BOUNDARY_CONDITIONS"]
+           "canonical_frames", "linear_blend", "BOUNDARY_CONDITIONS", "DEFAULT_STEP",
+           "MAX_FRAMES"]
 
 BOUNDARY_CONDITIONS = ("natural", "periodic", "hermite")
 """Time boundary conditions of every spline over frames (paper 001 §4, §8)."""
+DEFAULT_STEP = 10
+"""Frames between keyframes when neither ``frames`` nor ``K`` is given."""
+MAX_FRAMES = 1_000_000
+"""Largest ``K`` accepted (a bound on memory, not on the mathematics)."""
 
 
 def canonical_bc(bc) -> str:
@@ -136,3 +141,125 @@ def keyframe_gap(frames, K: int, periodic: bool = False):
     """
     j0, j1, _ = keyframe_bracket(frames, K, periodic)
     return j0[:-1], j1[:-1]
+
+
+def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
+    """Canonical keyframe frames and last frame index ``K`` of a sequence of ``J`` keyframes.
+
+    Parameters
+    ----------
+    J : int
+        Number of keyframes.
+    frames : (J,) int array, optional
+        Keyframe frames; default: evenly spaced over ``[0, K]`` (``[0, K)`` when periodic),
+        or every :data:`DEFAULT_STEP` frames when ``K`` is not given either.
+    K : int, optional
+        Last frame; default: the last keyframe's frame (periodic: one keyframe gap later).
+    bc : {"natural", "periodic", "hermite"}
+        Canonical boundary condition (:func:`canonical_bc`). ``"hermite"`` needs keyframes at
+        frames 0, 1, K-1 and K (the poses at 1 and K-1 fix the end velocities).
+
+    Returns
+    -------
+    frames : (J,) int64 array
+    K : int
+
+    Raises
+    ------
+    ShellsplineError
+        Frames not integers, not strictly increasing, not starting at 0, beyond ``K``;
+        ``K`` out of ``[1, MAX_FRAMES]`` or too small for ``J`` keyframes; a periodic
+        keyframe at ``K``; hermite frames missing.
+
+    Examples
+    --------
+    >>> canonical_frames(3)
+    (array([ 0, 10, 20]), 20)
+    >>> canonical_frames(3, K=12, bc="periodic")
+    (array([0, 4, 8]), 12)
+    """
+    periodic = bc == "periodic"
+    if frames is None:
+        if bc == "hermite":
+            raise ShellsplineError("bc='hermite' needs explicit `frames`: the poses at frames 1 "
+                                   "and K-1 fix the end velocities")
+        if K is None:
+            frames = DEFAULT_STEP * np.arange(J)
+            K = int(frames[-1] + (DEFAULT_STEP if periodic else 0))
+        else:
+            K = _bounded_K(K)
+            if periodic:
+                frames = np.round(np.arange(J) * K / J).astype(np.int64)
+            else:
+                frames = np.round(np.linspace(0, K, J)).astype(np.int64)
+            if len(np.unique(frames)) != J:
+                raise ShellsplineError(f"`K`={K} is too small for {J} keyframes")
+    frames = np.asarray(frames)
+    if frames.ndim != 1 or len(frames) != J:
+        raise ShellsplineError(f"`frames` must have one entry per keyframe ({J}), got "
+                               f"{frames.tolist()}")
+    if not np.all(np.isfinite(frames)) or not np.all(frames == np.round(frames)):
+        raise ShellsplineError(f"`frames` must be integers, got {frames.tolist()}")
+    frames = frames.astype(np.int64)
+    if np.any(np.diff(frames) <= 0):
+        raise ShellsplineError(f"`frames` must be strictly increasing, got {frames.tolist()}")
+    if frames[0] != 0:
+        raise ShellsplineError(f"`frames` must start at 0, got {frames.tolist()}")
+    if K is None:
+        K = int(frames[-1] + ((frames[-1] - frames[-2]) if periodic else 0))
+    K = _bounded_K(K)
+    if periodic and frames[-1] >= K:
+        raise ShellsplineError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K "
+                               f"is frame 0 again), got frames {frames.tolist()}")
+    if frames[-1] > K:
+        raise ShellsplineError(f"`K`={K} is smaller than the last keyframe frame {int(frames[-1])}")
+    if bc == "hermite" and (len(frames) < 4 or frames[1] != 1 or frames[-2] != K - 1
+                            or frames[-1] != K):
+        raise ShellsplineError("bc='hermite' needs keyframes at frames 0, 1, K-1 and K (the poses "
+                               f"at 1 and K-1 fix the end velocities); got frames "
+                               f"{frames.tolist()} with K={K}")
+    return frames, K
+
+
+def _bounded_K(K) -> int:
+    K = int(K)
+    if K < 1 or K > MAX_FRAMES:
+        raise ShellsplineError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
+    return K
+
+
+def linear_blend(Vkey, frames, K: int, bc: str = "natural"):
+    """Per-vertex linear blending of keyframes: the naive baseline and the initial guess.
+
+    Parameters
+    ----------
+    Vkey : (J,n,3) float64 array
+        Keyframe poses (any trailing shape works: ``(J, ...)``).
+    frames : (J,) int array
+        Canonical keyframe frames (:func:`canonical_frames`).
+    K : int
+    bc : {"natural", "periodic", "hermite"}
+        ``"periodic"`` blends the last keyframe back into the first at frame ``K``.
+
+    Returns
+    -------
+    (K+1,n,3) float64 array
+        Keyframes are reproduced exactly, and so is any coordinate that is equal in the two
+        bracketing keyframes. Frames after the last keyframe (non-periodic) hold the last
+        keyframe.
+
+    Examples
+    --------
+    >>> linear_blend([[0.0], [1.0]], [0, 4], 4)[:, 0].tolist()
+    [0.0, 0.25, 0.5, 0.75, 1.0]
+    """
+    Vkey = np.asarray(Vkey, dtype=np.float64)
+    j0, j1, t = keyframe_bracket(np.asarray(frames), K, bc == "periodic")
+    A, B = Vkey[j0], Vkey[j1]
+    t = t.reshape((-1,) + (1,) * (Vkey.ndim - 1))
+    out = (1.0 - t) * A + t * B
+    out = np.where(A == B, A, out)  # a vertex that does not move stays bit-identical
+    out[np.asarray(frames)] = Vkey
+    if bc == "periodic":
+        out[K] = Vkey[0]
+    return out

@@ -202,7 +202,7 @@ def test_rotations_fitted_once_per_frame_unless_the_pose_moves(monkeypatch):
 
 def test_spline_rows_equal_the_spline():
     from shellspline.shells.lta_spline import lta_spline
-    from shellspline.pipeline.interpolation import _SplineRows
+    from shellspline.pipeline.describe import SplineRows as _SplineRows
 
     Zk = np.random.default_rng(3).standard_normal((3, 50))
     for bc, frames, K in (("natural", [0, 4, 9], 11), ("periodic", [0, 3, 7], 10)):

@@ -25,7 +25,7 @@ import pytest
 import data_synth
 import shellspline as ss
 import shellspline.io as ssio
-import shellspline.pipeline.interpolation as sspipeline
+import shellspline.pipeline.describe as sspipeline
 from shellspline.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]

@@ -4,7 +4,7 @@ import pytest
 
 import data_synth
 import shellspline as ss
-from shellspline.pipeline.interpolation import canonical_frames, linear_blend
+from shellspline.timeline import canonical_frames, linear_blend
 from conftest import shared_data
 
 
@@ -99,7 +99,7 @@ def test_hermite_uses_the_velocity_poses(ellipsoids):
 
 
 def test_workers_give_the_same_sequence(ellipsoids, monkeypatch):
-    import shellspline.pipeline.interpolation as pl
+    import shellspline.pipeline.reconstruction as pl
 
     monkeypatch.setattr(pl, "SERIAL_RECONSTRUCT_WORK", 0)  # this small case: use the pool
     d = ellipsoids
@@ -112,7 +112,7 @@ def test_small_work_starts_no_process_pool(ellipsoids, monkeypatch):
     """Below SERIAL_RECONSTRUCT_WORK / SERIAL_DECODE_WORK vertex-frames ``workers=2`` runs in
     process (a pool costs more than the work); above, the pool is used."""
     import shellspline.parallel as par
-    import shellspline.pipeline.interpolation as pl
+    import shellspline.pipeline.reconstruction as pl
 
     started = []
 
@@ -242,7 +242,7 @@ def test_nonlinear_method_starts_from_lta_and_decreases_the_energy():
 def test_nonlinear_auto_coarse_solves_on_the_coarse_mesh(monkeypatch):
     """``coarse="auto"`` with the nonlinear model decimates above AUTO_NONLINEAR_ABOVE (here
     lowered to fit a test mesh), says so, and prolongs with keyframes exact."""
-    from shellspline.pipeline import interpolation as pipeline
+    from shellspline.pipeline import options as pipeline
 
     monkeypatch.setattr(pipeline, "AUTO_NONLINEAR_ABOVE", 80)
     monkeypatch.setattr(pipeline, "AUTO_COARSE_VERTICES", 60)
@@ -284,22 +284,22 @@ def test_multiresolution_path_keeps_keyframes_and_detail():
 
 
 def test_coarse_option_canonicalisation(monkeypatch):
-    from shellspline.pipeline import interpolation as pipeline
+    from shellspline.pipeline import options as pipeline
 
-    assert pipeline._coarse_target("none", 5000) is None
-    assert pipeline._coarse_target(0.1, 5000) == 500
-    assert pipeline._coarse_target("0.1", 5000) == 500
-    assert pipeline._coarse_target("700", 5000) == 700
-    assert pipeline._coarse_target(6000, 5000) is None  # no coarsening above the mesh size
-    assert pipeline._coarse_target("auto", 5000) is None
-    assert pipeline._coarse_target("auto", 50_000) == pipeline.AUTO_COARSE_VERTICES
+    assert pipeline.coarse_target("none", 5000) is None
+    assert pipeline.coarse_target(0.1, 5000) == 500
+    assert pipeline.coarse_target("0.1", 5000) == 500
+    assert pipeline.coarse_target("700", 5000) == 700
+    assert pipeline.coarse_target(6000, 5000) is None  # no coarsening above the mesh size
+    assert pipeline.coarse_target("auto", 5000) is None
+    assert pipeline.coarse_target("auto", 50_000) == pipeline.AUTO_COARSE_VERTICES
     # the nonlinear model decimates by default far earlier (its cost grows faster than n)
-    assert pipeline._coarse_target("auto", 5000, "nonlinear") == pipeline.AUTO_COARSE_VERTICES
-    assert pipeline._coarse_target("auto", pipeline.AUTO_NONLINEAR_ABOVE, "nonlinear") is None
-    assert pipeline._coarse_target("none", 5000, "nonlinear") is None
+    assert pipeline.coarse_target("auto", 5000, "nonlinear") == pipeline.AUTO_COARSE_VERTICES
+    assert pipeline.coarse_target("auto", pipeline.AUTO_NONLINEAR_ABOVE, "nonlinear") is None
+    assert pipeline.coarse_target("none", 5000, "nonlinear") is None
     for bad in ("many", 0, 1.5, True, -3):
         with pytest.raises(ValueError, match="coarse"):
-            pipeline._coarse_target(bad, 5000)
+            pipeline.coarse_target(bad, 5000)
 
 
 def test_hermite_follows_the_velocity_poses(ellipsoids):
@@ -325,7 +325,7 @@ def test_keyframe_reference_changes_the_weights(ellipsoids):
 
 
 def test_paths_tuple_half_turn_and_strict_json(ellipsoids, tmp_path, monkeypatch):
-    import shellspline.pipeline.interpolation as pl
+    import shellspline.pipeline.reconstruction as pl
 
     monkeypatch.setattr(pl, "SERIAL_RECONSTRUCT_WORK", 0)  # the half-turn through the pool
     import json
@@ -346,7 +346,5 @@ def test_moving_pins_work_with_multiresolution():
     T = ss.topology(d["F"])
     pins = T.boundary_vertices
     res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], pinned=pins, coarse=120)
-    from shellspline.pipeline.interpolation import linear_blend
-
     blend = linear_blend(d["V"], np.asarray(d["frames"]), res.K)
     assert np.array_equal(res.V[:, pins], blend[:, pins])

@@ -50,7 +50,7 @@ def test_consistent_angles_chain_over_keyframes_and_periodic_row():
 def test_periodic_loop_whose_angle_paths_would_wind_closes_directly():
     # 0 -> 2.9 -> (through π) -> -2.9 -> -1.0 -> back to 0: one winding over the loop, which a
     # periodic spline cannot represent (frame K is frame 0); that edge goes the direct way
-    from shellspline.pipeline.interpolation import _keyframe_angles
+    from shellspline.pipeline.describe import keyframe_angles as _keyframe_angles
 
     T = np.array([[0.0], [2.9], [-2.9], [-1.0]])
     assert consistent_angles(T, periodic=True)[-1, 0] == pytest.approx(2 * np.pi)
@@ -71,7 +71,7 @@ def test_spline_angle_targets_stay_off_pi_between_keyframes():
     assert np.abs(key).max() > np.pi - 0.1                       # the case is what it says
     assert np.abs(Zs).max() < np.pi                              # no target past the fold
     free = np.setdiff1d(np.arange(21), d["frames"])
-    assert np.abs(Zs[free]).max() <= np.pi - ss.pipeline.interpolation.ANGLE_MARGIN + 1e-12
+    assert np.abs(Zs[free]).max() <= np.pi - ss.pipeline.describe.ANGLE_MARGIN + 1e-12
 
 
 # -- reconstruction ----------------------------------------------------------------------------

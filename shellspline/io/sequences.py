@@ -21,8 +21,8 @@ from ..mesh.source_mesh import triangulate_polygons
 from .keyframes import check_same_polygons
 from .meshes import check_indices, read_polygons
 
-__all__ = ["write_sequence", "check_output_dir", "read_sequence", "GLB_NAME", "SEQUENCE_FORMATS",
-           "ANIMATION_NAMES", "MESH_NAME"]
+__all__ = ["write_sequence", "check_output_dir", "read_sequence", "jsonable", "GLB_NAME",
+           "SEQUENCE_FORMATS", "ANIMATION_NAMES", "MESH_NAME"]
 
 FRAME_RE = re.compile(r"^frame_(\d+)\.(obj|ply)$")
 GLB_NAME = "animation.glb"
@@ -157,7 +157,7 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     workers = int(workers)
     if workers < 1:
         raise ShellsplineError(f"workers must be >= 1, got {workers}")
-    report_text = json.dumps(_jsonable({} if report is None else report, "report"),
+    report_text = json.dumps(jsonable({} if report is None else report, "report"),
                              indent=2) + "\n"
 
     out = Path(out_dir)
@@ -451,16 +451,25 @@ def _write_ply_frame(path: Path, V: np.ndarray, faces_bytes: bytes, m: int) -> N
         fh.write(faces_bytes)
 
 
-def _jsonable(obj, where: str):
-    """Convert a report to JSON-native types; raise naming the offending entry."""
+def jsonable(obj, where: str = "report", *, finite: bool = False):
+    """``obj`` with JSON-native types only: numpy scalars and arrays, paths, tuples, sets and
+    dataclasses converted; with ``finite=True`` non-finite floats become ``None`` (strict
+    JSON, ``json.dumps(..., allow_nan=False)`` accepts the result).
+
+    Raises
+    ------
+    ShellsplineError
+        Naming the offending entry (``where`` and its keys) for a value or key JSON cannot
+        hold.
+    """
     if obj is None or isinstance(obj, (str, bool, int)):
         return obj
     if isinstance(obj, float):
-        return obj
+        return None if finite and not np.isfinite(obj) else obj
     if isinstance(obj, np.generic):
-        return obj.item()
+        return jsonable(obj.item(), where, finite=finite)
     if isinstance(obj, np.ndarray):
-        return obj.tolist()
+        return jsonable(obj.tolist(), where, finite=finite) if finite else obj.tolist()
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
     if isinstance(obj, dict):
@@ -472,15 +481,15 @@ def _jsonable(obj, where: str):
             if not isinstance(key, (str, int, float, bool)) and key is not None:
                 raise ShellsplineError(f"{where}: key {k!r} of type {type(k).__name__} cannot "
                                        "be written to JSON")
-            out[key] = _jsonable(v, f"{where}[{k!r}]")
+            out[key] = jsonable(v, f"{where}[{k!r}]", finite=finite)
         return out
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+        return [jsonable(v, f"{where}[{i}]", finite=finite) for i, v in enumerate(obj)]
     if isinstance(obj, (set, frozenset)):
-        return [_jsonable(v, where) for v in sorted(obj, key=repr)]
+        return [jsonable(v, where, finite=finite) for v in sorted(obj, key=repr)]
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return _jsonable({f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)},
-                         where)
+        return jsonable({f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)},
+                        where, finite=finite)
     raise ShellsplineError(f"{where}: value of type {type(obj).__name__} cannot be written to "
                            "JSON")
 

@@ -1,0 +1,188 @@
+"""The describe and solve stages: LΘA descriptors of the keyframes on consistent angle
+branches, the weights of the chosen reference, and the time-discrete spline of the targets
+(paper 001 §4, §7).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..shells.descriptors import consistent_angles, lta_descriptors, lta_weights
+from ..shells.lta_spline import lta_spline
+from ..timeline import keyframe_bracket
+
+__all__ = ["describe_and_solve", "SplineTargets", "keyframe_angles", "AngleBand", "SplineRows",
+           "geodesic_weights", "ANGLE_MARGIN"]
+
+
+def keyframe_angles(Theta, periodic):
+    """Keyframe angles on the paths of :func:`~shellspline.shells.descriptors.consistent_angles`; for
+    a periodic sequence an edge whose paths wind once around the circle over the loop (frame
+    K must equal frame 0) takes the direct path in every gap instead."""
+    out = consistent_angles(Theta, periodic=periodic)
+    if not periodic:
+        return out
+    wound = np.abs(out[-1] - out[0]) > np.pi
+    out = out[:-1]
+    out[:, wound] = Theta[:, wound]
+    return out
+
+
+class AngleBand:
+    """Keeps the spline's dihedral-angle targets off ±π between keyframes that are not there.
+
+    A spline through angles near ±π overshoots between its keyframes; a target beyond ±π asks
+    the reconstruction to pass the edge's triangles through each other (a fold the keyframes
+    do not have). In every keyframe gap each angle is clipped to ``[−π + m, π − m]`` widened
+    to the two keyframe values themselves (so keyframes held past ±π, see
+    :func:`~shellspline.shells.descriptors.consistent_angles`, and the path between them stay as they
+    are), with the margin ``m`` = :data:`ANGLE_MARGIN`. Edges away from ±π are untouched.
+    """
+
+    def __init__(self, Tkey, sT, frames, K, periodic):
+        Tkey = np.asarray(Tkey, dtype=np.float64)
+        ext = np.concatenate([Tkey, Tkey[:1]]) if periodic else Tkey
+        j0, _, _ = keyframe_bracket(frames, K, periodic)
+        self.sT = sT
+        self.lo = np.minimum(np.minimum(ext[:-1], ext[1:]), -np.pi + ANGLE_MARGIN)  # per gap
+        self.hi = np.maximum(np.maximum(ext[:-1], ext[1:]), np.pi - ANGLE_MARGIN)
+        self.gap = np.minimum(j0, len(ext) - 2)
+
+    def __call__(self, Z, k=None):
+        """Clip the angle part of targets ``Z`` ((K+1, d), or rows ``k`` of them)."""
+        Z = np.array(Z, dtype=np.float64, copy=True)
+        g = self.gap if k is None else self.gap[k]
+        Z[..., self.sT] = np.clip(Z[..., self.sT], self.lo[g], self.hi[g])
+        return Z
+
+
+#: Margin (radians) between a clipped angle target and ±π (see :class:`AngleBand`).
+ANGLE_MARGIN = 0.02
+
+
+class SplineRows:
+    """Rows of ``Z = S @ Zkey`` computed on demand (``S (K+1, J)`` the spline's linear map of
+    the keyframe values, ``Zkey (J, d)``, clipped by ``clamp``): ``Z[k]`` for an int, an index
+    array or a slice, so the (K+1, d) array need not exist while the reconstruction runs."""
+
+    def __init__(self, S, Zkey, clamp=None):
+        self.S, self.Zkey = np.asarray(S, dtype=np.float64), np.asarray(Zkey, dtype=np.float64)
+        self.shape = (self.S.shape[0], self.Zkey.shape[1])
+        self.clamp = clamp
+
+    def __len__(self):
+        return self.shape[0]
+
+    def __getitem__(self, k):
+        Z = self.S[k] @ self.Zkey
+        if self.clamp is None:
+            return Z
+        return self.clamp(Z, np.arange(self.shape[0])[k])
+
+
+def geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_prefix=""):
+    """LΘA weights ``(K+1, d)`` at the piecewise discrete geodesic through the keyframes."""
+    from ..shells.geodesic import geodesic_interpolation
+
+    n_seg = len(frames) - (0 if bc == "periodic" else 1)
+    stage = stage_prefix + "reference geodesic"
+    with prog.stage(stage, total=n_seg):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            g = geodesic_interpolation(Vkey, frames, K, T, mu=mu, lam=lam, eta=eta,
+                                       pinned=pinned, bc=bc,
+                                       callback=lambda s, r: prog.advance(stage, s + 1, n_seg))
+        if not g.success:
+            prog.message(f"reference geodesic: {g.message} (weights from the current iterates)")
+    return lta_weights(g.V, T, mu=mu, lam=lam, eta=eta)
+
+
+@dataclass
+class SplineTargets:
+    """What the describe and solve stages give the reconstruction.
+
+    Attributes
+    ----------
+    Zkey : (J,d) float64 array
+        Keyframe descriptors, angles on consistent branches.
+    clamp : AngleBand
+        Keeps angle targets off ±π (re-used by the fixpoint iterations).
+    Z : (K+1,d) float64 array or SplineRows
+        Targets of every frame (rows on demand with a constant reference).
+    W_of : callable(int) -> (d,) float64 array
+        Weights of frame ``k``.
+    W_spline : (K+1,d) float64 array or None
+        Per-frame weights of the spline (None: constant, ``W_report``).
+    W_report : (d,) or (K+1,d) float64 array
+        The weights the report's energies use.
+    """
+
+    Zkey: np.ndarray
+    clamp: AngleBand
+    Z: object
+    W_of: Callable
+    W_spline: np.ndarray | None
+    W_report: np.ndarray
+
+
+def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> SplineTargets:
+    """Describe the keyframes, choose the weights of ``opts.reference`` and solve the LΘA
+    spline of the targets.
+
+    Parameters
+    ----------
+    Vkey : (J,n,3) float64 array
+    T : Topology
+    pinned : (p,) int array or None
+    prob : InterpolationProblem
+        Frames, ``K`` (the mesh of ``prob`` may be a finer resolution than ``Vkey``).
+    opts : InterpolationOptions
+    prog : Progress
+    stage_prefix : str
+
+    Returns
+    -------
+    SplineTargets
+    """
+    frames, K, bc, periodic = prob.frames, prob.K, opts.bc, opts.periodic
+    par = dict(mu=opts.mu, lam=opts.lam, eta=opts.eta)
+    with prog.stage(stage_prefix + "describe"):
+        Zkey = lta_descriptors(Vkey, T)
+        sT = T.descriptor_slices()[1]
+        Zkey[:, sT] = keyframe_angles(Zkey[:, sT], periodic)
+        clamp = AngleBand(Zkey[:, sT], sT, frames, K, periodic)
+        ref = opts.reference
+        if not isinstance(ref, str) or ref == "constant":
+            w_const = lta_weights(Vkey[0 if isinstance(ref, str) else ref], T, **par)
+            W_spline, W_report = None, w_const
+
+            def W_of(k):
+                return w_const
+        elif ref == "geodesic":
+            W_spline = W_report = geodesic_weights(Vkey, T, pinned, frames, K, bc, prog=prog,
+                                                   stage_prefix=stage_prefix, **par)
+
+            def W_of(k):
+                return W_spline[k]
+        else:
+            Wkey = lta_weights(Vkey, T, **par)
+            j0, j1, t = keyframe_bracket(frames, K, periodic)
+            nearest = np.where(t <= 0.5, j0, j1)
+            W_spline = W_report = Wkey[nearest]
+
+            def W_of(k):
+                return Wkey[nearest[k]]
+    with prog.stage(stage_prefix + "solve"):
+        if W_spline is None:
+            # constant weights: the spline is one linear map of the keyframes, Z = S Zkey;
+            # the reconstruction takes its rows on demand and the (K+1, d) array is formed
+            # afterwards (0.5 GB at 150k vertices, K = 50, not held while the workers run)
+            Z = SplineRows(lta_spline(np.eye(len(frames)), frames, K, bc=bc), Zkey, clamp)
+        else:
+            Z = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline))
+    return SplineTargets(Zkey=Zkey, clamp=clamp, Z=Z, W_of=W_of, W_spline=W_spline,
+                         W_report=W_report)

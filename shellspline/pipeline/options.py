@@ -1,0 +1,263 @@
+"""The options of :func:`~shellspline.pipeline.interpolate`, validated once.
+
+:class:`InterpolationOptions` canonicalises what does not depend on the mesh (method, boundary
+condition, parameters, workers, ...); :func:`interpolation_problem` binds them to the
+keyframes (frames and ``K`` through :func:`shellspline.timeline.canonical_frames`, pins,
+reference index, coarse vertex count, rigid subset). The stages trust both.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ShellsplineError
+from ..io.keyframes import Keyframes
+from ..mesh.topology import Topology
+from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
+
+__all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_problem", "notices",
+           "coarse_target", "canonical_choice", "METHODS", "REFERENCES", "RIGID_TRACKS",
+           "BOUNDARY_CONDITIONS", "AUTO_COARSE_ABOVE", "AUTO_COARSE_VERTICES",
+           "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN"]
+
+METHODS = ("lta", "linear", "geodesic", "nonlinear")
+REFERENCES = ("constant", "keyframe", "geodesic")
+#: Where in-between frames are placed rigidly (:func:`shellspline.pipeline.placement_track`).
+RIGID_TRACKS = ("fit", "spline", "linear")
+#: ``coarse="auto"`` decimates meshes above this many vertices to :data:`AUTO_COARSE_VERTICES`.
+AUTO_COARSE_ABOVE = 20_000
+AUTO_COARSE_VERTICES = 1000
+#: ``coarse="auto"`` with ``method="nonlinear"`` decimates above this many vertices (to
+#: :data:`AUTO_COARSE_VERTICES`): the nonlinear spline takes ~4 min at 1000 vertices (cactus,
+#: K = 20) and its cost grows faster than the vertex count.
+AUTO_NONLINEAR_ABOVE = 2000
+#: A full-resolution Gauss–Newton run above this many vertices gets a note on its cost.
+FULL_RESOLUTION_WARN = 50_000
+
+
+def canonical_choice(value, name: str, choices) -> str:
+    """``value`` as one of ``choices`` (case and surrounding blanks ignored).
+
+    Raises
+    ------
+    ShellsplineError
+        Naming ``name``, the choices and what was got.
+    """
+    v = str(value).strip().lower()
+    if v not in choices:
+        raise ShellsplineError(f"`{name}` must be one of {', '.join(map(repr, choices))}, "
+                               f"got {value!r}")
+    return v
+
+
+def _canonical_reference(reference):
+    if isinstance(reference, (int, np.integer)) and not isinstance(reference, (bool, np.bool_)):
+        return int(reference)
+    return canonical_choice(reference, "reference", REFERENCES)
+
+
+@dataclass(frozen=True)
+class InterpolationOptions:
+    """Canonical, mesh-independent options of an interpolation (see
+    :func:`~shellspline.pipeline.interpolate` for their meaning).
+
+    Constructing one validates every field: choices are lower-cased and checked, ``eta``,
+    ``mu``, ``lam`` finite and non-negative (``mu`` and ``lam`` not both zero), ``workers``
+    >= 1, ``fixpoint`` >= 0, ``reference`` a choice or an int keyframe index; ``coarse`` is
+    kept as given and resolved against the mesh by :func:`coarse_target`.
+
+    Raises
+    ------
+    ShellsplineError
+        On the first invalid field, naming it.
+    """
+
+    method: str = "lta"
+    bc: str = "natural"
+    eta: float = 1e-3
+    mu: float = 1.0
+    lam: float = 1.0
+    reference: str | int = "constant"
+    workers: int = 1
+    gn_options: dict = field(default_factory=dict)
+    warm_start: bool = True
+    solver_options: dict = field(default_factory=dict)
+    coarse: object = "auto"
+    fine: bool = False
+    fixpoint: int = 0
+    rigid_track: str = "fit"
+
+    def __post_init__(self):
+        put = object.__setattr__.__get__(self)
+        put("method", canonical_choice(self.method, "method", METHODS))
+        put("rigid_track", canonical_choice(self.rigid_track, "rigid_track", RIGID_TRACKS))
+        put("bc", canonical_bc(self.bc))
+        for name in ("eta", "mu", "lam"):
+            val = getattr(self, name)
+            if not np.isfinite(val) or val < 0:
+                raise ShellsplineError(f"`{name}` must be a finite non-negative number, got "
+                                       f"{val!r}")
+            put(name, float(val))
+        if self.mu == 0 and self.lam == 0:
+            raise ShellsplineError("`mu` and `lam` cannot both be zero (the membrane energy "
+                                   "would vanish)")
+        workers = 1 if self.workers is None else int(self.workers)
+        if workers < 1:
+            raise ShellsplineError(f"`workers` must be >= 1, got {workers}")
+        put("workers", workers)
+        if int(self.fixpoint) < 0:
+            raise ShellsplineError(f"`fixpoint` must be a non-negative number of iterations, "
+                                   f"got {self.fixpoint}")
+        put("fixpoint", int(self.fixpoint))
+        put("reference", _canonical_reference(self.reference))
+        put("gn_options", dict(self.gn_options or {}))
+        put("solver_options", dict(self.solver_options or {}))
+        put("warm_start", bool(self.warm_start))
+        put("fine", bool(self.fine))
+
+    @property
+    def periodic(self) -> bool:
+        return self.bc == "periodic"
+
+
+@dataclass
+class InterpolationProblem:
+    """The keyframes with the options bound to them (what every stage reads).
+
+    Attributes
+    ----------
+    keyframes : Keyframes
+    Vkey : (J,n,3) float64 array
+        The keyframe poses the stages work on.
+    T : Topology
+    frames : (J,) int64 array
+    K : int
+    pinned : (p,) int64 array or None
+    n_coarse : int or None
+        Coarse vertex count of a multiresolution run (:func:`coarse_target`).
+    rigid_subset : (s,) int64 array or None
+        Vertices whose rigid pose places the in-betweens (``None``: all).
+    """
+
+    keyframes: Keyframes
+    Vkey: np.ndarray
+    T: Topology
+    frames: np.ndarray
+    K: int
+    pinned: np.ndarray | None
+    n_coarse: int | None
+    rigid_subset: np.ndarray | None = None
+
+
+def _vertex_indices(idx, n: int, name: str):
+    if idx is None:
+        return None
+    idx = np.asarray(idx, dtype=np.int64).ravel()
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise ShellsplineError(f"`{name}` indices must lie in [0, {n}), got range "
+                               f"[{idx.min()}, {idx.max()}]")
+    return idx if idx.size else None
+
+
+def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=None, K=None,
+                          pinned=None) -> InterpolationProblem:
+    """Bind ``opts`` to the keyframes ``kf``: canonical frames and ``K``, pins (default the
+    keyframes' own), the reference keyframe index and the coarse vertex count checked.
+
+    Raises
+    ------
+    ShellsplineError
+        Naming the argument (``frames``, ``K``, ``pinned``, ``reference``, ``fine``).
+    """
+    J, n = kf.V.shape[:2]
+    pinned = _vertex_indices(kf.pinned if pinned is None else pinned, n, "pinned")
+    frames, K = canonical_frames(J, kf.frames if frames is None else frames, K, opts.bc)
+    if isinstance(opts.reference, int) and not 0 <= opts.reference < J:
+        raise ShellsplineError(f"`reference` keyframe index must lie in [0, {J}), got "
+                               f"{opts.reference}")
+    n_coarse = None
+    if opts.method in ("lta", "nonlinear"):
+        n_coarse = coarse_target(opts.coarse, n, opts.method)
+        if opts.fine and n_coarse is None:
+            raise ShellsplineError("`fine=True` refines a multiresolution run: it needs `coarse` "
+                                   f"(a vertex count or fraction below the {n} vertices), got "
+                                   f"coarse={opts.coarse!r}")
+    return InterpolationProblem(keyframes=kf, Vkey=kf.V, T=kf.topology, frames=frames, K=K,
+                                pinned=pinned, n_coarse=n_coarse)
+
+
+def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]:
+    """The one-line notes a run starts with (extrapolated frames, moving pins, where the
+    nonlinear spline runs, the cost of a large full-resolution run)."""
+    out = []
+    frames, K, n, Vkey = prob.frames, prob.K, prob.Vkey.shape[1], prob.Vkey
+    if opts.bc != "periodic" and K > frames[-1] and opts.method != "linear":
+        out.append(f"frames {int(frames[-1]) + 1}..{K} lie after the last keyframe: the "
+                   "spline extrapolates them (linearly in its variables)")
+    if prob.pinned is not None:
+        spread = np.abs(Vkey[:, prob.pinned] - Vkey[0, prob.pinned]).max()
+        if spread > 0:
+            out.append(f"pinned vertices move between keyframes (max {spread:.3g}); "
+                       "each frame pins them at their blended position")
+    if opts.method not in ("lta", "nonlinear"):
+        return out
+    n_coarse = prob.n_coarse
+    if opts.method == "nonlinear" and not opts.fine:
+        if n_coarse is not None and coarse_target(opts.coarse, n) is None:
+            out.append(f"nonlinear: solving on {n_coarse} coarse vertices and prolonging "
+                       f"to {n} (--coarse none: all {n}, far slower)")
+        elif n_coarse is None and n > AUTO_NONLINEAR_ABOVE:
+            out.append(f"nonlinear spline on all {n} vertices: expect far more than the "
+                       f"~4 min it takes at {AUTO_COARSE_VERTICES} (--coarse "
+                       f"{AUTO_COARSE_VERTICES} solves there and prolongs)")
+    if (n_coarse is None or opts.fine) and n > FULL_RESOLUTION_WARN:
+        out.append(f"Gauss–Newton at full resolution on {n} vertices takes minutes and "
+                   "gigabytes (measured: 154k vertices, K = 50, --fine from 1000 coarse "
+                   "vertices, 2 workers: 7.1 min, 6.8 GiB)" +
+                   ("" if opts.fine else "; here frames start from the keyframe blend, "
+                    "not from a prolonged coarse result; the multiresolution path "
+                    "(--coarse, default above 20 000 vertices) takes seconds"))
+    return out
+
+
+def coarse_target(coarse, n: int, method: str = "lta"):
+    """Canonical coarse vertex count of a mesh with ``n`` vertices, or None for a
+    single-resolution run.
+
+    Parameters
+    ----------
+    coarse : "auto", "none", int, float in (0, 1), or such a string
+        ``"auto"``: :data:`AUTO_COARSE_VERTICES` above :data:`AUTO_COARSE_ABOVE` vertices
+        (above :data:`AUTO_NONLINEAR_ABOVE` with ``method="nonlinear"``).
+    n : int
+    method : str
+
+    Examples
+    --------
+    >>> coarse_target(0.1, 5000), coarse_target("700", 5000), coarse_target(6000, 5000)
+    (500, 700, None)
+    """
+    if coarse is None or (isinstance(coarse, str) and coarse.strip().lower() == "auto"):
+        above = AUTO_NONLINEAR_ABOVE if method == "nonlinear" else AUTO_COARSE_ABOVE
+        return AUTO_COARSE_VERTICES if n > above else None
+    if isinstance(coarse, str):
+        c = coarse.strip().lower()
+        if c in ("none", "off", "no"):
+            return None
+        try:
+            coarse = float(c) if any(ch in c for ch in ".e") else int(c)
+        except ValueError:
+            raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction "
+                                   f"in (0, 1), got {coarse!r}") from None
+    if isinstance(coarse, bool):
+        raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, "
+                               f"got {coarse!r}")
+    if isinstance(coarse, (float, np.floating)) and 0 < coarse < 1:
+        target = int(round(coarse * n))
+    elif float(coarse) == int(coarse) and int(coarse) >= 4:
+        target = int(coarse)
+    else:
+        raise ShellsplineError(f"`coarse` must be a vertex count >= 4 or a fraction in (0, 1), got "
+                               f"{coarse!r}")
+    return None if target >= n else max(target, 4)

@@ -1,0 +1,361 @@
+"""The reconstruction stage: Gauss–Newton per frame, in runs from the keyframes, serially or
+on a process pool, and the parallel prolongation decode.
+
+Frames are solved in runs that start next to a keyframe (:func:`reconstruction_runs`), warm
+started along the run (:func:`solve_run`); a second pass continues the better run of each
+keyframe gap into the other half (:func:`continued_runs`). :func:`reconstruct_frames` is the
+whole stage.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..shells.descriptors import face_normals
+from ..shells.reconstruct import GaussNewton
+from ..timeline import keyframe_bracket
+
+__all__ = ["reconstruct_frames", "run_reconstruction", "reconstruction_runs", "continued_runs",
+           "solve_run", "parallel_decode", "safe_init", "single_blas_thread",
+           "SERIAL_RECONSTRUCT_WORK", "SERIAL_DECODE_WORK", "CONTINUE_MARGIN"]
+
+#: Below this many vertex-frames the Gauss–Newton reconstruction runs in this process even
+#: with ``workers > 1``: starting a pool costs more than the work (cactus γ = 0.05, K = 20:
+#: 263 coarse vertices × 18 frames, 0.11 s in-process against 0.19 s with two workers).
+SERIAL_RECONSTRUCT_WORK = 20_000
+#: The same for the prolongation decode (cheaper per vertex-frame): the 5.2k-vertex cactus,
+#: K = 20, decodes in 0.08 s in-process and 0.10 s with two workers.
+SERIAL_DECODE_WORK = 250_000
+
+_WORKER: dict = {}
+
+
+def single_blas_thread():
+    """Limit BLAS thread pools to one thread in this process (our parallelism is the process
+    pool; BLAS threads on level-1/2 work only oversubscribe the cores). Returns the limiter
+    (keep a reference) or None when threadpoolctl is unavailable."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a required dependency
+        return None
+    return threadpool_limits(limits=1)
+
+
+def _worker_init(F, n, pinned, gn_options):
+    from ..mesh.topology import topology
+
+    _WORKER["blas"] = single_blas_thread()
+    if "gn" not in _WORKER:  # forked workers inherit the parent's prepared solver
+        _WORKER["gn"] = GaussNewton(topology(F, n), pinned=pinned, **gn_options)
+
+
+def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
+               worse_than=None):
+    """Reconstruct a run of consecutive frames, in the run's order (see :func:`reconstruction_runs`).
+
+    ``Vanchor`` is the keyframe next to the run's first frame, or a pair of solved frames
+    ``(V[k∓2], V[k∓1])`` that the run continues. With ``warm`` each frame starts from its
+    solved predecessor in the run, moved by the initial sequence's change (``warm="delta"``,
+    for a given good sequence such as a prolonged coarse result) or, with
+    ``warm="extrapolate"``, the second and later frames from the linear extrapolation
+    ``2 V[k∓1] − V[k∓2]`` of the last two solutions (the keyframe counting as the first of
+    them), the first from the keyframe moved by the initial sequence's change
+    ``Vinit[k] − Vanchor``. Extrapolating the solutions carries the motion of the spline
+    itself; moving by the keyframe blend's change instead carries the blend's flaps that turn
+    over between keyframes (measured on the horse: the blend passes 43 edges through ±π).
+
+    ``worse_than`` (energies, one per frame of the run): the run stops at the first frame
+    whose energy is not below it, and that frame is not returned (see :func:`continued_runs`).
+    """
+    out = []
+    gn.reset()  # a run's result does not depend on which runs this solver did before, so
+    # one worker and several give the same sequence
+    if isinstance(Vanchor, tuple):
+        prev2, prev = Vanchor
+        prev_init = prev
+    else:
+        prev2, prev, prev_init = None, Vanchor, Vanchor
+    for i, (k, z, w, v) in enumerate(zip(ks, Zs, Ws, Vinit)):
+        t0 = time.perf_counter()
+        v0 = v
+        if warm and prev is not None:
+            vw = 2.0 * prev - prev2 if prev2 is not None and warm == "extrapolate" else \
+                prev + (v - prev_init)
+            # a start must leave every triangle above the line search's floor
+            if np.all(np.isfinite(vw)) and np.all(
+                    0.5 * np.linalg.norm(face_normals(vw, gn.T.F), axis=-1)
+                    > 1e-6 * np.maximum(z[gn.T.descriptor_slices()[2]], 0.0)):
+                v = vw
+        r = gn.solve(z, w, v)
+        if worse_than is not None and not r.energy < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
+            break
+        prev2, prev, prev_init = prev, r.V, v0
+        rec = r.summary()
+        rec["frame"] = int(k)
+        rec["seconds"] = time.perf_counter() - t0
+        out.append((int(k), r.V, rec))
+        if on_frame is not None:
+            on_frame(i + 1, rec)
+    return out
+
+
+def _frame_text(rec) -> str:
+    """One progress line for a reconstructed frame (logs get one per frame)."""
+    return (f"frame {rec['frame']:4d}: {rec['status']:<9s} {rec['nit']:3d} it  "
+            f"E {rec['energy_final']:.3g}")
+
+
+#: A continued run replaces a first-pass frame only when its energy is lower by this fraction
+#: (equal minima differ at solver tolerance; without a margin the choice was decided by
+#: round-off and differed between one and two workers).
+CONTINUE_MARGIN = 1e-3
+
+
+def continued_runs(runs, results, Vinit):
+    """Second pass over each keyframe gap solved from both ends (see :func:`reconstruction_runs`).
+
+    The runs from the two keyframes of a gap can settle into different local minima of the
+    reconstruction (the horse: frame 10 at energy 0.075 from keyframe 0, frame 11 at 0.011
+    from keyframe 20; a jump where they meet). The run whose frame at the meeting point has
+    the lower energy is continued into the other half, frame by frame, for as long as it
+    finds lower energies there than the first pass did.
+
+    Returns the continuation runs ``(frames, (V[k∓2], V[k∓1]), energies to beat)`` for
+    :func:`run_reconstruction`.
+    """
+    tasks = []
+    # pair each forward run (anchor before its frames) with the backward run of its gap
+    fwd = {int(r[-1]): (r, a) for r, a in runs if len(r) and r[0] > a}
+    for r, a in runs:
+        if not len(r) or r[0] > a:
+            continue
+        m = int(r[-1]) - 1                                   # last frame of the forward half
+        if m not in fwd:
+            continue
+        rf, af = fwd[m]
+        ef = results[m][1]["energy_final"]
+        eb = results[int(r[-1])][1]["energy_final"]
+        if ef <= eb:   # continue the forward run into the backward half
+            frames_, seq, anchor_ = r[::-1], rf, af
+        else:          # continue the backward run into the forward half
+            frames_, seq, anchor_ = rf[::-1], r, a
+        V1 = results[int(seq[-1])][0]
+        V2 = results[int(seq[-2])][0] if len(seq) >= 2 else Vinit[anchor_]
+        tasks.append((frames_, (V2, V1),
+                      np.array([results[int(k)][1]["energy_final"] for k in frames_])))
+    return tasks
+
+
+def reconstruction_runs(ks, frames, K, periodic):
+    """The frames to reconstruct as runs that start next to a keyframe.
+
+    Each keyframe gap is solved from both ends toward its middle (frames ``a+1 … m`` forward
+    from keyframe ``a``, ``b−1 … m+1`` backward from keyframe ``b``), so every frame next to a
+    keyframe starts from that keyframe and no chain of warm starts ends at a keyframe it never
+    saw (a run ``21 … 39`` drifted away from keyframe 40: a pop into the last keyframe,
+    issue 13). Frames after the last keyframe of a non-periodic sequence run forward from it.
+
+    Returns
+    -------
+    list of ((r,) int array, int)
+        The run's frames in solving order and the frame of its anchor keyframe.
+    """
+    todo = set(int(k) for k in ks)
+    bounds = [int(f) for f in frames] + ([K] if periodic else [])
+    out = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        m = (a + b) // 2
+        fwd = [k for k in range(a + 1, m + 1) if k in todo]
+        bwd = [k for k in range(b - 1, m, -1) if k in todo]
+        out += [(np.array(fwd), a)] if fwd else []
+        out += [(np.array(bwd), b)] if bwd else []
+    tail = [k for k in range(bounds[-1] + 1, K + 1) if k in todo]
+    if tail:
+        out.append((np.array(tail), bounds[-1]))
+    assert sum(len(r) for r, _ in out) == len(todo)
+    return out
+
+
+def _worker_solve(task):
+    if isinstance(task, tuple) and len(task) == 4 and task[0] == "inherited":
+        # forked worker: the frame data are the parent's arrays, inherited (no copies)
+        _, ks, anchor, worse = task
+        Z, W_of, Vinit, warm = _WORKER["frame_data"]
+        return solve_run(_WORKER["gn"], ks, [Z[k] for k in ks], [W_of(k) for k in ks],
+                          [Vinit[k] for k in ks], _anchor(anchor, Vinit), warm,
+                          worse_than=worse)
+    return solve_run(_WORKER["gn"], *task)
+
+
+def _anchor(anchor, Vinit):
+    """A run's anchor: the frame index of its keyframe, or a pair of solved frames."""
+    return anchor if isinstance(anchor, tuple) else Vinit[anchor]
+
+
+def _decode_worker(task):
+    Vc, frames, K, bc, ks = task
+    return ks, _WORKER["prolong"].decode(Vc, frames, K, time_weights="linear", bc=bc,
+                                         only=ks)[ks]
+
+
+def parallel_decode(P, Vc, frames, K, bc, workers):
+    """Prolongation of every frame; frames split over ``workers`` forked processes (they share
+    the parent's factorization; without fork, or with one worker, it runs here)."""
+    from ..parallel import process_pool, start_method
+
+    if workers <= 1 or start_method() != "fork" or P.n_vertices * (K + 1) < SERIAL_DECODE_WORK:
+        return P.decode(Vc, frames, K, time_weights="linear", bc=bc)
+    _WORKER["prolong"] = P
+    try:
+        out = np.zeros((K + 1, P.n_vertices, 3))
+        chunks = _chunks(np.arange(K + 1), workers)
+        with process_pool(workers, method="fork") as ex:
+            for ks, Vk in ex.map(_decode_worker, [(Vc, frames, K, bc, c) for c in chunks]):
+                out[ks] = Vk
+        return out
+    finally:
+        _WORKER.pop("prolong", None)
+
+
+def _chunks(idx, n_chunks):
+    n_chunks = max(1, min(n_chunks, len(idx)))
+    return [c for c in np.array_split(np.asarray(idx), n_chunks) if len(c)]
+
+
+def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress, warm,
+                        stage="reconstruct", runs=None):
+    """Reconstruct frames ``ks`` (in ``runs``, see :func:`reconstruction_runs`; default one run per frame
+    anchored at its predecessor) serially or on ``workers`` processes."""
+    results = {}
+    total = len(ks)
+    if runs is None:
+        runs = [(np.array([k]), max(int(k) - 1, 0)) for k in ks]
+    runs = [r if len(r) == 3 else (*r, None) for r in runs]
+    if total == 0:
+        return results
+    if workers <= 1 or total == 1 or T.n_vertices * total < SERIAL_RECONSTRUCT_WORK:
+        limiter = single_blas_thread()
+        try:
+            gn = GaussNewton(T, pinned=pinned, **gn_options)
+            for run, anchor, worse in runs:
+                done = len(results)
+                for kk, Vk, rec in solve_run(gn, run, Z[run], [W_of(k) for k in run],
+                                              Vinit[run], _anchor(anchor, Vinit), warm,
+                                              lambda i, rec: progress.advance(
+                                                  stage, done + i, total,
+                                                  text=_frame_text(rec)), worse):
+                    results[kk] = (Vk, rec)
+        finally:
+            if limiter is not None:
+                limiter.restore_original_limits()
+        return results
+    # runs of neighbouring (similar) frames on one worker keep its cached preconditioner and
+    # warm starts good
+    from concurrent.futures import as_completed
+
+    from ..parallel import process_pool, start_method
+
+    method = start_method()
+    if method == "fork":
+        # build the assembly pattern once here; the forked workers inherit it, and the frame
+        # data (targets, weights, initial guesses): tasks then carry only frame indices, so
+        # no chunk is copied, pickled and unpickled (at 150k vertices and K=50 that saved
+        # ~3 GB across the parent and two workers)
+        gn = GaussNewton(T, pinned=pinned, **gn_options)
+        gn.prepare(Vinit[ks[0]])  # and the fill-reducing order (large meshes), also inherited
+        _WORKER["gn"] = gn
+        _WORKER["frame_data"] = (Z, W_of, Vinit, warm)
+    done = 0
+    try:
+        with process_pool(workers, _worker_init, (T.F, T.n_vertices, pinned, gn_options),
+                          method) as ex:
+            # one task per run (runs start next to a keyframe; the pool balances them)
+            futs = [ex.submit(_worker_solve, ("inherited", c, a, w) if method == "fork" else
+                              (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
+                               _anchor(a, Vinit), warm, None, w))
+                    for c, a, w in runs]
+            for fut in as_completed(futs):
+                for kk, Vk, rec in fut.result():
+                    results[kk] = (Vk, rec)
+                    done += 1
+                    progress.advance(stage, done, total, text=_frame_text(rec))
+    finally:
+        _WORKER.pop("gn", None)
+        _WORKER.pop("frame_data", None)
+    return results
+
+
+def safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):
+    """The keyframe blend as initial guess, except for frames where the blend collapses
+    triangles (e.g. a half-turn between keyframes): those start from the nearer keyframe."""
+    F = T.F
+
+    def areas(Vs):
+        return 0.5 * np.linalg.norm(face_normals(Vs, F), axis=-1)
+
+    a_key = areas(Vkey).mean(axis=0)
+    out = blend
+    j0, j1, t = keyframe_bracket(np.asarray(frames), K, bc == "periodic")
+    for i in range(0, K + 1, 8):
+        bad = (areas(blend[i:i + 8]) < min_ratio * a_key).any(axis=1)
+        for k in np.flatnonzero(bad) + i:
+            if out is blend:
+                out = blend.copy()
+            out[k] = Vkey[j0[k] if t[k] <= 0.5 else j1[k]]
+    return out
+
+
+def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn_options,
+                       workers, warm, prog, stage_prefix=""):
+    """The reconstruction stage: frames ``ks`` in runs from the keyframes
+    (:func:`reconstruction_runs`), then, with ``warm="extrapolate"``, the continuation pass
+    of :func:`continued_runs`.
+
+    Parameters
+    ----------
+    T : Topology
+    ks : (r,) int array
+        The frames to reconstruct (the in-betweens).
+    Z : (K+1,d) float64 array, or anything whose rows ``Z[idx]`` are the targets
+        Target descriptors.
+    W_of : callable(int) -> (d,) float64 array
+        Weights of frame ``k``.
+    Vinit : (K+1,n,3) float64 array
+        Initial sequence (keyframes at their frames).
+    pinned : (p,) int array or None
+    frames : (J,) int array
+    K : int
+    periodic : bool
+    gn_options : dict
+        Options of :class:`~shellspline.shells.reconstruct.GaussNewton`.
+    workers : int
+    warm : {"extrapolate", "delta", False}
+        See :func:`solve_run`.
+    prog : Progress
+    stage_prefix : str
+        Prefix of the progress stage names (``"coarse "``, ``"fine "``).
+
+    Returns
+    -------
+    dict
+        ``{k: (V (n,3) float64 array, record dict)}``; frames replaced by the continuation
+        have ``record["continued"] = True``.
+    """
+    runs = reconstruction_runs(ks, frames, K, periodic)
+    stage = stage_prefix + "reconstruct"
+    with prog.stage(stage, total=len(ks)):
+        results = run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
+                                     warm, stage=stage, runs=runs)
+    if warm != "extrapolate":
+        return results
+    again = continued_runs(runs, results, Vinit)
+    stage = stage_prefix + "reconstruct (continue)"
+    with prog.stage(stage, total=sum(len(r) for r, _, _ in again)):
+        better = run_reconstruction(T, np.concatenate([r for r, _, _ in again]) if again
+                                    else np.zeros(0, int), Z, W_of, Vinit, pinned, gn_options,
+                                    workers, prog, warm, stage=stage, runs=again)
+    for kk, (Vk, rec) in better.items():
+        rec["continued"] = True
+        results[kk] = (Vk, rec)
+    return results

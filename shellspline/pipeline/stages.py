@@ -1,0 +1,259 @@
+"""One stage function per method (linear, geodesic, LΘA, nonlinear) and the multiresolution
+path; each returns a :class:`StageResult`. Which stage runs in which order is decided here
+and in :func:`~shellspline.pipeline.interpolate` only.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..mesh.topology import topology
+from ..shells.descriptors import lta_weights
+from ..shells.lta_spline import lta_spline
+from ..timeline import linear_blend
+from .describe import SplineRows, describe_and_solve
+from .placement import place
+from .reconstruction import parallel_decode, reconstruct_frames, run_reconstruction, safe_init
+from .report import fixpoint_change, nonlinear_record
+
+__all__ = ["StageResult", "run_method", "linear_stage", "geodesic_stage", "lta_stage",
+           "lta_sequence", "fixpoint_iterations", "multires_sequence", "nonlinear_solve"]
+
+
+@dataclass
+class StageResult:
+    """What a method stage returns.
+
+    Attributes
+    ----------
+    V : (K+1,n,3) float64 array
+        The placed sequence, keyframes exact.
+    Z : (K+1,d) float64 array or None
+        Spline targets (LΘA at full resolution).
+    W : (d,) or (K+1,d) float64 array or None
+        Weights of the report's energies (None: the first keyframe's).
+    frame_records : list of dict
+        Per-frame Gauss–Newton records.
+    energy_source : tuple or None
+        ``(V, Z, T, W)`` where the spline was solved when that is not the output (a coarse
+        mesh); None: the output itself.
+    report : dict
+        Sections the stage adds to the report (``geodesic``, ``multires``, ``nonlinear``,
+        ``fixpoint``).
+    """
+
+    V: np.ndarray
+    Z: np.ndarray | None = None
+    W: np.ndarray | None = None
+    frame_records: list = field(default_factory=list)
+    energy_source: tuple | None = None
+    report: dict = field(default_factory=dict)
+
+
+def run_method(prob, opts, prog) -> StageResult:
+    """The stage of ``opts.method`` on ``prob``."""
+    if opts.method == "linear":
+        return linear_stage(prob, opts, prog)
+    if opts.method == "geodesic":
+        return geodesic_stage(prob, opts, prog)
+    return lta_stage(prob, opts, prog)
+
+
+def _placed(V, Vkey, T, pinned, prob, opts):
+    return place(V, prob.frames, prob.K, opts.bc, pinned, Vkey, T.F, opts.rigid_track)
+
+
+def linear_stage(prob, opts, prog) -> StageResult:
+    """Per-vertex linear blending of the keyframes (the baseline)."""
+    return StageResult(V=linear_blend(prob.Vkey, prob.frames, prob.K, opts.bc))
+
+
+def geodesic_stage(prob, opts, prog) -> StageResult:
+    """Piecewise discrete geodesics in shell space between consecutive keyframes (paper §3)."""
+    from ..shells.geodesic import geodesic_interpolation
+
+    frames = prob.frames
+    with prog.stage("geodesic", total=len(frames) - (0 if opts.periodic else 1)):
+        g = geodesic_interpolation(prob.Vkey, frames, prob.K, prob.T, mu=opts.mu, lam=opts.lam,
+                                   eta=opts.eta, pinned=prob.pinned, bc=opts.bc,
+                                   callback=lambda s, r: prog.advance("geodesic", s + 1,
+                                                                      len(frames)),
+                                   **opts.solver_options)
+    if not g.success:
+        prog.message(f"geodesic: {g.message}")
+    rec = {"success": bool(g.success), "nit": int(g.nit), "message": g.message,
+           "segment_energies": [float(e) for e in g.segment_energies]}
+    return StageResult(V=_placed(g.V, prob.Vkey, prob.T, prob.pinned, prob, opts),
+                       report={"geodesic": rec})
+
+
+def lta_stage(prob, opts, prog) -> StageResult:
+    """The LΘA spline (single or multiresolution) and, for ``method="nonlinear"``, the
+    nonlinear spline started from it."""
+    log: list = []
+    if prob.n_coarse is None:
+        seq = lta_sequence(prob.Vkey, prob.T, prob.pinned, prob, opts, prog, fixpoint_log=log)
+    else:
+        seq = multires_sequence(prob, opts, prog, fixpoint_log=log)
+    if opts.fixpoint:
+        seq.report["fixpoint"] = log
+    if seq.W is None:
+        seq.W = lta_weights(prob.Vkey[0], prob.T, mu=opts.mu, lam=opts.lam, eta=opts.eta)
+    if opts.method == "nonlinear" and "nonlinear" not in seq.report:
+        Vn, seq.report["nonlinear"] = nonlinear_solve(prob.Vkey, prob.T, prob.pinned, seq.V,
+                                                      prob, opts, prog)
+        seq.V = _placed(Vn, prob.Vkey, prob.T, prob.pinned, prob, opts)
+        seq.energy_source = None  # energies of the final (full-resolution) sequence
+    return seq
+
+
+def _in_betweens(prob, opts):
+    is_key = np.zeros(prob.K + 1, dtype=bool)
+    is_key[prob.frames] = True
+    is_key[prob.K] |= opts.periodic
+    return np.flatnonzero(~is_key)
+
+
+def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix="",
+                 fixpoint_log=None) -> StageResult:
+    """The LΘA stages on one resolution: describe, solve, reconstruct, place, and the
+    ``opts.fixpoint`` iterations (their records appended to ``fixpoint_log``).
+
+    ``Vinit`` (K+1,n,3): a given initial sequence (the prolonged coarse result of
+    ``fine=True``); a warm start then follows its change from frame to frame, which cancels
+    most of the prolongation's misfit. Default: the keyframe blend (frames where it collapses
+    triangles start from the nearer keyframe), warm starts extrapolating the solutions.
+    """
+    frames, K, bc = prob.frames, prob.K, opts.bc
+    tg = describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix)
+    ks = _in_betweens(prob, opts)
+    warm = ("delta" if Vinit is not None else "extrapolate") if opts.warm_start else False
+    Vinit = safe_init(linear_blend(Vkey, frames, K, bc), Vkey, frames, K, bc, T) \
+        if Vinit is None else np.asarray(Vinit, dtype=np.float64)
+    results = reconstruct_frames(T, ks, tg.Z, tg.W_of, Vinit, pinned, frames=frames, K=K,
+                                 periodic=opts.periodic, gn_options=opts.gn_options,
+                                 workers=opts.workers, warm=warm, prog=prog,
+                                 stage_prefix=stage_prefix)
+    del Vinit
+    Z = tg.Z[:] if isinstance(tg.Z, SplineRows) else tg.Z
+    with prog.stage(stage_prefix + "place"):
+        V = linear_blend(Vkey, frames, K, bc)  # (K+1, n, 3): not held during reconstruction
+        for k in ks:
+            V[k] = results[k][0]
+        V = _placed(V, Vkey, T, pinned, prob, opts)
+    seq = StageResult(V=V, Z=Z, W=tg.W_report, frame_records=[results[k][1] for k in ks])
+    if opts.fixpoint:
+        fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix,
+                            fixpoint_log)
+    return seq
+
+
+def fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix="",
+                        log=None) -> StageResult:
+    """The fixpoint iterations of the LΘA model (paper §9, Fig. 9), on ``seq`` in place:
+    reference meshes ← the current result, re-solve the spline, reconstruct from the current
+    result, place; the change of each iteration is appended to ``log``."""
+    frames, K, bc = prob.frames, prob.K, opts.bc
+    ks = _in_betweens(prob, opts)
+    for it in range(opts.fixpoint):
+        t0 = time.perf_counter()
+        with prog.stage(stage_prefix + f"fixpoint {it + 1} solve"):
+            W_spline = lta_weights(seq.V, T, mu=opts.mu, lam=opts.lam, eta=opts.eta)
+            Znew = tg.clamp(lta_spline(tg.Zkey, frames, K, bc=bc, weights=W_spline))
+        stage = stage_prefix + f"fixpoint {it + 1} reconstruct"
+        with prog.stage(stage, total=len(ks)):
+            results = run_reconstruction(T, ks, Znew, lambda k: W_spline[k], seq.V, pinned,
+                                         opts.gn_options, opts.workers, prog, False,
+                                         stage=stage)
+        Vnew = linear_blend(Vkey, frames, K, bc)
+        for k in ks:
+            Vnew[k] = results[k][0]
+        Vnew = _placed(Vnew, Vkey, T, pinned, prob, opts)
+        if log is not None:
+            log.append(dict(fixpoint_change(seq.V, Vnew, seq.Z, Znew, T, Vkey),
+                            iteration=it + 1, resolution=stage_prefix.strip() or "full",
+                            seconds=time.perf_counter() - t0))
+        seq.V, seq.Z, seq.W = Vnew, Znew, W_spline
+        seq.frame_records = [results[k][1] for k in ks]
+    return seq
+
+
+def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
+    """Multiresolution (paper §8): decimate all keyframes at once, run the LΘA spline (and,
+    for ``method="nonlinear"`` without ``fine``, the nonlinear spline) on the coarse meshes,
+    prolong by detail transfer, optionally refine at full resolution (``fine``), place."""
+    from ..mesh.decimate import decimate
+    from ..shells.prolong import Prolongation
+
+    Vkey, T, pinned, frames, K, bc = prob.Vkey, prob.T, prob.pinned, prob.frames, prob.K, opts.bc
+    with prog.stage("decimate"):
+        dec = decimate(Vkey, T, prob.n_coarse, pinned=pinned)
+        Tc = topology(dec.F, dec.V.shape[1], name="coarse mesh")
+    multires = {"coarse_vertices": int(dec.V.shape[1]), "coarse_faces": int(dec.F.shape[0]),
+                "decimation": {k: v for k, v in dec.stats.items()
+                               if isinstance(v, (int, float, str, bool))}}
+    coarse = lta_sequence(dec.V, Tc, dec.pinned, prob, opts, prog, stage_prefix="coarse ",
+                          fixpoint_log=fixpoint_log)
+    out = StageResult(V=coarse.V, report={"multires": multires})
+    if opts.method == "nonlinear" and not opts.fine:
+        # the nonlinear spline on the coarse meshes (started from their LΘA spline),
+        # prolonged like the LΘA result
+        coarse.V, out.report["nonlinear"] = nonlinear_solve(dec.V, Tc, dec.pinned, coarse.V,
+                                                            prob, opts, prog, "coarse ")
+        out.report["nonlinear"]["resolution"] = "coarse"
+        coarse.Z = None
+    with prog.stage("prolong"):
+        moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
+        P = Prolongation.encode(Vkey, T, dec, frames, pinned=None if moving else pinned)
+        V = parallel_decode(P, coarse.V, frames, K, bc, opts.workers)
+        del P  # its factorization is not needed any more (memory of a fine run)
+        if moving:  # same semantics as full resolution: pins follow the blend
+            V[:, pinned] = linear_blend(Vkey[:, pinned], frames, K, bc)
+    multires["coarse_frames"] = coarse.frame_records
+    if opts.fine:
+        fine = lta_sequence(Vkey, T, pinned, prob, opts, prog, Vinit=V, stage_prefix="fine ",
+                            fixpoint_log=fixpoint_log)
+        out.V, out.Z, out.W, out.frame_records = fine.V, fine.Z, fine.W, fine.frame_records
+    else:
+        out.frame_records = coarse.frame_records
+        # energies where the spline was solved (full-resolution descriptors of every frame
+        # would cost more than the whole coarse run)
+        out.energy_source = (coarse.V, coarse.Z, Tc, coarse.W)
+        out.V = V
+    out.V = _placed(out.V, Vkey, T, pinned, prob, opts)
+    return out
+
+
+def nonlinear_solve(Vkey, T, pinned, Vinit, prob, opts, prog, stage_prefix=""):
+    """The nonlinear spline (paper eqs. 7–8) started from ``Vinit``; returns
+    ``(V (K+1,n,3), report record)``."""
+    from ..shells.nonlinear import nonlinear_spline
+
+    kw = dict(opts.solver_options)
+    max_iter = int(kw.pop("max_iter", 500))
+    stage = stage_prefix + "nonlinear"
+    gtol = float(kw.get("gtol", 1e-6))
+    first = {}
+
+    def report(it, e, g):
+        # the bar fills with the gradient reduction on a log scale, 1000 = gtol reached
+        g0 = first.setdefault("g", g)
+        red = g / g0 if g0 > 0 else 0.0
+        frac = np.log(1.0 / max(red, 1e-300)) / np.log(1.0 / gtol) if 0 < gtol < 1 else 0.0
+        prog.advance(stage, int(1000 * min(max(frac, 0.0), 1.0)), 1000,
+                     text=f"it {it:3d}  F {e:.7g}  |g|/|g0| {red:.1e}")
+
+    with prog.stage(stage, total=1000):
+        # iteration 0 is reported after the first evaluation, one geodesic midpoint solve per
+        # energy term: minutes on the coarse horse (K = 40), so say what is happening
+        n_terms = prob.K if opts.periodic else prob.K - 1
+        prog.advance(stage, 0, 1000, text=f"evaluating the start path ({n_terms} geodesic "
+                                          "midpoints)")
+        nl = nonlinear_spline(Vkey, prob.frames, prob.K, T, bc=opts.bc, mu=opts.mu,
+                              lam=opts.lam, eta=opts.eta, pinned=pinned, init=Vinit,
+                              max_iter=max_iter, callback=report, **kw)
+    if not nl.success:
+        prog.message(f"nonlinear spline: {nl.message}")
+    return nl.V, nonlinear_record(nl, Vkey.shape[1])
