@@ -674,17 +674,25 @@ def align(curve0, curve1, *, features=None, lam=0.0, symmetric=False, bounds=Non
         r.t = t0.copy()
         r.shift = float(t1[0])
         return r
+    # every candidate start by DP, the best one refined
     best = None
     for s in _start_candidates(q0, q1, int(n_starts)):
         fs = feats
         if feats is not None:
             fs = _Features(feats.a, np.mod(feats.b - s / (N1 - 1), 1.0), feats.lam,
                            feats.symmetric, feats.bound)
-        r = _align_normalised(q0, np.roll(q1, -s, axis=0), fs, steps, window, refine,
-                              max_iter, tol)
-        if best is None or r.energy < best[0].energy:
-            best = (r, s)
-    r, s = best
+        try:
+            E_dp, _ = _dp(q0, np.roll(q1, -s, axis=0), steps, window, fs)
+        except ShellsplineError:
+            continue
+        if best is None or E_dp < best[0]:
+            best = (E_dp, s, fs)
+    if best is None:
+        raise ShellsplineError("align: no admissible warp for any start point: the feature "
+                               "bounds, the window and the slope limits cannot all be met")
+    _, s, fs = best
+    r = _align_normalised(q0, np.roll(q1, -s, axis=0), fs, steps, window, refine, max_iter,
+                          tol)
     r.shift = float(t1[0] + s * T1 / (N1 - 1))
     r.phi = r.shift + r.phi * T1
     r.t = t0.copy()
