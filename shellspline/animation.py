@@ -36,7 +36,8 @@ __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_gr
            "warp_motion", "up_axis", "body_height", "translation_root", "find_feet",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
-           "close"]
+           "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
+           "mesh_close", "close_euclidean", "mesh_align", "mesh_blend", "reparametrize_vertices"]
 
 # Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
 # a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
@@ -1096,3 +1097,326 @@ def _spread_drift(planted: Motion, closed: Motion) -> Motion:
     values = closed.values + dv - s * dv[-1]
     return Motion(planted.names, planted.parents, planted.offsets, planted.channels,
                   planted.frame_time, values, planted.end_sites)
+
+
+# ----------------------------------------------------------------------------------------
+# Mesh animations: curves in LΘA descriptor space (d = 0, m = #descriptors)
+# ----------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class MeshCurve:
+    """A mesh animation as a curve in LΘA descriptor space.
+
+    Attributes
+    ----------
+    Z : (N,D) float64 numpy array
+        Edge lengths, dihedral angles (unwrapped along time) and face areas per frame.
+    sqrt_w : (D,) float64 numpy array
+        Square roots of the LΘA weights at the first frame: the curve given to the SRV
+        machinery is ``Z * sqrt_w``, so its Euclidean norm is the LΘA energy's metric
+        (paper 001 eq. 10).
+    T : Topology
+    """
+
+    Z: np.ndarray
+    sqrt_w: np.ndarray
+    T: object
+
+    def product_curve(self):
+        from .curves.srv import ProductCurve
+
+        return ProductCurve(X=self.Z * self.sqrt_w)
+
+
+def _mesh_frames(Vs, name="Vs") -> np.ndarray:
+    Vs = np.asarray(Vs, dtype=np.float64)
+    if Vs.ndim != 3 or Vs.shape[2] != 3 or Vs.shape[0] < 2:
+        raise ShellsplineError(f"{name} must be (N,n,3) frames with N >= 2, got shape "
+                               f"{Vs.shape}")
+    if not np.all(np.isfinite(Vs)):
+        raise ShellsplineError(f"{name} has non-finite coordinates")
+    return Vs
+
+
+def mesh_curve(Vs, F, *, T=None, reference=None, **weights) -> MeshCurve:
+    """The LΘA descriptor curve of a mesh animation.
+
+    Parameters
+    ----------
+    Vs : (N,n,3) array_like
+        Frames of one mesh.
+    F : (m,3) array_like
+        Faces.
+    T : Topology, optional
+        Connectivity, when already built.
+    reference : (n,3) array_like, optional
+        Pose of the weights (default: the first frame).
+    **weights
+        ``mu``, ``lam``, ``eta`` of :func:`shellspline.shells.descriptors.lta_weights`.
+
+    Returns
+    -------
+    MeshCurve
+    """
+    from .mesh.topology import topology
+    from .shells.descriptors import lta_descriptors, lta_weights, unwrap_angles
+
+    Vs = _mesh_frames(Vs)
+    T = topology(F, Vs.shape[1]) if T is None else T
+    Z = lta_descriptors(Vs, T)
+    sT = T.descriptor_slices()[1]
+    Z[:, sT] = unwrap_angles(Z[:, sT])  # dense frames: every step is the short way
+    ref = Vs[0] if reference is None else np.asarray(reference, dtype=np.float64)
+    w = lta_weights(ref, T, **weights)
+    return MeshCurve(Z, np.sqrt(w), T)
+
+
+def reconstruct_frames(Z, curve: MeshCurve, V_init, place_on=None, **options):
+    """Meshes with the descriptors ``Z``: one Gauss–Newton solve per frame (one solver,
+    its symbolic factorization reused), each frame placed rigidly on a target.
+
+    Parameters
+    ----------
+    Z : (N,D) array_like
+        Target descriptors.
+    curve : MeshCurve
+        Gives the topology and the weights.
+    V_init : (N,n,3) array_like
+        Initial guesses.
+    place_on : (N,n,3) array_like, optional
+        Rigid placement targets (default ``V_init``): shell energies leave rigid motions free.
+    **options
+        Options of :class:`shellspline.shells.reconstruct.GaussNewton`.
+
+    Returns
+    -------
+    Vs : (N,n,3) float64 numpy array
+    results : list of ReconstructionResult
+    """
+    from .shells.reconstruct import GaussNewton, rigid_placement
+
+    Z = np.asarray(Z, dtype=np.float64)
+    V_init = np.asarray(V_init, dtype=np.float64)
+    place_on = V_init if place_on is None else np.asarray(place_on, dtype=np.float64)
+    gn = GaussNewton(curve.T, **options)
+    w = curve.sqrt_w ** 2
+    out, results = np.zeros_like(V_init), []
+    for k in range(Z.shape[0]):  # one nonlinear solve per frame
+        res = gn.solve(Z[k], w, V_init[k])
+        out[k] = rigid_placement(res.V, place_on[k])
+        results.append(res)
+    return out, results
+
+
+@dataclass(frozen=True, eq=False)
+class MeshReport:
+    """What an operation on mesh animations did.
+
+    Attributes
+    ----------
+    converged : int
+        Frames whose Gauss–Newton reconstruction converged (of ``frames``).
+    frames : int
+    descriptor_error : float
+        Largest weighted descriptor residual ``|sqrt_w (z(V_k) - z_k)|`` over the frames,
+        relative to the largest ``|sqrt_w z_k|``.
+    history : (k,) float64 numpy array or None
+        Seam gap per closing iteration (closing only).
+    align : object or None
+        The alignment result (blending with ``align="dp"``).
+    """
+
+    converged: int
+    frames: int
+    descriptor_error: float
+    history: np.ndarray | None = None
+    align: object = None
+
+
+def _mesh_report(Vs, Z, curve, results, **extra) -> MeshReport:
+    from .shells.descriptors import lta_descriptors, wrap_angle
+
+    Zr = lta_descriptors(Vs, curve.T)
+    sT = curve.T.descriptor_slices()[1]
+
+    D = Zr - Z
+    D[:, sT] = wrap_angle(D[:, sT])
+    err = np.linalg.norm(D * curve.sqrt_w, axis=1).max() / \
+        max(np.linalg.norm(Z * curve.sqrt_w, axis=1).max(), 1e-300)
+    return MeshReport(sum(r.success for r in results), len(results), float(err), **extra)
+
+
+def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
+               **options) -> tuple[np.ndarray, MeshReport]:
+    """Make a mesh animation loop: close its LΘA descriptor curve, then reconstruct.
+
+    Parameters
+    ----------
+    Vs : (N,n,3) array_like
+        Frames (N >= 3).
+    F : (m,3) array_like
+    iterations, c1 :
+        As in :func:`shellspline.curves.closing.close`.
+    **options
+        Gauss–Newton options.
+
+    Returns
+    -------
+    Vs : (N,n,3) float64 numpy array
+        Every frame reconstructed from the closed descriptors (started at, and placed
+        rigidly on, the input frame); the last frame has the first frame's shape.
+    report : MeshReport
+    """
+    from .curves.closing import close as close_curve
+
+    Vs = _mesh_frames(Vs)
+    if Vs.shape[0] < 3:
+        raise ShellsplineError(f"mesh_close: need at least 3 frames, got {Vs.shape[0]}")
+    mc = mesh_curve(Vs, F)
+    X = mc.Z * mc.sqrt_w
+    n, D = X.shape[0] - 1, X.shape[1]
+    if n * D * D * 8 <= _DENSE_CLOSING_BYTES:
+        kw = {} if method is None else {"method": method}
+        res = close_curve(mc.product_curve(), iterations=iterations, c1=c1, **kw)
+        Xc, history = res.curve.X, np.asarray(res.seam_gap)
+    elif c1:
+        raise ShellsplineError(f"mesh_close: c1 closing of {D} descriptors over {n + 1} frames "
+                               f"needs {n * D * D * 8 / 2**30:.1f} GiB; close without c1")
+    else:
+        Xc, history = close_euclidean(X, iterations=iterations)
+    Z = Xc / mc.sqrt_w
+    out, results = reconstruct_frames(Z, mc, Vs, **options)
+    return out, _mesh_report(out, Z, mc, results, history=history)
+
+
+# curves.closing.close builds a dense (frames, D, D) Jacobian; above this size a mesh
+# curve (D ~ 8 x vertices) is closed by close_euclidean, O(frames x D) memory.
+_DENSE_CLOSING_BYTES = 256 * 2**20
+
+
+def close_euclidean(X, *, iterations: int = 10, tol: float = 1e-12):
+    """Close a curve in R^m (``X (N,m)`` on ``linspace(0, 1, N)``) with the least change of
+    its SRV: Gauss–Newton steps on the seam gap ``X(1) - X(0) = sum_i h_i |q_i| q_i``.
+
+    Each step minimises ``sum_i h_i |dq_i|^2`` subject to the linearised closure
+    ``g + sum_i h_i J_i dq_i = 0``, ``J_i = |q_i| I + q_i q_i^T / |q_i|``: ``dq_i = -J_i y``
+    with ``(a I + 3 B B^T) y = g``, ``a = sum h_i |q_i|^2``, ``B = Q^T diag(sqrt h)``,
+    solved by the Woodbury identity in ``O(N m)`` memory (the generic
+    :func:`shellspline.curves.closing.close` forms the dense ``(N, m, m)`` Jacobian, too
+    large for mesh descriptor curves). Start point kept; backtracking on ``|g|``.
+
+    Returns
+    -------
+    X : (N,m) float64 numpy array
+        The closed curve.
+    history : (k+1,) float64 numpy array
+        ``|g|`` before each step and after the last.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    N = X.shape[0]
+    h = np.full(N - 1, 1.0 / (N - 1))
+    eta = np.diff(X, axis=0) / h[:, None]
+    nrm = np.linalg.norm(eta, axis=1)
+    q = eta / np.sqrt(np.where(nrm > 0, nrm, 1.0))[:, None]
+
+    def gap(qq):
+        return (h * np.linalg.norm(qq, axis=1)) @ qq
+
+    g = gap(q)
+    hist = [float(np.linalg.norm(g))]
+    for _ in range(int(iterations)):
+        if hist[-1] <= tol * max(1.0, np.abs(X).max()):
+            break
+        nq = np.linalg.norm(q, axis=1)
+        a = float(h @ nq ** 2)
+        B = q.T * np.sqrt(h)  # (m, N-1)
+        small = (a / 3.0) * np.eye(N - 1) + B.T @ B
+        y = (g - B @ np.linalg.solve(small, B.T @ g)) / a
+        safe = np.where(nq > 0, nq, 1.0)
+        dq = -(nq[:, None] * y + ((q @ y) / safe)[:, None] * q)
+        step = 1.0
+        for _ in range(30):
+            gn = gap(q + step * dq)
+            if np.linalg.norm(gn) < hist[-1]:
+                break
+            step *= 0.5
+        else:
+            break
+        q, g = q + step * dq, gn
+        hist.append(float(np.linalg.norm(g)))
+    inc = h[:, None] * np.linalg.norm(q, axis=1)[:, None] * q
+    return X[0] + np.vstack([np.zeros((1, X.shape[1])), np.cumsum(inc, axis=0)]), np.array(hist)
+
+
+def mesh_align(Vs0, Vs1, F, *, features=None, **kw):
+    """The warp ``phi`` (normalised times) with ``Vs1(phi(t))`` matching ``Vs0(t)`` in LΘA
+    space: :func:`shellspline.curves.align.align` on the weighted descriptor curves
+    (weights at the first frame of ``Vs0``). ``features``: ``(k,2)`` pairs of normalised
+    times. Returns the :class:`~shellspline.curves.align.AlignResult`."""
+    from .curves.align import align as align_curves
+
+    Vs0, Vs1 = _mesh_frames(Vs0, "Vs0"), _mesh_frames(Vs1, "Vs1")
+    c0 = mesh_curve(Vs0, F)
+    c1 = mesh_curve(Vs1, F, T=c0.T, reference=Vs0[0])
+    if features is not None:
+        P = np.asarray(features, dtype=np.float64).reshape(-1, 2)
+        kw.setdefault("lam", FEATURE_WEIGHT)
+        features = (P[:, 0], P[:, 1])
+    return align_curves(c0.product_curve(), c1.product_curve(), features=features, **kw)
+
+
+def mesh_blend(Vs0, Vs1, F, s: float = 0.5, *, align: str = "dp", features=None,
+               **options) -> tuple[np.ndarray, MeshReport]:
+    """Blend two animations of one mesh along the SRV geodesic of their LΘA curves.
+
+    Parameters
+    ----------
+    Vs0 : (N,n,3) array_like
+    Vs1 : (M,n,3) array_like
+        The same mesh (vertex order and faces); any frame count.
+    F : (m,3) array_like
+    s : float
+        Weight of ``Vs1``.
+    align : {"dp", "none"}
+        Align ``Vs1`` to ``Vs0`` in time first.
+    **options
+        Gauss–Newton options.
+
+    Returns
+    -------
+    Vs : (N,n,3) float64 numpy array
+        On ``Vs0``'s frames: the blended descriptors reconstructed (started at the vertex
+        blend of the two aligned frames and placed rigidly on it).
+    report : MeshReport
+    """
+    from .curves.srv import blend as blend_curves
+
+    if align not in ("dp", "none"):
+        raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
+    Vs0, Vs1 = _mesh_frames(Vs0, "Vs0"), _mesh_frames(Vs1, "Vs1")
+    if Vs0.shape[1] != Vs1.shape[1]:
+        raise ShellsplineError(f"Vs0 and Vs1 must be frames of one mesh, got {Vs0.shape[1]} "
+                               f"and {Vs1.shape[1]} vertices")
+    c0 = mesh_curve(Vs0, F)
+    c1 = mesh_curve(Vs1, F, T=c0.T, reference=Vs0[0])
+    p0, p1 = c0.product_curve(), c1.product_curve()
+    rep = None
+    if align == "dp":
+        rep = mesh_align(Vs0, Vs1, F, features=features)
+        phi = np.clip(rep.phi, 0.0, 1.0)
+    else:
+        phi = p0.t.copy()
+    Z = blend_curves(p0, p1, s, warp=phi).X / c0.sqrt_w
+    # vertex positions of Vs1 at the warped times: the initial guesses and placement track
+    V1 = reparametrize_vertices(Vs1, phi)
+    guess = (1 - s) * Vs0 + s * V1
+    out, results = reconstruct_frames(Z, c0, guess, **options)
+    return out, _mesh_report(out, Z, c0, results, align=rep)
+
+
+def reparametrize_vertices(Vs, phi) -> np.ndarray:
+    """Frames ``Vs (N,n,3)`` at normalised times ``phi (K,)``, linearly between frames."""
+    Vs = np.asarray(Vs, dtype=np.float64)
+    s = np.clip(np.asarray(phi, dtype=np.float64), 0.0, 1.0) * (Vs.shape[0] - 1)
+    i = np.minimum(np.floor(s).astype(np.int64), Vs.shape[0] - 2)
+    w = (s - i)[:, None, None]
+    return Vs[i] * (1 - w) + Vs[i + 1] * w

@@ -334,3 +334,53 @@ def test_closing_with_the_root_closed_and_other_layouts():
         A.close(m, root_motion="open")
     with pytest.raises(ShellsplineError, match="3 frames"):
         A.close(m.frames(0, 2))
+
+
+# ----------------------------------------------------------------------------------------
+# Mesh animations (LΘA descriptor curves)
+# ----------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def skinned_walk():
+    """One gait cycle of a body skinned to the real walk (frames 10..43)."""
+    from data_synth.skinned import skinned_sequence
+
+    Vs, F, _ = skinned_sequence(shared_data("motion", "dataset-1_walk_normal_001.bvh"),
+                                start=10, stop=44, n_vertices=400)
+    return Vs, F
+
+
+def test_close_euclidean_matches_the_generic_closing():
+    from shellspline.curves.closing import close
+    from shellspline.curves.srv import ProductCurve
+
+    t = np.linspace(0, 1, 40)
+    rng = np.random.default_rng(0)
+    X = np.c_[np.cos(5 * t), np.sin(4 * t), t ** 2, rng.normal(size=(40, 3)).cumsum(0) * 0.05]
+    Xc, hist = A.close_euclidean(X)
+    ref = close(ProductCurve(X=X))
+    assert hist[-1] <= 1e-12 * hist[0] and np.allclose(Xc[0], X[0])
+    assert np.abs(Xc - ref.curve.X).max() <= 1e-9
+
+
+def test_mesh_close_makes_a_loop(skinned_walk):
+    from shellspline.shells.reconstruct import rigid_placement
+
+    Vs, F = skinned_walk
+    out, rep = A.mesh_close(Vs, F)
+    assert rep.converged == rep.frames == Vs.shape[0]
+    assert rep.history[-1] <= 1e-9 * rep.history[0] and rep.descriptor_error < 1e-2
+    gap = lambda V: np.abs(rigid_placement(V[-1], V[0]) - V[0]).max()  # noqa: E731
+    assert gap(out) < 1e-3 * gap(Vs)
+    assert np.abs(out - Vs).max() < 0.05 * np.ptp(Vs[0], axis=0).max()
+
+
+def test_mesh_blend_and_align(skinned_walk):
+    Vs, F = skinned_walk
+    same, rep = A.mesh_blend(Vs, Vs, F, 0.5)
+    assert np.abs(same - Vs).max() <= 1e-8 and rep.converged == Vs.shape[0]
+    t = np.linspace(0, 1, Vs.shape[0])
+    W = A.reparametrize_vertices(Vs, t ** 1.5)  # W(u) = Vs(u^1.5), linear between frames
+    r = A.mesh_align(W, Vs, F)
+    assert np.abs(r.phi - t ** 1.5).max() <= 0.03
+    with pytest.raises(ShellsplineError, match="one mesh"):
+        A.mesh_blend(Vs, Vs[:, :-1], F)
