@@ -353,9 +353,11 @@ def test_blender_opens_our_output_directory(tmp_path, fmt):
                  "-o", str(out), "--format", fmt, "-q"]) == 0
     V = read_sequence(out)[0]
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    # keep the file's axes (the importer would turn y-up into Blender's z-up otherwise)
-    bpy.ops.wm.obj_import(filepath=str(out / "mesh.obj"), forward_axis="Y", up_axis="Z")
+    # default axes: the importer turns y-up into Blender's z-up by the object's rotation and
+    # keeps the file's coordinates in the mesh, which the cache then overwrites one to one
+    bpy.ops.wm.obj_import(filepath=str(out / "mesh.obj"))
     ob = bpy.context.selected_objects[0]
+    assert not np.allclose(np.array(ob.matrix_world), np.eye(4))
     assert len(ob.data.polygons) == 5 and len(ob.data.vertices) == V.shape[1]
     mod = ob.modifiers.new("cache", "MESH_CACHE")
     mod.cache_format, mod.filepath = fmt.upper(), str(out / f"animation.{fmt}")
