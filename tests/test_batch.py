@@ -18,6 +18,9 @@ import pytest
 import data_synth
 import shellspline as ss
 from shellspline import batch
+from shellspline.batch.executors import inner_workers
+from shellspline.batch.manifest import input_digest, manifest_matches, sequence_key
+from shellspline.batch.sequence import publish, run_sequence
 from shellspline.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -155,9 +158,9 @@ def test_output_may_not_replace_an_input(tmp_path, capsys):
 
 
 def test_inner_workers_split():
-    assert batch._inner_workers(5, 2) == [1] * 5
-    assert batch._inner_workers(1, 4) == [4]
-    assert batch._inner_workers(2, 5) == [3, 2]
+    assert inner_workers(5, 2) == [1] * 5
+    assert inner_workers(1, 4) == [4]
+    assert inner_workers(2, 5) == [3, 2]
 
 
 # ------------------------------------------------------------------------------------------
@@ -477,7 +480,7 @@ def test_dask_worker_killed_mid_job_loses_and_duplicates_nothing(tmp_path, clust
     for n in names:
         V, F, _ = ss.read_sequence(root / n)
         assert np.array_equal(V, ref.V)
-        assert batch._manifest_matches(root / n, json.loads(
+        assert manifest_matches(root / n, json.loads(
             (root / n / "manifest.json").read_text())["key"]) is not None
     assert _leftovers(root) == []
     log = (root / "batch.log").read_text()
@@ -577,22 +580,22 @@ def test_a_task_that_runs_twice_does_not_rewrite_or_duplicate(tmp_path):
     p = _synth_job(tmp_path, ["t"], vertices=100)
     job = ss.load_job(p)
     spec = job.sequences[0]
-    key = batch._sequence_key(spec, batch._input_digest(spec))
-    first = batch._run_sequence(spec, key, run_id="run-1")
+    key = sequence_key(spec, input_digest(spec))
+    first = run_sequence(spec, key, run_id="run-1")
     assert first["status"] == "done" and first["reason"] == ""
     out = Path(spec.out)
     stamp = (out / "manifest.json").stat().st_mtime_ns
     # the same task again (a Dask retry after the first attempt had finished): kept as is
-    again = batch._run_sequence(spec, key, run_id="run-1", force=True)
+    again = run_sequence(spec, key, run_id="run-1", force=True)
     assert again["status"] == "done" and "earlier attempt" in again["reason"]
     assert (out / "manifest.json").stat().st_mtime_ns == stamp
     # a second writer that finished while the first was writing: its output is discarded
     staging = tmp_path / "out" / ".t.stage-0123456789ab"
     shutil.copytree(out, staging)
-    assert batch._publish(staging, out, key, lambda m: True) == "existing"
+    assert publish(staging, out, key, lambda m: True) == "existing"
     assert not staging.exists() and (out / "manifest.json").stat().st_mtime_ns == stamp
     # a forced re-run of a new batch replaces the output atomically
-    forced = batch._run_sequence(spec, key, run_id="run-2", force=True)
+    forced = run_sequence(spec, key, run_id="run-2", force=True)
     assert forced["status"] == "done" and forced["reason"] == ""
     assert json.loads((out / "manifest.json").read_text())["run"] == "run-2"
     assert sorted(q.name for q in (tmp_path / "out").iterdir()) == ["t"]
