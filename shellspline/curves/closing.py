@@ -114,8 +114,10 @@ def _gap_jacobian(q, h, c, gap, d):
         P = R[-1][None] @ np.swapaxes(R[1:], -1, -2)                    # (n,d,3,3)
         Jl = _jl_matrix(h[:, None, None] * eta[:, :3 * d].reshape(n, d, 3))
         blocks = B[None] @ P @ (h[:, None, None, None] * Jl)           # (n,d,3,3)
-        for j in range(d):                                              # d blocks, not frames
-            A[:, 3 * j:3 * j + 3, 3 * j:3 * j + 3] = blocks[:, j]
+        jj = np.arange(d)
+        Arot = np.zeros((n, d, 3, d, 3))
+        Arot[:, jj, :, jj, :] = np.moveaxis(blocks, 1, 0)              # block diagonal
+        A[:, :3 * d, :3 * d] = Arot.reshape(n, 3 * d, 3 * d)
     idx = np.arange(3 * d, D)
     A[:, idx, idx] = h[:, None]
     nq = np.sqrt(np.einsum("ij,ij->i", q, q))
