@@ -87,7 +87,8 @@ class AlignResult:
     iterations : int
         Refinement iterations (0 without refinement).
     status : str
-        ``"dp"`` (DP only: optimal among warps on the lattice), ``"converged"``,
+        ``"dp"`` (DP only: optimal among warps on the lattice), ``"converged"`` (the
+        refinement met its tolerance, or the DP warp already has zero energy),
         ``"stalled"`` (the refinement stopped without meeting its tolerance, or did not lower
         the energy, and the DP warp is kept) or ``"limit"`` (iteration limit).
     message : str
@@ -551,7 +552,10 @@ def _align_normalised(q0, q1, feats, steps, window, refine, max_iter, tol):
     phi = np.interp(np.arange(N0), path[:, 0], path[:, 1] / (N1 - 1))
     (E, el), _ = _energy(q0, q1, phi, feats, False)
     status, msg, nit = "dp", "dynamic programming on the sample lattice", 0
-    if refine and N0 > 2:
+    scale = (np.sum(q0 * q0) / (N0 - 1) + np.sum(q1 * q1) / (N1 - 1))
+    if refine and E <= 1e-14 * scale:
+        status, msg = "converged", "the DP warp matches exactly (zero energy)"
+    elif refine and N0 > 2:
         ph, E_r, nit, ok, msg_r = _refine(q0, q1, phi, feats, max_iter, tol)
         within = feats is None or np.all(
             np.abs(_feature_values(ph, feats) - feats.b) <= feats.bound)
