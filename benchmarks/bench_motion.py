@@ -19,6 +19,15 @@ What is measured (functions ``bench_dp``, ``bench_table1``, ``bench_close``)
    correct and 3 wrong feature points.
 3. **Closing** ``walk_normal`` (joint rotations + root height): seam gap per iteration of the
    Gauss-Newton projection, seed 000's gradient flow and the C1 closure.
+4. **End to end** (``bench_motion_ops``, :mod:`shellspline.animation`): reading and the exact
+   curve round trip of the real clips, distances (none / DP / DP with foot contacts),
+   alignment and blending of walk pairs (and a 120 Hz copy against a 30 Hz clip), foot skate
+   of the blends.
+5. **Closing the walks** at the motion level (root travel kept as root motion, feet planted
+   afterwards): seam gap, joint jump, foot skate of input / closed / output.
+6. **Mesh animation** (``bench_mesh_animation``): a body skinned to one gait cycle of the walk,
+   closed in LΘA space and reconstructed by Gauss-Newton; aligned and blended with another
+   window of the clip.
 
 Run
 ---
@@ -251,6 +260,109 @@ def bench_close(repeat=3):
     return res, rows
 
 
+# ----------------------------------------------------------------------------------------
+# End to end on the real clips (shellspline.animation): read, align, blend, close, meshes
+# ----------------------------------------------------------------------------------------
+WALKS = ("dataset-1_walk_normal_001.bvh", "dataset-1_walk_tired_001.bvh",
+         "dataset-1_walk_happy_001.bvh")
+
+
+def bench_motion_ops(repeat=3):
+    """Read (+ curve round trip), distance, align, blend and close of the real clips through
+    :mod:`shellspline.animation`, with foot skate and seam gaps; a 120 Hz copy of a walk
+    against a 30 Hz clip."""
+    from shellspline import animation as A
+    from shellspline.io.bvh import read_bvh
+
+    res, rows = {}, []
+    clips = {}
+    for name in WALKS + ("dataset-1_run_normal_001.bvh",):
+        m, sec, _ = _best(lambda: read_bvh(MOTION / name), repeat)
+        c, sec_c, _ = _best(lambda: A.motion_curve(m).to_motion(), repeat)
+        err = float(np.abs(c.values - m.values).max())
+        fc = A.foot_contacts(m)
+        clips[name] = m
+        short = name.replace("dataset-1_", "").replace("_001.bvh", "")
+        res[short] = {"frames": m.n_frames, "read_s": sec, "round_trip_s": sec_c,
+                      "round_trip_max_deg": err, "touchdowns": [int(fc.onsets(i).size)
+                                                                for i in range(len(fc.feet))]}
+        rows.append([f"read {short}", sec + sec_c, m.n_frames, f"{err:.1e} deg",
+                     f"touch-downs {res[short]['touchdowns']}"])
+    a, b, h = (clips[n] for n in WALKS)
+    hi = A.resample(a, frame_time=a.frame_time / 4)  # a 120 Hz copy
+    for label, x, y in (("normal/tired", a, b), ("normal/happy", a, h),
+                        ("normal 120 Hz/tired 30 Hz", hi, b)):
+        for how, kw in (("none", {"align": "none"}), ("dp", {}),
+                        ("dp + contacts", {"features": "contacts"})):
+            d, sec, _ = _best(lambda: A.distance(x, y, **kw), repeat)
+            res[f"distance {label} {how}"] = {"seconds": sec, "distance": d}
+            rows.append([f"distance {label}, {how}", sec, x.n_frames, f"{d:.4g}", ""])
+        rep, sec, _ = _best(lambda: A.align(x, y), repeat)
+        res[f"align {label}"] = {"seconds": sec, "before": rep.distance_before,
+                                 "after": rep.distance_after, "status": rep.result.status}
+        rows.append([f"align {label}", sec, rep.t.size,
+                     f"{rep.distance_before:.4g} -> {rep.distance_after:.4g}",
+                     rep.result.status])
+        for plant in (False, True):
+            (m, _), sec, _ = _best(lambda: A.blend(x, y, 0.5, plant=plant), repeat)
+            sk = A.foot_skate(m)
+            key = f"blend {label}{' planted' if plant else ''}"
+            res[key] = {"seconds": sec, "frames": m.n_frames, "skate_speed": sk["speed"],
+                        "skate_per_leg": sk["speed_per_leg"]}
+            rows.append([f"blend {label} (s=0.5, dp{', plant' if plant else ''})", sec,
+                         m.n_frames, f"skate {sk['speed']:.3g} u/s",
+                         f"{sk['speed_per_leg']:.3g} leg/s"])
+    close_rows = []
+    for name in WALKS:
+        short = name.replace("dataset-1_", "").replace("_001.bvh", "")
+        for c1 in (False, True):
+            (m, r), sec, _ = _best(lambda: A.close(clips[name], iterations=10, c1=c1), repeat)
+            red = r.history[0] / max(r.history[-1], 1e-300)
+            res[f"close {short}{' c1' if c1 else ''}"] = {
+                "seconds": sec, "iterations": r.iterations, "status": r.status,
+                "history": r.history.tolist(), "gap_before": r.gap_before,
+                "gap_after": r.gap_after, "skate_before": r.skate_before,
+                "skate_closed": r.skate_closed, "skate_after": r.skate_after}
+            close_rows.append([f"{short}{', C1' if c1 else ''}", sec, r.iterations,
+                               f"{red:.2g}x", f"{r.gap_before['rotation_max']:.3g} -> "
+                               f"{r.gap_after['rotation_max']:.2g}",
+                               f"{r.gap_before['position_max']:.3g} -> "
+                               f"{r.gap_after['position_max']:.2g}",
+                               f"{r.skate_before['speed']:.3g} / {r.skate_closed['speed']:.3g}"
+                               f" / {r.skate_after['speed']:.3g}"])
+    return res, rows, close_rows
+
+
+def bench_mesh_animation(n_vertices=1000, repeat=1):
+    """A body skinned to one gait cycle of the real walk (frames 10..43): closing the loop in
+    LΘA space, aligning and blending with another window, Gauss–Newton reconstruction."""
+    from data_synth.skinned import skinned_sequence
+    from shellspline import animation as A
+    from shellspline.shells.reconstruct import rigid_placement
+
+    clip = MOTION / "dataset-1_walk_normal_001.bvh"
+    Vs, F, _ = skinned_sequence(clip, start=10, stop=44, n_vertices=n_vertices)
+    Vs2, _, _ = skinned_sequence(clip, start=60, stop=100, n_vertices=n_vertices)
+    res, rows = {"vertices": int(Vs.shape[1]), "frames": int(Vs.shape[0])}, []
+    gap = lambda V: float(np.abs(rigid_placement(V[-1], V[0]) - V[0]).max())  # noqa: E731
+    (out, rep), sec, _ = _best(lambda: A.mesh_close(Vs, F), repeat)
+    res["close"] = {"seconds": sec, "converged": rep.converged, "frames": rep.frames,
+                    "history": rep.history.tolist(), "vertex_gap_before": gap(Vs),
+                    "vertex_gap_after": gap(out), "descriptor_error": rep.descriptor_error}
+    rows.append(["close (one gait cycle)", sec, f"{rep.converged}/{rep.frames}",
+                 f"vertex seam {gap(Vs):.3g} -> {gap(out):.2g}", rep.descriptor_error])
+    r, sec, _ = _best(lambda: A.mesh_align(Vs, Vs2, F), repeat)
+    res["align"] = {"seconds": sec, "energy_identity": r.energy_identity, "energy": r.energy}
+    rows.append(["align (40-frame window)", sec, r.status,
+                 f"energy {r.energy_identity:.4g} -> {r.energy:.4g}", ""])
+    (out, rep), sec, _ = _best(lambda: A.mesh_blend(Vs, Vs2, F, 0.5), repeat)
+    res["blend"] = {"seconds": sec, "converged": rep.converged, "frames": rep.frames,
+                    "descriptor_error": rep.descriptor_error}
+    rows.append(["blend s=0.5 (dp)", sec, f"{rep.converged}/{rep.frames}", "",
+                 rep.descriptor_error])
+    return res, rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
@@ -287,6 +399,20 @@ def main(argv=None):
           "height)")
     print(format_table(["method", "seconds", "iterations", "gap before", "gap after",
                         "reduction", "velocity jump", "SRV change"], rows))
+    ops, rows, close_rows = bench_motion_ops(repeat=a.repeat)
+    res["motion_ops"] = ops
+    print("\n4. End to end on the real clips (shellspline.animation; seconds: fastest of "
+          f"{a.repeat})")
+    print(format_table(["operation", "seconds", "frames", "result", ""], rows))
+    print("\n5. Closing the walks (motion level: root travel kept, feet planted after)")
+    print(format_table(["clip", "seconds", "iterations", "seam gap", "rotation gap deg",
+                        "joint jump units", "skate u/s in/closed/out"], close_rows))
+    mesh, rows = bench_mesh_animation()
+    res["mesh_animation"] = mesh
+    print(f"\n6. Mesh animation: body skinned to the walk ({mesh['vertices']} vertices, "
+          f"{mesh['frames']} frames)")
+    print(format_table(["operation", "seconds", "frames", "result", "descriptor error"],
+                       rows))
     res["machine"]["load_after"] = os.getloadavg()
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(res, indent=1, default=float))

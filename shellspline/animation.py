@@ -552,9 +552,9 @@ def foot_skate(motion: Motion, contacts: FootContacts | None = None, **kw) -> di
         ``drift``: the summed horizontal displacement of the planted point of every foot
         between consecutive frames where it is planted (file units; of the foot's planted
         joints the one that moves least, so that a foot rolling over its toe pivots);
-        ``drift_per_leg``: the same over the leg length; ``speed``: the mean horizontal speed while planted (units/s);
-        ``speed_per_leg``: the same in leg lengths per second; ``contact_frames``: planted
-        foot-steps counted.
+        ``drift_per_leg``: the same over the leg length; ``speed``: the mean horizontal
+        speed while planted (units/s); ``speed_per_leg``: the same in leg lengths per
+        second; ``contact_frames``: planted foot-steps counted.
     """
     if contacts is None:
         contacts = foot_contacts(motion, **kw)
@@ -915,7 +915,8 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
 
 
 def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=None,
-          n_frames=None, up=None, **kw) -> tuple[Motion, AlignReport | None]:
+          n_frames=None, up=None, plant: bool = False,
+          **kw) -> tuple[Motion, AlignReport | None]:
     """A new motion between two takes: the SRV geodesic ``R^-1((1-s) q_a + s q_b o phi)``.
 
     Parameters
@@ -929,6 +930,9 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
         phase) or blend on one normalised grid.
     features : None, "contacts" or (k,2) array_like
         Feature points of the alignment.
+    plant : bool
+        Detect the blend's foot contacts and correct its root where planted feet slide
+        (:func:`plant_feet`).
 
     Returns
     -------
@@ -968,7 +972,10 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     ft = min(a.frame_time, b.frame_time)
     n_out = max(int(round(dur / ft)) + 1, 2)
     R, X, ref = _sample_curve(out, np.linspace(0.0, out.n_frames - 1.0, n_out))
-    return out.with_samples(R, X, ft, ref).to_motion(), rep
+    m = out.with_samples(R, X, ft, ref).to_motion()
+    if plant:
+        m = plant_feet(m, foot_contacts(m, up=up))
+    return m, rep
 
 
 def warp_motion(motion: Motion, phi, frame_time: float | None = None) -> Motion:

@@ -281,6 +281,17 @@ def test_blend_ends_and_timing():
     assert rep.distance_after < rep.distance_before
 
 
+def test_blend_with_planted_feet_slides_less():
+    a = real()
+    b = real("dataset-1_walk_tired_001.bvh")
+    m, _ = A.blend(a, b, 0.5)
+    p, _ = A.blend(a, b, 0.5, plant=True)
+    assert A.foot_skate(p)["speed"] < 0.3 * A.foot_skate(m)["speed"]
+    # only the root's horizontal channels changed
+    changed = np.flatnonzero(np.abs(p.values - m.values).max(axis=0) > 0)
+    assert set(changed) <= set(a.channel_columns(0)[:3].tolist())
+
+
 def test_blend_across_frame_rates_and_layouts():
     a = synth.motion(fps=120.0, seconds=1.0, channels=3, order="mixed", up="z")
     b = synth.motion(fps=30.0, seconds=1.5, channels=3, order="mixed", up="z", cadence=0.7)

@@ -86,6 +86,8 @@ def add_parsers(sub) -> None:
     q.add_argument("--s", type=float, default=0.5, metavar="S",
                    help="weight of B (0: A, 1: B; default 0.5)")
     aligning(q)
+    q.add_argument("--plant", action="store_true",
+                   help="correct the root where the blend's planted feet slide")
     q.set_defaults(func=_blend)
 
     q = ms.add_parser("close", help="make a clip loop seamlessly",
@@ -241,7 +243,7 @@ def _blend(args) -> int:
     say = _say(args)
     a, b = _read(args.a), _read(args.b)
     m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args.features),
-                   up=args.up)
+                   up=args.up, plant=args.plant)
     write_bvh(m, args.out)
     sk = foot_skate(m, up=args.up)
     say(f"  blend       s = {args.s:g}, align {args.align}: {m.n_frames} frames at "
