@@ -37,7 +37,7 @@ import numbers
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import ShellsplineError
+from ..errors import ShellsplineError, tol
 from .descriptors import element_gradients, lta_descriptors, lta_jacobian, wrap_angle
 from ..mesh.topology import Topology
 
@@ -1037,7 +1037,7 @@ class EuclideanEnergy:
 
     def scale(self, V) -> float:
         V = np.asarray(V, dtype=np.float64).reshape(-1, 3)
-        return float(np.sqrt(np.sum((V - V.mean(axis=0)) ** 2)) + 1e-300)
+        return float(np.sqrt(np.sum((V - V.mean(axis=0)) ** 2)) + tol.zero)
 
 
 def _energy_for(T, mu, lam, eta) -> DiscreteShells:

@@ -30,6 +30,7 @@ import scipy.sparse as sp
 
 from ..errors import ShellsplineError
 from ..numerics.linalg import SparseCholesky
+from ..numerics.linesearch import backtracking
 from ..numerics.result import SolverResult
 from ..timeline import canonical_bc, checked_frames, checked_K
 from .energy import DiscreteShells, HessianPattern, checked_pose
@@ -40,8 +41,6 @@ from ..mesh.topology import Topology
 __all__ = ["PathSolver", "GeodesicResult", "discrete_geodesic", "geodesic_interpolation",
            "GeodesicInterpolationResult"]
 
-#: Armijo constant of the backtracking line search.
-_ARMIJO = 1e-4
 #: A Newton step whose predicted decrease ``−gᵀd`` is below this fraction of the energy is
 #: accepted when it lowers the gradient's max-norm instead of by the Armijo test, which cannot
 #: resolve it: on the 1000-vertex cactus (η = 1e-3) midpoint solves at tolerance 1e-13 stalled
@@ -365,23 +364,20 @@ class PathSolver:
                     if float(np.abs(gx).max()) < gn:
                         X, E, g_next = Xn, self.path_energy(A, Xn, B), gx
                         continue
-            alpha, accepted = 1.0, False
-            for _ in range(40):
+            def trial(alpha, X=X, d=d):
                 Xn = X.copy()
                 Xn.reshape(m, -1)[:, self.free] += alpha * d
-                En = self.path_energy(A, Xn, B) if _valid(Xn) else np.inf
-                if np.isfinite(En) and En <= E + _ARMIJO * alpha * slope:
-                    accepted = True
-                    break
-                alpha *= 0.5
-            if not accepted:
+                return (self.path_energy(A, Xn, B) if _valid(Xn) else np.inf), Xn
+
+            ls = backtracking(trial, E, slope, max_steps=40)
+            if not ls.accepted:
                 # no decrease within round-off: accept if the gradient is already tiny
                 if gn <= 1e3 * gscale:
                     res.stop("converged", "converged (energy stagnates at round-off level)")
                 else:
                     res.stop("stalled", "line search failed")
                 break
-            X, E = Xn, En
+            X, E = ls.payload, ls.value
         res.V = np.concatenate([A[None], X, B[None]])
         res.iterations = nit
         return res
