@@ -418,8 +418,8 @@ def find_feet(motion: Motion, up=None, positions=None, count: int = 2) -> tuple[
     Returns
     -------
     tuple of int
-        Leaf joint indices, lowest first. Leaves on the same chain as an already chosen
-        foot are skipped. Joint names are not used.
+        Leaf joint indices in file order (the same feet in the same order for every clip of
+        one skeleton). Joint names are not used.
     """
     P = forward_kinematics(motion)[0] if positions is None else np.asarray(positions)
     ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
@@ -428,7 +428,7 @@ def find_feet(motion: Motion, up=None, positions=None, count: int = 2) -> tuple[
     if not leaves:
         leaves = [j for j in range(motion.n_joints) if not ch[j]]
     height = sign * P[:, leaves, ax].mean(axis=0)
-    return tuple(int(leaves[i]) for i in np.argsort(height, kind="stable")[:count])
+    return tuple(sorted(int(leaves[i]) for i in np.argsort(height, kind="stable")[:count]))
 
 
 def _chain(motion: Motion, foot: int, ch) -> list[int]:

@@ -68,6 +68,19 @@ def test_blend_writes_a_bvh_that_reads_back(capsys, tmp_path):
     assert code == 0 and np.abs(read_bvh(out).values - src.values).max() <= 1e-9
 
 
+def test_close_writes_a_loop(capsys, tmp_path):
+    out = tmp_path / "loop.bvh"
+    code, _, err = run(capsys, "close", walk(), "-o", out, "--iterations", "10")
+    assert code == 0 and "seam gap" in err and "foot skate" in err
+    m = read_bvh(out)
+    g = A.seam_gap(m)
+    assert g["rotation_max"] <= 1e-6 and A.seam_gap(read_bvh(walk()))["rotation_max"] > 20
+    # one iteration does not close it: reported, exit status 1
+    code, _, err = run(capsys, "close", walk(), "-o", out, "--iterations", "1", "--overwrite",
+                       "--c1", "--no-plant")
+    assert code == 1 and "warning" in err
+
+
 def test_other_layouts_through_the_cli(capsys, tmp_path):
     a = synth.motion(fps=120.0, seconds=1.0, channels=3, order="mixed", up="z")
     b = synth.motion(fps=30.0, seconds=1.2, channels=3, order="mixed", up="z", cadence=0.8)

@@ -216,7 +216,8 @@ def _align(args) -> int:
     write_text_atomic(args.out, "\n".join(lines) + "\n")
     nf = 0 if rep.features is None else rep.features.shape[0]
     say(f"  align       {rep.t.size} frames, {nf} feature pairs: SRV distance "
-        f"{rep.distance_before:.4g} -> {rep.distance_after:.4g}")
+        f"{rep.distance_before:.4g} -> {rep.distance_after:.4g} ({rep.result.status}: "
+        f"{rep.result.message})")
     say(f"  wrote       {args.out}")
     if args.render or args.plot:
         from ..animation import common_grid, warp_motion
@@ -281,4 +282,4 @@ def _close(args) -> int:
     say(f"  wrote       {args.out}")
     if args.render or args.plot:
         _pictures(args, out, say, seam=rep.history)
-    return _status(rep.result, say)
+    return _status(rep, say)
