@@ -98,8 +98,15 @@ def pcg(matvec, b, *, precond=None, project=None, rtol: float = 1e-6,
         Hp = project(matvec(p))
         pHp = float(p @ Hp)
         if not pHp > 0:
-            return KrylovResult(x=x if it > 1 else z, status="stalled", iterations=it,
-                                energies=qs, grad_norms=rs, message="negative curvature")
+            if it == 1:  # the preconditioned residual: a descent direction of the model
+                x = z
+                qs.append(0.5 * pHp - float(pb @ z))
+                rs.append(float(np.linalg.norm(r - Hp)))
+            else:        # the last iterate again
+                qs.append(qs[-1])
+                rs.append(rs[-1])
+            return KrylovResult(x=x, status="stalled", iterations=it, energies=qs,
+                                grad_norms=rs, message="negative curvature")
         alpha = rz / pHp
         x += alpha * p
         r -= alpha * Hp
