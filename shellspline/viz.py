@@ -41,6 +41,7 @@ from .errors import ShellsplineError
 __all__ = ["SequenceViewer", "load_source", "preview", "render_frames", "render_animation",
            "render_strip", "plot", "plot_figure", "plot_half_axes", "half_axes_figure",
            "default_strip_frames", "export_glb", "fitted_camera", "scene_up_axis", "UP_AXES",
+           "CameraPath", "checked_camera_path", "CAMERA_CONVENTIONS", "CAMERA_TIMES",
            "KEYFRAME_COLOR",
            "PALETTE"]
 
@@ -740,6 +741,182 @@ def preview(*sources, track=None, fps: float = 24.0, loop: bool = True, labels=N
 
 
 # ----------------------------------------------------------------------------------------
+# Camera paths
+# ----------------------------------------------------------------------------------------
+CAMERA_CONVENTIONS = ("opencv", "opengl")
+"""Camera axes of a pose: ``opencv`` looks along its +z with x right and y down (TUM RGB-D and
+KITTI camera poses), ``opengl`` along its −z with x right and y up (OpenGL, Blender, VTK)."""
+CAMERA_TIMES = ("normalized", "frames", "seconds")
+"""How a camera path's pose times map to the frames (see :class:`CameraPath`)."""
+#: camera axes of each convention in VTK's (OpenGL) camera frame: T_gl = T @ _GL_FROM[conv]
+_GL_FROM = {"opencv": np.diag([1.0, -1.0, -1.0, 1.0]), "opengl": np.eye(4)}
+
+
+class CameraPath:
+    """A camera that follows a C² spline through camera poses, for the off-screen renders.
+
+    The poses are camera-to-world rigid motions (the camera's pose in the world, as TUM and
+    our CSV/JSON files store them). They are interpolated by
+    :func:`shellspline.curves.cubic_spline` (the curve ``shellspline path --kind interp``
+    builds) and evaluated at the times of the rendered frames.
+
+    Parameters
+    ----------
+    poses : str, path-like, PoseTrack or (t (n,), T (n,4,4))
+        A pose file in any format :func:`shellspline.io.posefiles.read_poses` reads, a
+        :class:`~shellspline.io.posefiles.PoseTrack`, or times and poses; at least 2 poses.
+    times : {"normalized", "frames", "seconds"}
+        How pose times map to the sequence's frames ``0..K``: ``"normalized"`` (default) the
+        first pose at frame 0 and the last at frame ``K``, linearly in between; ``"frames"``
+        the pose times are frame numbers (a KITTI file's pose index is its frame);
+        ``"seconds"`` frame ``k`` is at ``t_0 + k / fps``, ``t_0`` the first pose's time.
+    fps : float
+        Frames per second of ``times="seconds"``.
+    convention : {"opencv", "opengl"}
+        The camera's axes in its pose (:data:`CAMERA_CONVENTIONS`): ``"opencv"`` (default)
+        looks along +z with y down, ``"opengl"`` along −z with y up.
+    group : {"so3xr3", "se3"}
+        Metric of the spline (as ``shellspline path --group``).
+    bc : {"natural", "clamped", "periodic"}
+        End conditions (as ``shellspline path --bc``).
+
+    Attributes
+    ----------
+    t : (n,) float64 array
+    T : (n,4,4) float64 array
+        The poses (camera to world).
+    spline : PiecewiseBezier
+    name : str
+        The file (or ``"camera path"``), named in error messages.
+
+    Notes
+    -----
+    The view angle is VTK's default, 30° vertically; the image's x axis is the camera's x.
+    A frame whose time lies outside the poses' span raises (no extrapolation).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from shellspline.groups import se3, so3
+    >>> a = np.linspace(0, np.pi, 3)            # half a circle around the z axis
+    >>> R = so3.exp(np.c_[0 * a, 0 * a, a]) @ so3.exp([np.pi / 2, 0, 0])
+    >>> T = se3.from_rt(R, 5 * np.c_[np.sin(a), -np.cos(a), 0 * a])
+    >>> cam = CameraPath((a, T))
+    >>> cam.poses([0, 10], K=10).shape
+    (2, 4, 4)
+    >>> bool(np.allclose(cam.poses([5], K=10)[0], T[1]))
+    True
+    """
+
+    def __init__(self, poses, *, times: str = "normalized", fps: float = 24.0,
+                 convention: str = "opencv", group: str = "so3xr3", bc: str = "natural"):
+        from .curves import cubic_spline
+        from .io.posefiles import PoseTrack, read_poses
+
+        self.name = "camera path"
+        if isinstance(poses, (str, os.PathLike)):
+            self.name = str(poses)
+            poses = read_poses(poses)
+        if isinstance(poses, PoseTrack):
+            t, T = poses.t, poses.T
+        elif isinstance(poses, tuple) and len(poses) == 2:
+            t, T = poses
+        else:
+            raise ShellsplineError(f"camera_path must be a pose file, a PoseTrack or (t, T), "
+                                   f"got {type(poses).__name__}")
+        t = np.asarray(t, dtype=np.float64).ravel()
+        T = np.asarray(T, dtype=np.float64)
+        if T.shape != (t.size, 4, 4):
+            raise ShellsplineError(f"{self.name}: poses must be (n,4,4) for {t.size} times, got "
+                                   f"shape {T.shape}")
+        if t.size < 2:
+            raise ShellsplineError(f"{self.name}: a camera path needs at least 2 poses, got "
+                                   f"{t.size}")
+        self.times = _checked_choice(times, CAMERA_TIMES, "camera times")
+        self.convention = _checked_choice(convention, CAMERA_CONVENTIONS, "camera convention")
+        self.fps = float(fps)
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise ShellsplineError(f"fps must be a positive number, got {fps!r}")
+        self.group = _checked_choice(group, ("so3xr3", "se3"), "camera group")
+        self.bc = _checked_choice(bc, ("natural", "clamped", "periodic"), "camera bc")
+        self.t, self.T = t, T
+        try:
+            self.spline = cubic_spline(self.group, t, T, self.bc)
+        except ShellsplineError as exc:
+            raise ShellsplineError(f"{self.name}: {exc}") from None
+
+    def frame_times(self, frames, K: int) -> np.ndarray:
+        """Times on the path (the poses' unit) of frames ``frames (p,)`` of a sequence ``0..K``.
+
+        Raises
+        ------
+        ShellsplineError
+            When a frame lies outside the poses' time span (one line naming the file).
+        """
+        k = np.asarray(frames, dtype=np.float64).ravel()
+        t0, t1 = self.t[0], self.t[-1]
+        if self.times == "normalized":
+            tq = t0 + (t1 - t0) * k / max(int(K), 1)
+        elif self.times == "frames":
+            tq = k
+        else:
+            tq = t0 + k / self.fps
+        tol = 1e-9 * max(1.0, abs(t0), abs(t1))
+        bad = (tq < t0 - tol) | (tq > t1 + tol)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ShellsplineError(f"{self.name}: poses cover times {t0:.9g}..{t1:.9g}, frame "
+                                   f"{k[i]:g} is at {tq[i]:.9g} (camera times {self.times!r})")
+        return np.clip(tq, t0, t1)
+
+    def poses(self, frames, K: int) -> np.ndarray:
+        """Camera-to-world poses ``(p,4,4)`` at frames ``frames`` of a sequence ``0..K``."""
+        return self.spline(self.frame_times(frames, K))
+
+    def view_matrices(self, frames, K: int) -> np.ndarray:
+        """World-to-camera matrices ``(p,4,4)`` in VTK's (OpenGL) camera axes at ``frames``.
+
+        ``opengl`` poses give ``T⁻¹``; ``opencv`` poses ``diag(1,−1,−1,1) T⁻¹``. VTK's
+        ``camera.GetModelViewTransformMatrix()`` of a rendered frame equals this.
+        """
+        from .groups import se3
+
+        return _GL_FROM[self.convention] @ se3.inverse(self.poses(frames, K))
+
+    def camera_positions(self, frames, K: int, center=None) -> list:
+        """``[position, focal_point, view_up]`` per frame, for ``plotter.camera_position``.
+
+        The focal point lies on the viewing axis at the distance of ``center (3,)`` (e.g. the
+        scene's centre) along it, at least 1e-3 of the distance to it; 1 without ``center``.
+        """
+        G = self.poses(frames, K) @ _GL_FROM[self.convention]
+        pos, look, up = G[:, :3, 3], -G[:, :3, 2], G[:, :3, 1]
+        if center is None:
+            dist = np.ones(len(G))
+        else:
+            rel = np.asarray(center, dtype=np.float64) - pos
+            far = np.linalg.norm(rel, axis=1)
+            dist = np.maximum(np.einsum("pi,pi->p", rel, look), 1e-3 * far)
+            dist = np.where(dist > 0, dist, 1.0)
+        focal = pos + look * dist[:, None]
+        return [[tuple(p), tuple(f), tuple(u)] for p, f, u in zip(pos, focal, up)]
+
+
+def _checked_choice(value, choices, what: str) -> str:
+    key = str(value).strip().lower()
+    if key not in choices:
+        raise ShellsplineError(f"{what} must be one of {', '.join(choices)}, got {value!r}")
+    return key
+
+
+def checked_camera_path(camera) -> CameraPath | None:
+    """``camera`` (None, a :class:`CameraPath`, a pose file or a PoseTrack) as a CameraPath."""
+    if camera is None or isinstance(camera, CameraPath):
+        return camera
+    return CameraPath(camera)
+
+
+# ----------------------------------------------------------------------------------------
 # Off-screen renders
 # ----------------------------------------------------------------------------------------
 def checked_frames(frames, K: int) -> np.ndarray:
@@ -769,8 +946,9 @@ def checked_size(window_size, default):
 
 
 def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
-                  annotate: bool = True, up=None) -> np.ndarray:
-    """Render frames of one source off-screen with one camera fitted to the whole sequence.
+                  annotate: bool = True, up=None, camera_path=None) -> np.ndarray:
+    """Render frames of one source off-screen with one camera fitted to the whole sequence
+    (or a camera that moves along ``camera_path``).
 
     Parameters
     ----------
@@ -784,31 +962,42 @@ def render_frames(source, frames=None, *, window_size=(640, 480), view="iso",
         Write the frame number into the image.
     up : {"x", "y", "z"}, optional
         The scene's up axis; default :func:`scene_up_axis` of the source.
+    camera_path : CameraPath, pose file or PoseTrack, optional
+        The camera follows this path (:class:`CameraPath`; a file or track with its defaults:
+        OpenCV axes, pose times normalised to the frames); ``view`` and ``up`` are then
+        unused.
 
     Returns
     -------
     (p, h, w, 3) uint8 array
     """
     return np.stack(list(_iter_frames(load_source(source), frames, window_size, view,
-                                      annotate, up)))
+                                      annotate, up, camera_path)))
 
 
-def _iter_frames(seq, frames, window_size, view, annotate, up=None):
+def _iter_frames(seq, frames, window_size, view, annotate, up=None, camera=None):
     """Yield rendered frames one at a time (the viewer is closed at the end)."""
     frames = np.arange(seq.K + 1) if frames is None else checked_frames(frames, seq.K)
     size = checked_size(window_size, (640, 480))
+    camera = checked_camera_path(camera)
+    views = None
+    if camera is not None:  # every frame's camera, checked before the first render
+        views = camera.camera_positions(frames, seq.K, 0.5 * (seq.V.reshape(-1, 3).min(axis=0)
+                                                              + seq.V.reshape(-1, 3).max(axis=0)))
     viewer = SequenceViewer(seq, off_screen=True, window_size=size, view=view, widgets=False,
                             annotate=annotate, titles=False, up=up)
     try:
-        for k in frames:
+        for i, k in enumerate(frames):
             viewer.set_frame(k)
+            if views is not None:  # after the new points: the clipping range follows them
+                viewer.plotter.camera_position = views[i]
             yield viewer.screenshot()
     finally:
         viewer.close()
 
 
 def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), frames=None, *,
-                     view="iso", annotate: bool = True, up=None) -> Path:
+                     view="iso", annotate: bool = True, up=None, camera_path=None) -> Path:
     """Render a sequence off-screen to an animated GIF or an MP4 movie (by ``path``'s suffix).
 
     Parameters
@@ -823,7 +1012,7 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
         Pixels (MP4 sizes are rounded up to even numbers).
     frames : (p,) int array-like, optional
         Frames to show, default all.
-    view, annotate, up
+    view, annotate, up, camera_path
         See :func:`render_frames`.
 
     Returns
@@ -846,9 +1035,12 @@ def render_animation(source, path, fps: float = 24.0, window_size=(640, 480), fr
     except ImportError:
         raise ShellsplineError(f"render_animation needs the viz extra: {_EXTRA}") from None
     frames = None if frames is None else checked_frames(frames, seq.K)
+    camera = checked_camera_path(camera_path)
+    if camera is not None:  # fail before the file is opened
+        camera.frame_times(np.arange(seq.K + 1) if frames is None else frames, seq.K)
 
     def write(tmp):
-        imgs = _iter_frames(seq, frames, size, view, annotate, up)
+        imgs = _iter_frames(seq, frames, size, view, annotate, up, camera)
         if suffix == ".gif":  # Pillow needs every frame at once
             iio.imwrite(tmp, np.stack(list(imgs)), extension=".gif", duration=1000.0 / fps,
                         loop=0)
@@ -902,7 +1094,8 @@ def _compose(panels: np.ndarray, columns: int, gap: int, background=255) -> np.n
 
 
 def render_strip(source, path, frames=None, columns=None, window_size=(240, 240), *,
-                 gap: int = 8, view="iso", annotate: bool = True, up=None) -> Path:
+                 gap: int = 8, view="iso", annotate: bool = True, up=None,
+                 camera_path=None) -> Path:
     """A PNG filmstrip of chosen frames, like the paper's figures.
 
     Keyframes are gray, in-betweens coloured; every panel uses the same camera (fitted to the
@@ -921,8 +1114,8 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
         Pixels of one panel.
     gap : int
         White pixels between panels.
-    view, annotate, up
-        See :func:`render_frames`.
+    view, annotate, up, camera_path
+        See :func:`render_frames` (with a camera path each panel has its own camera).
 
     Returns
     -------
@@ -948,7 +1141,8 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
         import imageio.v3 as iio
     except ImportError:
         raise ShellsplineError(f"render_strip needs the viz extra: {_EXTRA}") from None
-    panels = render_frames(seq, frames, window_size=size, view=view, annotate=annotate, up=up)
+    panels = render_frames(seq, frames, window_size=size, view=view, annotate=annotate, up=up,
+                           camera_path=camera_path)
     strip = _compose(panels, min(columns, len(frames)), gap)
     return _write_atomically(path, lambda tmp: iio.imwrite(tmp, strip, extension=".png"),
                              [seq], (".png",), "filmstrip")

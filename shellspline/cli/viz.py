@@ -43,8 +43,10 @@ def add_parsers(sub) -> None:
                                    "GIF, an MP4 movie, a PNG filmstrip of chosen frames "
                                    "(keyframes gray, in-betweens coloured, one camera fitted "
                                    "to the whole sequence), and/or a GLB animation.",
-                       epilog="example: shellspline render out/cactus --gif cactus.gif "
-                              "--strip cactus.png --glb cactus.glb", formatter_class=fmt)
+                       epilog="examples:\n  shellspline render out/cactus --gif cactus.gif "
+                              "--strip cactus.png --glb cactus.glb\n  shellspline render "
+                              "out/cactus --mp4 fly.mp4 --camera-path camera.txt",
+                       formatter_class=fmt)
     r.add_argument("out", metavar="OUT", help="output directory of 'shellspline interpolate'")
     r.add_argument("--gif", help="animated GIF to write")
     r.add_argument("--mp4", help="MP4 movie to write (needs imageio-ffmpeg)")
@@ -61,6 +63,22 @@ def add_parsers(sub) -> None:
                    help="the scene's up axis (default from the files: OBJ and glTF y, USD its "
                         "metadata, PLY/OFF z)")
     r.add_argument("--no-labels", action="store_true", help="no frame numbers in the images")
+    c = r.add_argument_group("camera path (GIF, MP4 and strip; replaces --view and --up)")
+    c.add_argument("--camera-path", metavar="FILE",
+                   help="the camera follows a C2 spline through the camera-to-world poses in "
+                        "FILE (TUM, KITTI, EuRoC, CSV or JSON, as 'shellspline path' reads)")
+    c.add_argument("--camera-convention", choices=["opencv", "opengl"], default="opencv",
+                   help="camera axes of the poses: opencv (default; looks along +z, y down: "
+                        "TUM RGB-D, KITTI) or opengl (looks along -z, y up: Blender)")
+    c.add_argument("--camera-times", choices=["normalized", "frames", "seconds"],
+                   default="normalized",
+                   help="pose times -> frames: normalized (default; first pose at frame 0, "
+                        "last at the last frame), frames (times are frame numbers), seconds "
+                        "(frame k at the first pose's time + k/--fps)")
+    c.add_argument("--camera-group", choices=["so3xr3", "se3"], default="so3xr3",
+                   help="spline metric, as 'shellspline path --group' (default so3xr3)")
+    c.add_argument("--camera-bc", choices=["natural", "clamped", "periodic"],
+                   default="natural", help="spline ends, as 'shellspline path --bc'")
     r.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     r.set_defaults(func=_render)
 
@@ -120,17 +138,27 @@ def _render(args) -> int:
         raise ShellsplineError(f"--fps must be a positive number, got {args.fps}")
     if args.columns is not None and args.columns < 1:
         raise ShellsplineError(f"--columns must be >= 1, got {args.columns}")
+    camera = None
+    if args.camera_path:
+        camera = viz.CameraPath(args.camera_path, times=args.camera_times, fps=args.fps,
+                                convention=args.camera_convention, group=args.camera_group,
+                                bc=args.camera_bc)
+        if args.gif or args.mp4:
+            camera.frame_times(range(seq.K + 1) if frames is None else frames, seq.K)
+        if args.strip:
+            camera.frame_times(viz.default_strip_frames(seq.K, seq.frames) if frames is None
+                               else frames, seq.K)
     annotate = not args.no_labels
     for path in (args.gif, args.mp4):
         if path:
             out = viz.render_animation(seq, path, fps=args.fps, frames=frames,
                                        window_size=args.size or (640, 480), view=args.view,
-                                       annotate=annotate, up=args.up)
+                                       annotate=annotate, up=args.up, camera_path=camera)
             _say(args, f"wrote {out}")
     if args.strip:
         out = viz.render_strip(seq, args.strip, frames=frames, columns=args.columns,
                                window_size=args.size or (240, 240), view=args.view,
-                               annotate=annotate, up=args.up)
+                               annotate=annotate, up=args.up, camera_path=camera)
         _say(args, f"wrote {out}")
     if args.glb:
         out = viz.export_glb(seq, args.glb, fps=args.fps, frames=frames)
