@@ -204,9 +204,9 @@ def test_elementwise_assembly_equals_sparse_chain_rule(name, V, Vt, T):
     zX, zY = lta_descriptors(V, T), lta_descriptors(Vt, T)
     for block, P, wrt in (("11", V, 0), ("22", Vt, 1)):
         J = lta_jacobian(P, T)
-        Phi = W._hess_desc(zX, zY, block).tocsr()
+        Phi = W.descriptor_hessian(zX, zY, block).tocsr()
         ref = (J.T @ Phi @ J).toarray()
-        c = W._grad_desc(zX, zY, wrt)
+        c = W.descriptor_gradient(zX, zY, wrt)
         Hl = [edge_length_hessians(P, T.E), dihedral_angle_hessians(P, T.flaps),
               face_area_hessians(P, T.F)]
         sL, sT, sA = T.descriptor_slices()

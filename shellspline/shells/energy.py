@@ -490,8 +490,20 @@ class DiscreteShells:
         return float(self.mu * np.sum(d * rho ** 2) + self.lam * np.sum((A - At) ** 2 / A)
                      + self.eta * np.sum(li ** 2 * dl ** 2 / di))
 
-    def _grad_desc(self, zX, zY, wrt: int) -> np.ndarray:
-        """``Φ_q`` (wrt=0) or ``Φ_r`` (wrt=1), shape ``(e+i+m,)``."""
+    def descriptor_gradient(self, zX, zY, wrt: int) -> np.ndarray:
+        """Descriptor-space gradient of ``W`` at descriptors ``zX, zY``.
+
+        Parameters
+        ----------
+        zX, zY : (e+i+m,) float arrays
+            LΘA descriptors of the two shells.
+        wrt : {0, 1}
+            ``Φ_q`` (w.r.t. ``zX``) or ``Φ_r`` (w.r.t. ``zY``).
+
+        Returns
+        -------
+        (e+i+m,) float64 array
+        """
         mu, lam, eta, T = self.mu, self.lam, self.eta, self.T
         L, A, Lt, At, d, rho, li, di, dl = self._terms(zX, zY)
         g = np.zeros(self._d)
@@ -514,15 +526,27 @@ class DiscreteShells:
         g[sA] = gA
         return g
 
-    def _hess_desc(self, zX, zY, block: str):
-        """Descriptor-space second derivatives as a sparse ``(d,d)`` matrix."""
+    def descriptor_hessian(self, zX, zY, block: str):
+        """Descriptor-space second derivatives of ``W`` at ``zX, zY``.
+
+        Parameters
+        ----------
+        zX, zY : (d,) float arrays
+            LΘA descriptors of the two shells (``d = e+i+m``).
+        block : {"11", "12", "22"}
+            Which block (first index: ``zX``).
+
+        Returns
+        -------
+        (d,d) scipy.sparse matrix
+        """
         r, c, v = self._hess_desc_entries(zX, zY, block)
         if block == "22":
             return sp.diags(v)
         return sp.coo_matrix((v, (r, c)), shape=(self._d, self._d))
 
     def _hess_desc_dot(self, zX, zY, block: str, u, transpose: bool = False) -> np.ndarray:
-        """``Φ_block u`` (or ``Φ_blockᵀ u``) from the entries of :meth:`_hess_desc` by one
+        """``Φ_block u`` (or ``Φ_blockᵀ u``) from the entries of :meth:`descriptor_hessian` by one
         scatter, without a sparse matrix (for products used once)."""
         r, c, v = self._hess_desc_entries(zX, zY, block)
         if block == "22":
@@ -653,7 +677,7 @@ class DiscreteShells:
         boundary edge its 2×2 length–area block on its face. Same numbers as
         ``Jᵀ (Φ J)`` through sparse products, without their structure-dependent scatter.
         """
-        c = self._grad_desc(zX, zY, 0 if block == "11" else 1)
+        c = self.descriptor_gradient(zX, zY, 0 if block == "11" else 1)
         parts = self._element_parts(g, c)
         extra = self._add_gauss_newton(g, zX, zY, block, parts)
         return self._scatter(parts, extra)
@@ -667,7 +691,7 @@ class DiscreteShells:
         ga, gm = self._geometries(Va, M)
         gb = self._geometry(checked_pose(Vb, self.n_vertices, "Vb"))
         za, zm, zb = ga["z"], gm["z"], gb["z"]
-        parts = self._element_parts(gm, self._grad_desc(za, zm, 1) + self._grad_desc(zm, zb, 0))
+        parts = self._element_parts(gm, self.descriptor_gradient(za, zm, 1) + self.descriptor_gradient(zm, zb, 0))
         extra = self._add_gauss_newton(gm, za, zm, "22", parts)
         extra += self._add_gauss_newton(gm, zm, zb, "11", parts)
         return self._scatter(parts, extra)
@@ -775,7 +799,7 @@ class DiscreteShells:
         wrt = _checked_wrt(wrt)
         gX, gY = self._geometries(V, Vt)
         J = (gX if wrt == 0 else gY)["J"]
-        return J.T @ self._grad_desc(gX["z"], gY["z"], wrt)
+        return J.T @ self.descriptor_gradient(gX["z"], gY["z"], wrt)
 
     def hessian(self, V, Vt, block: str = "22") -> sp.csr_matrix:
         """Hessian block ``W,ab`` as a ``(3n,3n)`` CSR matrix on :attr:`pattern`.
@@ -793,7 +817,7 @@ class DiscreteShells:
         gX, gY = self._geometries(V, Vt)
         zX, zY = gX["z"], gY["z"]
         if block == "12":
-            Phi = self._hess_desc(zX, zY, block).tocsr()
+            Phi = self.descriptor_hessian(zX, zY, block).tocsr()
             return self.pattern.data_of(gX["J"].T @ (Phi @ gY["J"]))
         return self._block_data(gX if block == "11" else gY, zX, zY, block)
 
@@ -862,7 +886,7 @@ class DiscreteShells:
             g = gX if b == "11" else gY
             J = g["J"]
             out += w * (J.T @ self._hess_desc_dot(zX, zY, b, J @ v))
-            c = self._grad_desc(zX, zY, 0 if b == "11" else 1)
+            c = self.descriptor_gradient(zX, zY, 0 if b == "11" else 1)
             if b == "11":
                 cX += w * c
             else:
@@ -917,15 +941,15 @@ class DiscreteShells:
         cb = gb["J"].T @ self._hess_desc_dot(zm, zb, "12", u, transpose=True)
         cm = gm["J"].T @ (self._hess_desc_dot(za, zm, "22", u) +
                           self._hess_desc_dot(zm, zb, "11", u))
-        cm += self._element_term(gm["V"], self._grad_desc(za, zm, 1) +
-                                 self._grad_desc(zm, zb, 0), p)
+        cm += self._element_term(gm["V"], self.descriptor_gradient(za, zm, 1) +
+                                 self.descriptor_gradient(zm, zb, 0), p)
         return ca, cm, cb
 
     def mixed_operator(self, V, Vt) -> "MixedOperator":
         """``W,12[s, s̃]`` and ``W,21[s, s̃]`` as a reusable matrix-free operator (the
         descriptor Hessian is built once; each product is three sparse mat-vecs)."""
         gX, gY = self._geometries(V, Vt)
-        Phi = self._hess_desc(gX["z"], gY["z"], "12").tocsr()
+        Phi = self.descriptor_hessian(gX["z"], gY["z"], "12").tocsr()
         return MixedOperator(gX["J"], Phi, gY["J"])
 
     def scale(self, V) -> float:

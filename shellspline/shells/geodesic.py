@@ -39,7 +39,7 @@ from ..mesh.rigid import rigid_modes
 from ..mesh.topology import Topology
 
 __all__ = ["PathSolver", "GeodesicResult", "discrete_geodesic", "geodesic_interpolation",
-           "GeodesicInterpolationResult"]
+           "GeodesicInterpolationResult", "lerp_inner_shells", "make_energy"]
 
 #: A Newton step whose predicted decrease ``−gᵀd`` is below this fraction of the energy is
 #: accepted when it lowers the gradient's max-norm instead of by the Armijo test, which cannot
@@ -383,7 +383,7 @@ class PathSolver:
         return res
 
 
-def _lerp(A, B, K):
+def lerp_inner_shells(A, B, K):
     """Inner shells ``(K-1,n,3)`` of the linear blend; coordinates equal in ``A`` and ``B``
     stay bit-identical (pinned vertices)."""
     t = (np.arange(1, K) / K)[:, None, None]
@@ -452,7 +452,7 @@ def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 
         return GeodesicResult(V=np.stack([VA, VB]), status="converged",
                               energies=[W.energy(VA, VB)], message="no inner shells")
     if init is None:
-        init = _lerp(VA, VB, K)
+        init = lerp_inner_shells(VA, VB, K)
     init = np.asarray(init, dtype=np.float64)
     if init.shape != (K - 1, n, 3):
         raise ShellsplineError(f"`init` must have shape (K-1,n,3) = ({K - 1},{n},3), "
@@ -569,7 +569,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
         if steps >= 2:
             if steps not in solvers:
                 solvers[steps] = PathSolver(W, steps - 1, pinned=pinned, backend=backend)
-            X0 = _lerp(Vkey[ja], Vkey[jb], steps)
+            X0 = lerp_inner_shells(Vkey[ja], Vkey[jb], steps)
             if deadline is not None and time.perf_counter() > deadline:
                 E0 = solvers[steps].path_energy(Vkey[ja], X0, Vkey[jb])
                 res = GeodesicResult(V=np.concatenate([Vkey[ja][None], X0, Vkey[jb][None]]),
