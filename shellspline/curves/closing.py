@@ -156,7 +156,7 @@ class _Constraints:
 
     def weighted_sum(self, w):
         """``sum_i w_i d gap / d q_i``: ``(D, D)``."""
-        n, d, D = self.n, self.d, self.D
+        d, D = self.d, self.D
         out = np.einsum("n,na,nb->ab", w, self.u, self.v)
         wq = w * self.nq
         rot = np.einsum("n,njab->jab", wq, self.blocks)                    # (d,3,3)
