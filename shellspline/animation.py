@@ -726,13 +726,22 @@ def plant_feet(motion: Motion, contacts: FootContacts, *, smooth: int = 0) -> Mo
 # ----------------------------------------------------------------------------------------
 # Operations: distance, alignment, blending, closing (seed 000 on SO(3)^d x R^m)
 # ----------------------------------------------------------------------------------------
-def _product_curve(c: MotionCurve, scale: float, X=None):
+def _product_curve(c: MotionCurve, scale: float, X=None, cols=None):
     """The analysis curve of seed 000: rotations, position channels over ``scale`` (the
-    body height: lengths in body heights weigh like radians), on ``t = linspace(0, 1, N)``."""
+    body height: lengths in body heights weigh like radians), on ``t = linspace(0, 1, N)``.
+    ``cols``: the position channels kept (constant channels have a zero SRV: leaving them
+    out changes no distance, warp, blend or closing, and makes each cheaper)."""
     from .curves.srv import ProductCurve
 
     X = c.X if X is None else X
+    if cols is not None:
+        X = X[:, cols]
     return ProductCurve(c.R, X / scale, c.t)
+
+
+def _varying(*Xs) -> np.ndarray:
+    """Columns that change over time in any of the ``(N,m)`` arrays."""
+    return np.flatnonzero(np.any([np.ptp(X, axis=0) > 0 for X in Xs], axis=0))
 
 
 def _pair(a: Motion, b: Motion, n_frames=None):
@@ -866,7 +875,8 @@ def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
     from .curves.srv import reparametrize, srv_distance
 
     a2, b2, ca, cb, H = _pair(a, b, n_frames)
-    pa, pb = _product_curve(ca, H), _product_curve(cb, H)
+    cols = _varying(ca.X, cb.X)
+    pa, pb = _product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols)
     F = _features(features, a, b, up)
     phi, res = _align_curves(pa, pb, F, kw)
     before = srv_distance(pa, pb)
@@ -905,7 +915,8 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
     if align == "none":
         _, _, ca, cb, H = _pair(a, b, n_frames)
-        return srv_distance(_product_curve(ca, H), _product_curve(cb, H))
+        cols = _varying(ca.X, cb.X)
+        return srv_distance(_product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols))
     d1 = _align_motions(a, b, features=features, n_frames=n_frames, up=up, **kw).distance_after
     F = _features(features, a, b, up)
     F2 = None if F is None else F[:, ::-1] * [(b.n_frames - 1) * b.frame_time,
@@ -951,7 +962,8 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     if not np.isfinite(s):
         raise ShellsplineError(f"s must be a finite number, got {s!r}")
     a2, b2, ca, cb, H = _pair(a, b, n_frames)
-    pa, pb = _product_curve(ca, H), _product_curve(cb, H)
+    cols = _varying(ca.X, cb.X)
+    pa, pb = _product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols)
     rep = None
     phi = pa.t.copy()
     if align == "dp":
@@ -965,7 +977,9 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     c = reparametrize(c, inv, pa.t)
     ref_b = _sample_curve(cb, phi * (cb.n_frames - 1))[2]
     ref = (1 - s) * ca.reference + s * ref_b
-    out = ca.with_samples(c.R, c.X * H, reference=ref)
+    X = np.broadcast_to((1 - s) * ca.X[0] + s * cb.X[0], ca.X.shape).copy()  # constants
+    X[:, cols] = c.X * H
+    out = ca.with_samples(c.R, X, reference=ref)
     da = (a.n_frames - 1) * a.frame_time
     db = (b.n_frames - 1) * b.frame_time
     dur = max((1 - s) * da + s * db, 0.0)
@@ -1077,8 +1091,10 @@ def close(motion: Motion, *, iterations: int = 10, c1: bool = False,
     H = body_height(motion, contacts.positions, ax)
     trend = []
     X = _detrend(c, ax, trend) if root_motion == "keep" else c.X
-    res = close_curve(_product_curve(c, H, X), iterations=iterations, c1=c1, **kw)
-    Xc = res.curve.X * H
+    cols = _varying(X)
+    res = close_curve(_product_curve(c, H, X, cols), iterations=iterations, c1=c1, **kw)
+    Xc = X.copy()
+    Xc[:, cols] = res.curve.X * H
     for cols, tr in trend:
         Xc[:, cols] += tr
     closed = c.with_samples(res.curve.R, Xc).to_motion()
