@@ -7,6 +7,8 @@ projection of a static asymmetric scene against the rendered pixels.
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -127,8 +129,6 @@ def test_time_mappings_and_their_limits():
 
 
 def test_camera_positions_look_along_the_pose_and_match_vtk():
-    pv = pytest.importorskip("pyvista")
-    assert pv
     V, F = scene()
     cam = viz.CameraPath((np.arange(5.0), circle_poses(np.arange(5) * 90.0)))
     sv = viz.SequenceViewer((V, F), off_screen=True, window_size=SIZE, widgets=False,
@@ -221,7 +221,6 @@ def test_cli_bad_camera_files_fail_in_one_line_naming_the_file(outdir, tmp_path,
     err = capsys.readouterr().err.strip()
     assert rc == 2
     assert len(err.splitlines()) == 1 and err.startswith("shellspline: error: ")
-    import re
     assert re.search(match, err), err
     assert not strip.exists()
 
