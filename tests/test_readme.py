@@ -133,9 +133,12 @@ def test_readme_shows_every_subcommand():
 def test_readme_command_line_matches_the_parser(where, tokens):
     subs = _subparsers(_build_parser())
     assert tokens[0] == "shellspline" and tokens[1] in subs, f"{where}: {' '.join(tokens)}"
-    parser = subs[tokens[1]]
+    parser, rest = subs[tokens[1]], tokens[2:]
+    inner = _subparsers(parser)
+    if inner and rest and rest[0] in inner:  # a subcommand with subcommands (motion align)
+        parser, rest = inner[rest[0]], rest[1:]
     options = {s: a for a in parser._actions for s in a.option_strings}
-    text = " ".join(tokens[2:])
+    text = " ".join(rest)
     for m in re.finditer(r"(?<![\w/.-])(--?[A-Za-z][\w-]*)(?:[ =]([\w.|-]+))?", text):
         opt, value = m.group(1), m.group(2)
         assert opt in options, f"{where}: {tokens[1]} has no option {opt}"
