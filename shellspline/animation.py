@@ -115,8 +115,10 @@ class MotionCurve:
 
         Rotations are converted to each joint's own Euler order (1 to 3 rotation channels),
         choosing per frame the Euler solution and the multiples of 360 degrees nearest the
-        reference values; position channels take the values of ``X``; channels of joints
-        without rotation keep their reference values.
+        reference values (a frame whose rotation equals the reference's, to 4e-16, keeps the
+        reference angles exactly: unchanged frames round-trip bit for bit, gimbal lock
+        included); position channels take the values of ``X``; channels of joints without
+        rotation keep their reference values.
         """
         tpl = self.template
         values = self.reference.copy()
@@ -125,7 +127,12 @@ class MotionCurve:
             cols = tpl.channel_columns(int(j))
             rcols = [c for c, name in zip(cols, tpl.channels[j]) if name.endswith("rotation")]
             axes = "".join(name[0] for name in tpl.channels[j] if name.endswith("rotation"))
-            values[:, rcols] = euler_angles(self.R[:, b], axes, values[:, rcols])
+            ref = values[:, rcols]
+            ang = euler_angles(self.R[:, b], axes, ref)
+            # frames whose rotation is the reference's keep its angles bit for bit (also at
+            # gimbal lock, where other angles give the same rotation)
+            same = np.abs(euler_matrices(ref, axes) - self.R[:, b]).max(axis=(1, 2)) <= 4e-16
+            values[:, rcols] = np.where(same[:, None], ref, ang)
         return Motion(tpl.names, tpl.parents, tpl.offsets, tpl.channels, self.frame_time,
                       values, tpl.end_sites)
 
