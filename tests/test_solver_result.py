@@ -180,6 +180,8 @@ def test_solver_object_with_a_stop_policy_equals_the_convenience_function(sphere
     assert np.array_equal(res.energies, ref.energies) and np.array_equal(res.V, ref.V)
     assert [s[0] for s in seen] == list(range(res.iterations + 1))
     assert np.array_equal([s[1] for s in seen], res.energies)
+    again = NonlinearSplineSolver(prob, TrustRegionNewton(), StopPolicy(gtol=1e-5)).solve(Vkey)
+    assert np.array_equal(again.energies, res.energies) and again.nfev == res.nfev  # fresh run
     for bad in (dict(gtol=0.0), dict(gtol=1.5), dict(ftol=-1.0), dict(max_time_s=0),
                 dict(max_iter=-1)):
         with pytest.raises(ValueError, match=next(iter(bad))):

@@ -26,7 +26,6 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import ShellsplineError
 from ..numerics.linalg import SparseCholesky
@@ -128,7 +127,7 @@ class PathSolver:
         keep = (red[pr] >= 0) & (red[pc] >= 0)
         rr, cc = red[pr], red[pc]
         # blocks: diagonal k (m of them), upper (k, k+1), lower (k+1, k)
-        rows, cols, src = [], [], []
+        rows, cols = [], []
         for k in range(m):
             rows.append(k * nf + rr[keep]), cols.append(k * nf + cc[keep])
         for k in range(m - 1):

@@ -128,9 +128,8 @@ class StopPolicy:
         self.t0 = None
 
     def start(self, t0: float | None = None) -> None:
-        """Start the clock (``time.perf_counter()`` now, or ``t0``) unless it runs already."""
-        if self.t0 is None:
-            self.t0 = time.perf_counter() if t0 is None else float(t0)
+        """Start the clock: ``time.perf_counter()`` now, or the earlier value ``t0``."""
+        self.t0 = time.perf_counter() if t0 is None else float(t0)
 
     @property
     def deadline(self) -> float | None:
@@ -240,14 +239,21 @@ class NonlinearSplineSolver:
         return self._verdict is not None
 
     # -- the run -------------------------------------------------------------------------------
-    def solve(self, Vkey, init=None, *, stacklevel: int = 2) -> NonlinearSplineResult:
+    def solve(self, Vkey, init=None, *, started: float | None = None,
+              stacklevel: int = 2) -> NonlinearSplineResult:
         """Run from ``init`` (default: the per-vertex linear blend) through the keyframes.
+
+        Every call is a fresh run: the stop policy's clock restarts, the problem's midpoints,
+        counters and midpoint tolerance are those of a new problem.
 
         Parameters
         ----------
         Vkey : (J,n,3) float array
         init : (K+1,n,3) float array, optional
             Initial path; keyframes are taken from ``Vkey``.
+        started : float, optional
+            ``time.perf_counter()`` value from which ``max_time_s`` counts (default: now), so
+            that a caller's set-up counts too.
         stacklevel : int
             Of the ``RuntimeWarning`` issued when the run did not converge.
 
@@ -256,8 +262,18 @@ class NonlinearSplineSolver:
         NonlinearSplineResult
         """
         stop, prob = self.stop, self.problem
-        stop.start()
+        stop.start(started)
         prob.deadline = stop.deadline
+        prob.midpoints = prob.last = None
+        prob.nfev = prob.midpoint_iterations = prob.midpoint_failures = 0
+        tol0 = prob.midpoint_tol
+        try:
+            return self._solve(Vkey, init, stacklevel + 1)
+        finally:
+            prob.midpoint_tol = tol0  # the final phase tightens it for its run only
+
+    def _solve(self, Vkey, init, stacklevel):
+        stop, prob = self.stop, self.problem
         Vkey = checked_keyframes(Vkey, prob.n)
         K, frames = prob.K, prob.frames
         if len(frames) != len(Vkey):
@@ -490,8 +506,8 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     >>> res.success, res.V.shape
     (True, (5, 42, 3))
     """
+    t0 = time.perf_counter()  # max_time_s covers the set-up and the first evaluation too
     stop = StopPolicy(gtol=gtol, ftol=ftol, max_iter=max_iter, max_time_s=max_time_s)
-    stop.start()  # max_time_s covers the set-up and the first evaluation too
     W = make_energy(T, energy, mu, lam, eta)
     Vkey = checked_keyframes(Vkey, W.n_vertices)
     opt = _optimizer(optimizer, globalization, hessian=hessian, cg_tol=cg_tol,
@@ -499,7 +515,8 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
                      memory=memory, precondition=precondition)
     prob = NonlinearSplineProblem(W, frames, K, bc, pinned=pinned, midpoint_tol=midpoint_tol,
                                   backend=backend)
-    return NonlinearSplineSolver(prob, opt, stop, callback).solve(Vkey, init, stacklevel=3)
+    return NonlinearSplineSolver(prob, opt, stop, callback).solve(Vkey, init, started=t0,
+                                                                  stacklevel=3)
 
 
 def _optimizer(optimizer, globalization, *, hessian, cg_tol, cg_max_iter, retract,
