@@ -14,6 +14,7 @@ before it propagates, so that no worker outlives the run or writes after it.
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing as mp
 import os
 import signal
@@ -271,6 +272,7 @@ class DaskExecutor:
     def run(self, todo, on_event, outcomes, run_id: str, force: bool) -> None:
         """Run ``todo`` (a list of ``(SequenceSpec, key)``); see the module docstring."""
         client, cluster = self._connect()
+        self._log_level = logging.getLogger("distributed").level
         futures = {}
         try:
             for spec, key in todo:
@@ -287,9 +289,59 @@ class DaskExecutor:
                 outcomes[spec.name] = o
                 on_event({"kind": "sequence_end", "name": spec.name, "outcome": o})
         except KeyboardInterrupt:
-            client.cancel(list(futures))
+            self._stop(client, cluster, futures)
             raise
         finally:
             client.close()
             if cluster is not None:
                 cluster.close()
+            logging.getLogger("distributed").setLevel(self._log_level)
+
+    @staticmethod
+    def _stop(client, cluster, futures) -> None:
+        """A stop signal: cancel the tasks and, on our own ``LocalCluster``, kill its worker
+        processes at once (:func:`_kill_local_workers`). Tasks already running on the
+        workers of a remote scheduler finish there (Dask cannot interrupt a running task;
+        their outputs appear complete or not at all)."""
+        if cluster is None:
+            client.cancel(list(futures))
+            return
+        # the nannies would report the deaths, the workers a cancellation: not news
+        logging.getLogger("distributed").setLevel(logging.CRITICAL)
+        _kill_local_workers(cluster)
+
+
+def _kill_local_workers(cluster, wait: float = 1.5) -> None:
+    """Close the nannies of a ``LocalCluster`` and SIGKILL their worker processes.
+
+    A graceful close waits about 4 s for busy workers, and a worker killed under a running
+    nanny is restarted (a fresh process that the cluster's close then waits for). So, on the
+    cluster's event loop, each nanny's close is started first (from then on it restarts
+    nothing), its worker is killed before it acts on the close, and the closes are awaited
+    (at most ``wait`` seconds). :func:`~shellspline.run_batch` removes the staging
+    directories the workers leave.
+    """
+    import asyncio
+
+    kill = getattr(signal, "SIGKILL", signal.SIGTERM)
+    nannies = list(cluster.workers.values())
+    pids = [getattr(n, "pid", None) for n in nannies]
+
+    def kill_all():
+        for pid in pids:
+            if pid:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, kill)
+
+    async def close_and_kill():
+        closing = [asyncio.ensure_future(n.close(timeout=wait, reason="shellspline-stop"))
+                   for n in nannies]
+        await asyncio.sleep(0)  # every close has begun: the nannies restart nothing
+        kill_all()
+        await asyncio.gather(*closing, return_exceptions=True)
+
+    try:
+        done = asyncio.run_coroutine_threadsafe(close_and_kill(), cluster.loop.asyncio_loop)
+        done.result(timeout=wait + 0.5)
+    except Exception:  # pragma: no cover - another Dask layout: kill, the close follows
+        kill_all()

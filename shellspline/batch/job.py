@@ -55,7 +55,8 @@ class SequenceSpec:
         fix_boundary`` for :func:`shellspline.interpolate`.
     formats, render, plots : list of str
     delay : float
-        Seconds to sleep between solving and writing (a testing knob; not in the manifest).
+        Seconds to sleep between writing the staging directory and publishing it (a testing
+        knob: a stop signal then finds a staging directory to remove; not in the manifest).
     """
 
     name: str
