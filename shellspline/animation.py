@@ -37,7 +37,8 @@ __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_gr
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
            "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
-           "mesh_close", "close_euclidean", "mesh_align", "mesh_blend", "reparametrize_vertices"]
+           "mesh_close", "close_euclidean", "mesh_align", "mesh_distance", "mesh_blend",
+           "reparametrize_vertices"]
 
 # Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
 # a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
@@ -1450,3 +1451,29 @@ def reparametrize_vertices(Vs, phi) -> np.ndarray:
     i = np.minimum(np.floor(s).astype(np.int64), Vs.shape[0] - 2)
     w = (s - i)[:, None, None]
     return Vs[i] * (1 - w) + Vs[i + 1] * w
+
+
+def mesh_distance(Vs0, Vs1, F, *, align: str = "dp", **kw) -> float:
+    """SRV distance of two animations of one mesh in LΘA space (weights at the first frame of
+    ``Vs0``, the same for both directions): ``"none"`` on one normalised grid (``Vs1``'s
+    descriptor curve resampled linearly to ``Vs0``'s frames), ``"dp"`` the mean of the
+    aligned distances both ways (symmetric)."""
+    from .curves.align import align as align_curves
+    from .curves.srv import reparametrize, srv_distance
+
+    if align not in ("dp", "none"):
+        raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
+    Vs0, Vs1 = _mesh_frames(Vs0, "Vs0"), _mesh_frames(Vs1, "Vs1")
+    if Vs0.shape[1] != Vs1.shape[1]:
+        raise ShellsplineError(f"Vs0 and Vs1 must be frames of one mesh, got {Vs0.shape[1]} "
+                               f"and {Vs1.shape[1]} vertices")
+    c0 = mesh_curve(Vs0, F)
+    c1 = mesh_curve(Vs1, F, T=c0.T, reference=Vs0[0])
+    p0, p1 = c0.product_curve(), c1.product_curve()
+    if align == "none":
+        return srv_distance(p0, reparametrize(p1, p0.t, p0.t))
+
+    def aligned(x, y):
+        phi = np.clip(align_curves(x, y, **kw).phi, 0.0, 1.0)
+        return srv_distance(x, reparametrize(y, phi, x.t))
+    return 0.5 * (aligned(p0, p1) + aligned(p1, p0))

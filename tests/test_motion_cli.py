@@ -137,3 +137,29 @@ def test_render_and_plot(capsys, tmp_path):
         assert im.n_frames == 20
     code, _, err = run(capsys, "distance", walk(), walk(), "--render", tmp_path / "x.txt")
     assert code == 2 and ".gif" in err
+
+
+def test_mesh_sequence_folders(capsys, tmp_path):
+    """Folders of mesh frames: close writes a sequence folder, align a frame warp, blend and
+    distance work on the LΘA curves."""
+    from data_synth.skinned import skinned_sequence
+    from shellspline.io import read_sequence, write_sequence
+
+    Vs, F, _ = skinned_sequence(walk(), start=10, stop=30, n_vertices=300)
+    write_sequence(tmp_path / "a", Vs, F)
+    write_sequence(tmp_path / "b", Vs[::-1].copy(), F)
+    code, _, err = run(capsys, "close", tmp_path / "a", "-o", tmp_path / "loop")
+    assert code == 0 and "seam gap" in err
+    V, F2, rep = read_sequence(tmp_path / "loop")
+    assert V.shape == Vs.shape and rep["operation"] == "motion close"
+    assert rep["seam_gap"][-1] <= 1e-9 * rep["seam_gap"][0]
+    code, out, _ = run(capsys, "distance", tmp_path / "a", tmp_path / "a", "-q")
+    assert code == 0 and float(out) <= 1e-9
+    code, _, _ = run(capsys, "align", tmp_path / "a", tmp_path / "b", "-o", tmp_path / "w.csv")
+    rows = np.loadtxt(tmp_path / "w.csv", delimiter=",", skiprows=1)
+    assert code == 0 and rows.shape == (Vs.shape[0], 2)
+    code, _, _ = run(capsys, "blend", tmp_path / "a", tmp_path / "a", "-o", tmp_path / "mid",
+                     "-q")
+    assert code == 0 and np.abs(read_sequence(tmp_path / "mid")[0] - Vs).max() <= 1e-8
+    code, _, err = run(capsys, "blend", tmp_path / "a", walk(), "-o", tmp_path / "x")
+    assert code == 2 and "two BVH files or two mesh" in err

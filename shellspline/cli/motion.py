@@ -1,6 +1,8 @@
 """``shellspline motion``: distances, time alignment, blending and loop closing of BVH clips.
 
-Subcommands ``distance``, ``align``, ``blend`` and ``close`` (see :mod:`shellspline.animation`);
+Subcommands ``distance``, ``align``, ``blend`` and ``close`` (see :mod:`shellspline.animation`)
+on BVH clips, or on mesh sequences (a folder of OBJ/PLY/OFF frames of one mesh, in name order:
+LΘA descriptor curves, frames reconstructed by Gauss–Newton, a sequence folder written);
 pictures with ``--render STRIP.png|ANIM.gif`` (stick figures) and ``--plot PNG`` (feet, warp,
 seam gap). Outputs are written atomically and never replace an existing file without
 ``--overwrite``. Errors are one line, exit status 2.
@@ -22,6 +24,7 @@ _EPILOG = """examples:
   shellspline motion align walk.bvh walk_tired.bvh -o warp.csv --plot warp.png
   shellspline motion blend walk.bvh walk_happy.bvh --s 0.5 -o blend.bvh --render blend.gif
   shellspline motion close walk.bvh -o loop.bvh --iterations 10 --c1 --plot loop.png
+  shellspline motion close frames/ -o loop/          # a mesh sequence (folder of frames)
 
 features: 'contacts' pairs the foot touch-downs detected in both clips (feet and up axis found
 from the data; --up overrides the axis); a CSV file gives pairs 'time_a,time_b' in seconds,
@@ -40,10 +43,11 @@ def add_parsers(sub) -> None:
 
     def common(q, two=True, out=None):
         if two:
-            q.add_argument("a", metavar="A", help="first BVH clip")
-            q.add_argument("b", metavar="B", help="second BVH clip (the same skeleton)")
+            q.add_argument("a", metavar="A", help="first BVH clip (or mesh sequence folder)")
+            q.add_argument("b", metavar="B", help="second BVH clip of the same skeleton (or "
+                                                  "a mesh sequence folder of the same mesh)")
         else:
-            q.add_argument("a", metavar="IN", help="BVH clip")
+            q.add_argument("a", metavar="IN", help="BVH clip (or mesh sequence folder)")
         if out:
             q.add_argument("-o", "--out", required=True, metavar="OUT", help=out)
         q.add_argument("--up", metavar="AXIS", default=None,
@@ -82,7 +86,7 @@ def add_parsers(sub) -> None:
     q = ms.add_parser("blend", help="blend two clips into a new BVH",
                       description="Blend two clips of one skeleton along the SRV geodesic, "
                                   "aligned in time first (--align dp).")
-    common(q, out="BVH file to write")
+    common(q, out="BVH file to write (a sequence folder for mesh sequences)")
     q.add_argument("--s", type=float, default=0.5, metavar="S",
                    help="weight of B (0: A, 1: B; default 0.5)")
     aligning(q)
@@ -122,7 +126,7 @@ def _check_outputs(args, *paths):
         p = Path(path)
         if p.exists() and not args.overwrite:
             raise ShellsplineError(f"{path} exists (use --overwrite to replace it)")
-        if p.is_dir():
+        if p.is_dir() and not Path(args.a).is_dir():
             raise ShellsplineError(f"{path} is a folder, expected a file")
         if not p.parent.is_dir():
             raise ShellsplineError(f"{path}: the folder {p.parent} does not exist")
@@ -139,12 +143,46 @@ def _check_outputs(args, *paths):
 
 
 def _read(path):
+    """A BVH clip (a file) or a mesh sequence (a folder of mesh frames, name order)."""
+    from ..io import MESH_EXTENSIONS, read_keyframes
     from ..io.bvh import read_bvh
 
     p = Path(path)
+    if p.is_dir():
+        frames = sorted(f for f in p.iterdir() if f.suffix.lower() in MESH_EXTENSIONS)
+        if len(frames) < 3:
+            raise ShellsplineError(f"{path}: a mesh sequence needs at least 3 frames "
+                                   f"({', '.join(MESH_EXTENSIONS)} files), found {len(frames)}")
+        return read_keyframes(frames)
     if not p.is_file():
-        raise ShellsplineError(f"{path}: no such file")
+        raise ShellsplineError(f"{path}: no such file or folder")
     return read_bvh(p)
+
+
+def _is_mesh(x) -> bool:
+    from ..io.bvh import Motion
+
+    return not isinstance(x, Motion)
+
+
+def _read_pair(args):
+    a, b = _read(args.a), _read(args.b)
+    if _is_mesh(a) != _is_mesh(b):
+        raise ShellsplineError(f"{args.a} and {args.b}: give two BVH files or two mesh "
+                               "sequence folders")
+    if _is_mesh(a):
+        if args.render:
+            raise ShellsplineError("--render draws skeletons: BVH clips only")
+        if a.n != b.n or not np.array_equal(a.F, b.F):
+            raise ShellsplineError(f"{args.a} and {args.b} are not frames of one mesh: "
+                                   f"{a.n} and {b.n} vertices, {a.m} and {b.m} faces")
+    return a, b
+
+
+def _write_mesh(args, Vs, kf, report):
+    from ..io import write_sequence
+
+    write_sequence(args.out, Vs, kf.F, report, overwrite=args.overwrite, source=kf.source)
 
 
 def _read_features(spec):
@@ -195,7 +233,16 @@ def _distance(args) -> int:
 
     _check_outputs(args)
     say = _say(args)
-    a, b = _read(args.a), _read(args.b)
+    a, b = _read_pair(args)
+    if _is_mesh(a):
+        from ..animation import mesh_distance
+
+        if args.features not in (None, "none"):
+            raise ShellsplineError("--features: BVH clips only")
+        d = mesh_distance(a.V, b.V, a.F, align=args.align)
+        print(f"{d:.9g}")
+        say(f"  distance    SRV of the LΘA curves, align {args.align}: {d:.6g}")
+        return EXIT_OK
     d = distance(a, b, align=args.align, features=_read_features(args.features), up=args.up)
     print(f"{d:.9g}")
     say(f"  distance    SRV, align {args.align}, features {args.features}: {d:.6g}")
@@ -210,7 +257,25 @@ def _align(args) -> int:
 
     _check_outputs(args, args.out)
     say = _say(args)
-    a, b = _read(args.a), _read(args.b)
+    a, b = _read_pair(args)
+    if _is_mesh(a):
+        from ..animation import mesh_align
+
+        if args.features not in (None, "none"):
+            raise ShellsplineError("--features: BVH clips only")
+        r = mesh_align(a.V, b.V, a.F)
+        rows = np.stack([r.t * (a.J - 1), r.phi * (b.J - 1)], axis=1)
+        lines = ["frame_a,frame_b"] + [f"{x!r},{y!r}" for x, y in rows.tolist()]
+        write_text_atomic(args.out, "\n".join(lines) + "\n")
+        say(f"  align       {a.J} frames: energy {r.energy_identity:.4g} -> {r.energy:.4g} "
+            f"({r.status}: {r.message})")
+        say(f"  wrote       {args.out}")
+        if args.plot:
+            from ..motion_viz import plot_motion
+
+            plot_motion(args.plot, warp=(r.t, r.phi))
+            say(f"  plot        {args.plot}")
+        return EXIT_OK
     rep = align(a, b, features=_read_features(args.features), up=args.up)
     lines = ["time_a,time_b"] + [f"{x!r},{y!r}" for x, y in rep.seconds.tolist()]
     write_text_atomic(args.out, "\n".join(lines) + "\n")
@@ -242,7 +307,9 @@ def _blend(args) -> int:
 
     _check_outputs(args, args.out)
     say = _say(args)
-    a, b = _read(args.a), _read(args.b)
+    a, b = _read_pair(args)
+    if _is_mesh(a):
+        return _blend_meshes(args, a, b, say)
     m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args.features),
                    up=args.up, plant=args.plant)
     write_bvh(m, args.out)
@@ -259,6 +326,49 @@ def _blend(args) -> int:
     return EXIT_OK if rep is None else _status(rep.result, say)
 
 
+def _blend_meshes(args, a, b, say) -> int:
+    from ..animation import mesh_blend
+
+    if args.features not in (None, "none") or args.plant:
+        raise ShellsplineError("--features and --plant: BVH clips only")
+    Vs, rep = mesh_blend(a.V, b.V, a.F, args.s, align=args.align)
+    _write_mesh(args, Vs, a, {"operation": "motion blend", "s": args.s, "align": args.align,
+                              "frames": rep.frames, "converged": rep.converged,
+                              "descriptor_error": rep.descriptor_error})
+    say(f"  blend       s = {args.s:g}, align {args.align}: {rep.frames} frames, "
+        f"{rep.converged} reconstructions converged, descriptor error "
+        f"{rep.descriptor_error:.2g}")
+    say(f"  wrote       {args.out}")
+    if args.plot and rep.align is not None:
+        from ..motion_viz import plot_motion
+
+        plot_motion(args.plot, warp=(rep.align.t, rep.align.phi))
+        say(f"  plot        {args.plot}")
+    return EXIT_OK if rep.converged == rep.frames else EXIT_WARN
+
+
+def _close_meshes(args, kf, say) -> int:
+    from ..animation import mesh_close
+
+    if args.render:
+        raise ShellsplineError("--render draws skeletons: BVH clips only")
+    Vs, rep = mesh_close(kf.V, kf.F, iterations=args.iterations, c1=args.c1)
+    _write_mesh(args, Vs, kf, {"operation": "motion close", "c1": args.c1,
+                               "seam_gap": rep.history, "frames": rep.frames,
+                               "converged": rep.converged,
+                               "descriptor_error": rep.descriptor_error})
+    say(f"  seam gap    {rep.history[0]:.3g} -> {rep.history[-1]:.3g} (LΘA) in "
+        f"{rep.history.size - 1} iterations; {rep.converged}/{rep.frames} reconstructions "
+        f"converged, descriptor error {rep.descriptor_error:.2g}")
+    say(f"  wrote       {args.out}")
+    if args.plot:
+        from ..motion_viz import plot_motion
+
+        plot_motion(args.plot, seam_history=rep.history)
+        say(f"  plot        {args.plot}")
+    return EXIT_OK if rep.converged == rep.frames else EXIT_WARN
+
+
 def _close(args) -> int:
     from ..animation import close
     from ..io.bvh import write_bvh
@@ -268,6 +378,8 @@ def _close(args) -> int:
     _check_outputs(args, args.out)
     say = _say(args)
     m = _read(args.a)
+    if _is_mesh(m):
+        return _close_meshes(args, m, say)
     out, rep = close(m, iterations=args.iterations, c1=args.c1, root_motion=args.root_motion,
                      plant=not args.no_plant, up=args.up)
     write_bvh(out, args.out)
