@@ -71,7 +71,9 @@ def run_case(name, Vkey, F, frames, K, eta, time_limit, profile=False, bc="natur
                        "newton_iterations": geo.nit,
                        "segment_energies": geo.segment_energies}
     t = time.perf_counter()
-    lta = ss.interpolate((Vkey, F), frames=frames, K=K, eta=eta, bc=bc)
+    # interpolate's η is relative to sqrt(area) of keyframe 0; the solvers here take it absolute
+    lta = ss.interpolate((Vkey, F), frames=frames, K=K, bc=bc,
+                         eta=eta / ss.metrics.length_scale(Vkey[0], F) ** 2)
     out["lta"] = {"time_s": time.perf_counter() - t}
     trace = []
     t = time.perf_counter()
@@ -93,7 +95,8 @@ def run_case(name, Vkey, F, frames, K, eta, time_limit, profile=False, bc="natur
         profiler.stop()
         out["profile_text"] = profiler.output_text(unicode=False, color=False, show_all=False)
     red = spl.grad_norms[-1] / spl.grad_norms[0]
-    out["nonlinear"] = {"time_s": wall, "success": spl.success, "message": spl.message,
+    out["nonlinear"] = {"time_s": wall, "success": spl.success, "status": spl.status,
+                        "message": spl.message,
                         "optimizer": spl.optimizer, "nit": spl.nit, "nfev": spl.nfev,
                         "cg_iterations": spl.cg_iterations, "step_lengths": spl.step_lengths,
                         "midpoint_newton_iterations": spl.midpoint_newton_iterations,
@@ -109,7 +112,8 @@ def run_case(name, Vkey, F, frames, K, eta, time_limit, profile=False, bc="natur
                                   max_iter=100000, max_time_s=time_limit, optimizer="lbfgs",
                                   precondition=False)
         wall = time.perf_counter() - t
-        out["lbfgs"] = {"time_s": wall, "success": lb.success, "nit": lb.nit, "nfev": lb.nfev,
+        out["lbfgs"] = {"time_s": wall, "success": lb.success, "status": lb.status,
+                        "nit": lb.nit, "nfev": lb.nfev,
                         "grad_reduction": lb.grad_norms[-1] / lb.grad_norms[0],
                         "energy_final": lb.energies[-1]}
     for tag, V in (("geodesic", geo.V), ("lta", lta.V), ("nonlinear", spl.V)):
@@ -144,7 +148,10 @@ def run_cactus(time_limit):
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        r = ss.interpolate(kf, K=20, method="nonlinear", coarse=1000, eta=1e-3,
+        # η = 1e-3 in the cactus' units, as measured before η became relative to
+        # sqrt(area) of keyframe 0 (D² = 0.45 here)
+        r = ss.interpolate(kf, K=20, method="nonlinear", coarse=1000,
+                           eta=1e-3 / ss.metrics.length_scale(kf.V[0], kf.topology.F) ** 2,
                            solver_options={"max_time_s": max(time_limit, 300.0)})
     wall = time.perf_counter() - t
     nl = r.report["nonlinear"]

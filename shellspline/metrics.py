@@ -11,8 +11,44 @@ import numpy as np
 from .shells.descriptors import edge_lengths
 from .mesh.topology import Topology
 
-__all__ = ["half_axes", "keyframe_kinks", "edge_strain", "speed", "lta_energies", "sequence_defects",
+__all__ = ["length_scale", "half_axes", "keyframe_kinks", "edge_strain", "speed", "lta_energies", "sequence_defects",
            "shell_energies"]
+
+
+def length_scale(V, F) -> float:
+    """The length the keyframes are measured in: ``D = sqrt(surface area)`` of the pose ``V``.
+
+    Shell energies mix lengths (membrane) with angles weighted by ``η`` (bending, a length²):
+    :func:`~shellspline.pipeline.interpolate` divides the keyframes by ``D`` before any stage
+    and multiplies the result back, so that an interpolation does not depend on the unit
+    (millimetres or kilometres give the same shape), and ``η`` is relative:
+    ``η = (thickness / D)²``; :func:`lta_energies` and :func:`shell_energies` measure a
+    sequence the same way (``D`` of its first pose), so their values are unit-free and equal
+    the energies in ``report.json``. The area is used rather than a bounding box
+    because it does not change when the input is rotated (a bounding-box diagonal does, so a
+    turned input would get another ``η``), nor with the sampling of the surface, so the coarse
+    meshes of a multiresolution run and the full mesh share it; unused vertices do not count.
+
+    Parameters
+    ----------
+    V : (n,3) float64 array
+    F : (m,3) int array
+
+    Returns
+    -------
+    float
+        ``D > 0`` (1.0 for a mesh without area).
+
+    Examples
+    --------
+    >>> length_scale(np.array([[0., 0, 0], [2, 0, 0], [0, 2, 0], [2, 2, 0]]), [[0, 1, 3], [0, 3, 2]])
+    2.0
+    """
+    from .shells.descriptors import face_normals
+
+    N = face_normals(np.asarray(V, dtype=np.float64), np.asarray(F))
+    D = float(np.sqrt(0.5 * np.sqrt(np.einsum("mi,mi->m", N, N)).sum()))
+    return D if np.isfinite(D) and D > 0 else 1.0
 
 
 def half_axes(V) -> np.ndarray:
@@ -107,7 +143,9 @@ def lta_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam: f
     bc : {"natural", "periodic", "hermite"}
         Decides which frames have a term (see :func:`~shellspline.shells.lta_spline.lta_energy_per_frame`).
     mu, lam, eta : float
-        LΘA weights (membrane lengths, areas, bending).
+        LΘA weights (membrane lengths, areas, bending); ``η`` relative to the size of the
+        first pose, as in :func:`~shellspline.pipeline.interpolate`: the sequence is measured
+        divided by :func:`length_scale` of ``V[0]``.
     reference : (n, 3) array, optional
         Pose that defines the weights; default ``V[0]``.
     chunk : int
@@ -123,6 +161,8 @@ def lta_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam: f
 
     V = np.asarray(V, dtype=np.float64)
     ref = V[0] if reference is None else np.asarray(reference, dtype=np.float64)
+    D = length_scale(V[0], T.F)
+    V, ref = V / D, ref / D
     sT = T.descriptor_slices()[1]
     Z = np.concatenate([lta_descriptors(V[i:i + chunk], T) for i in range(0, V.shape[0], chunk)])
     Z[:, sT] = unwrap_angles(Z[:, sT])
@@ -142,7 +182,9 @@ def shell_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam:
         Which frames carry a term: ``1..K−1`` (natural, hermite) or ``0..K−1`` cyclically
         (periodic; frame ``K`` is frame ``0``).
     mu, lam, eta : float
-        Discrete Shells weights (paper eq. 9).
+        Discrete Shells weights (paper eq. 9); ``η`` relative to the size of the first pose,
+        as in :func:`~shellspline.pipeline.interpolate`: the sequence is measured divided by
+        :func:`length_scale` of ``V[0]``.
     midpoints : bool
         ``True``: the paper's quantity ``W[s_k, s̃_k]`` with ``s̃_k`` the discrete geodesic
         midpoint of ``s_{k−1}`` and ``s_{k+1}`` (eq. 8), one small Newton solve per frame
@@ -162,6 +204,7 @@ def shell_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam:
     from .shells.energy import DiscreteShells
 
     V = np.asarray(V, dtype=np.float64)
+    V = V / length_scale(V[0], T.F)
     K = V.shape[0] - 1
     bc = canonical_bc(bc)
     W = DiscreteShells(T, mu=mu, lam=lam, eta=eta)
@@ -201,9 +244,10 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
       through ±π (its two triangles pass through each other), unless the keyframes around the
       step hold it within :data:`~shellspline.shells.descriptors.FOLD_BAND` of ±π at one end and the
       shorter way between them crosses ±π (a fold the keyframes themselves hold a little past
-      the touching point: skin folding at a joint); an edge that turns by more than π between
-      keyframes away from ±π is expected to turn the direct way, through 0 (see
-      :func:`~shellspline.shells.descriptors.consistent_angles`);
+      the touching point: skin folding at a joint), or the step starts or ends at a keyframe
+      that holds it within that band (the sign of an angle at ±π is round-off); an edge that
+      turns by more than π between keyframes away from ±π is expected to turn the direct way,
+      through 0 (see :func:`~shellspline.shells.descriptors.consistent_angles`);
     - **pop**: the largest vertex displacement of a step over the typical one around it,
       ``max_i |V[k+1,i] − V[k,i]|`` divided by the mean of the same quantity over the up to
       four neighbouring steps (``k−2..k+2`` without ``k``; not wrapped around a periodic
@@ -287,7 +331,12 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
             flip = np.einsum("kmi,kmi->km", N[1:], N[:-1]) < 0
             flipped[ks + 1] = (flip & ~key_flip[ks]).sum(axis=1)
             through = np.abs(Th[1:] - Th[:-1]) > np.pi                  # short path via ±π
-            folded[ks + 1] = (through & ~key_fold[ks]).sum(axis=1)
+            # a step from or to a keyframe that holds the edge within FOLD_BAND of ±π: the
+            # keyframe's sign there is round-off (an angle of exactly π came out +π or −π
+            # as the joint's keyframe was scaled by 1/D and back), not a fold
+            held = (is_key[ks, None] & (np.abs(Th[:-1]) > band)) | \
+                (is_key[ks + 1, None] & (np.abs(Th[1:]) > band))
+            folded[ks + 1] = (through & ~key_fold[ks] & ~held).sum(axis=1)
             d = Vc[1:] - Vc[:-1]
             steps[ks] = np.sqrt(np.einsum("kni,kni->kn", d, d).max(axis=1))
         prevN, prevT, prevV = N[-1], Th[-1], Vc[-1]

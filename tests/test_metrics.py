@@ -1,8 +1,8 @@
 import numpy as np
 
 import shellspline as ss
-from shellspline.metrics import (edge_strain, half_axes, keyframe_kinks, lta_energies,
-                                 shell_energies, speed)
+from shellspline.metrics import (edge_strain, half_axes, keyframe_kinks, length_scale,
+                                 lta_energies, shell_energies, speed)
 
 from conftest import icosphere
 
@@ -39,16 +39,22 @@ def test_shell_energy_vanishes_at_a_geodesic_midpoint():
     V0, F = icosphere(1)
     T = ss.topology(F)
     A, B = V0, V0 * np.array([1.5, 1.0, 0.9])
-    M = ss.discrete_geodesic(A, B, 2, T, eta=0.01, tol=1e-12).V[1]
-    e_geo = shell_energies(np.stack([A, M, B]), T, eta=0.01)
+    # metrics measure a sequence divided by the first pose's sqrt(area) D, η relative to it
+    D = length_scale(A, F)
+    a, b = A / D, B / D
+    m = ss.discrete_geodesic(a, b, 2, T, eta=0.01, tol=1e-12).V[1]
+    e_geo = shell_energies(np.stack([A, D * m, B]), T, eta=0.01)
     e_lin = shell_energies(np.stack([A, 0.5 * (A + B) * 1.02, B]), T, eta=0.01)
-    scale = ss.shell_energy(A, B, T, eta=0.01)
+    scale = ss.shell_energy(a, b, T, eta=0.01)
     assert e_geo[0] == e_geo[2] == 0.0
     assert e_geo[1] < 1e-10 * scale
     assert e_lin[1] > 1e-4 * scale
-    steps = shell_energies(np.stack([A, M, B]), T, eta=0.01, midpoints=False)
-    np.testing.assert_allclose(steps[:2], [ss.shell_energy(A, M, T, eta=0.01),
-                                           ss.shell_energy(M, B, T, eta=0.01)])
+    steps = shell_energies(np.stack([A, D * m, B]), T, eta=0.01, midpoints=False)
+    np.testing.assert_allclose(steps[:2], [ss.shell_energy(a, m, T, eta=0.01),
+                                           ss.shell_energy(m, b, T, eta=0.01)])
+    # unit-free: the same sequence in other units has the same energies
+    np.testing.assert_allclose(shell_energies(np.stack([A, D * m, B]) * 1e3, T, eta=0.01,
+                                              midpoints=False), steps, rtol=1e-9)
 
 
 def test_lta_energies_concentrate_at_a_kink():

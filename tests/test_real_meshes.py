@@ -255,7 +255,9 @@ def test_each_connected_component_is_placed_on_its_own():
     for j, (dx, s) in enumerate([(3.0, 1.0), (4.0, 1.4), (6.0, 1.0)]):
         keys.append(np.concatenate([V * [s, 1, 1], V + [dx, 0.5 * j, 0]]))
     keys = np.stack(keys)
-    res = ss.interpolate((keys, FF), frames=[0, 10, 20])
+    # η = 1e-3 in the spheres' own units (η is relative to sqrt(area) of keyframe 0)
+    res = ss.interpolate((keys, FF), frames=[0, 10, 20],
+                         eta=1e-3 / ss.metrics.length_scale(keys[0], FF) ** 2)
     q = res.report["quality"]
     assert q["pop"] < 1.5 and q["flipped_faces"] == 0
     # the rigid second sphere follows the cubic track through its keyframe positions exactly

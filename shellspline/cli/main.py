@@ -130,8 +130,10 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="nonlinear: also stop when the energy fell by at most FTOL (relative) "
                         "over the last 3 iterations, e.g. 1e-6 (default: off, stop on the "
                         "gradient only)")
-    q.add_argument("--eta", type=float, default=1e-3, help="bending weight η = thickness² "
-                                                           "(default 1e-3)")
+    q.add_argument("--eta", type=float, default=1e-3,
+                   help="bending weight η = (thickness / D)², relative to D = sqrt(surface "
+                        "area of the first keyframe): results do not depend on the unit "
+                        "(default 1e-3)")
     q.add_argument("--mu", type=float, default=1.0, help="edge-length weight (default 1)")
     q.add_argument("--lam", type=float, default=1.0, help="area weight (default 1)")
     q.add_argument("--reference", default="constant",
@@ -255,7 +257,8 @@ def _interpolate(args) -> int:
         if bv.size == 0:
             raise ShellsplineError("--fix-boundary: the mesh has no boundary")
         pinned = bv if pinned is None else np.union1d(pinned, bv)
-    from ..pipeline.interpolation import REFERENCES, canonical_frames
+    from ..pipeline.options import REFERENCES
+    from ..timeline import canonical_frames
 
     reference = args.reference
     if str(reference).lstrip("-").isdigit():
@@ -398,7 +401,7 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
                          f"{r['grad_norm_final'] / r['grad_norm_initial']:.1e} in "
                          f"{r['seconds']:.1f} s")
             lines.append(line)
-    from ..pipeline.interpolation import quality_ok
+    from ..pipeline.report import quality_ok
 
     ok = quality_ok(q) and (not gn or gn["converged"] == gn["frames"]) and \
         all(rep[name]["success"] for name in ("geodesic", "nonlinear") if name in rep)

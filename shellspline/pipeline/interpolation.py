@@ -21,8 +21,9 @@ from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
 from .options import (METHODS, REFERENCES, RIGID_TRACKS, InterpolationOptions,
                       interpolation_problem, notices)
 from .placement import placement_track
-from .report import POP_LIMIT, finish_report, quality_ok, sequence_quality, start_report
-from .stages import run_method
+from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
+                     start_report)
+from .stages import in_input_units, run_method
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
            "canonical_frames", "linear_blend", "placement_track", "sequence_quality",
@@ -87,7 +88,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Time boundary conditions (paper §8). ``"hermite"`` needs keyframes at frames 1 and
         ``K-1`` (they fix the end velocities).
     eta, mu, lam : float
-        Bending (``η = thickness²``), length and area weights (paper eq. 9–10).
+        Bending, length and area weights (paper eq. 9–10). ``η`` is relative to the size of
+        the keyframes: ``η = (thickness / D)²`` with ``D = sqrt(surface area)`` of the first
+        keyframe (:func:`shellspline.metrics.length_scale`). Every stage runs on the
+        keyframes divided by ``D`` and the result is multiplied back, so it does not depend
+        on the unit (``report["parameters"]["length_scale"]`` is ``D``; the report's
+        energies are those of the divided, unit-free sequence).
     reference : {"constant", "keyframe", "geodesic"} or int
         Reference meshes for the LΘA weights: one keyframe for all frames (``"constant"`` = the
         first keyframe, or an int keyframe index), the nearest keyframe per frame
@@ -162,9 +168,11 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     report = start_report(opts, prob)
     seq = run_method(prob, opts, prog)
     report.update(seq.report)
-    finish_report(report, seq, prob, opts, prog, t_start)
-    return InterpolationResult(V=seq.V, F=prob.T.F, frames=prob.frames,
-                               report=jsonable(report, finite=True), Z=seq.Z, source=kf.source)
+    report["energies"] = energies_record(seq, prob, opts, prog)
+    V, Z = in_input_units(seq, prob, opts)
+    finish_report(report, V, seq.frame_records, prob, opts, prog, t_start)
+    return InterpolationResult(V=V, F=prob.T.F, frames=prob.frames,
+                               report=jsonable(report, finite=True), Z=Z, source=kf.source)
 
 
 def _keyframes(keyframes, prog) -> Keyframes:

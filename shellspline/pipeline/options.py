@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import ShellsplineError
 from ..io.keyframes import Keyframes
+from ..metrics import length_scale
 from ..mesh.topology import Topology
 from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
 
@@ -138,6 +139,9 @@ class InterpolationProblem:
         Coarse vertex count of a multiresolution run (:func:`coarse_target`).
     rigid_subset : (s,) int64 array or None
         Vertices whose rigid pose places the in-betweens (``None``: all).
+    scale : float
+        The length ``D`` the keyframes were divided by (:func:`shellspline.metrics.length_scale`): ``Vkey`` is
+        ``keyframes.V / D``, and every stage works in these units.
     """
 
     keyframes: Keyframes
@@ -148,6 +152,7 @@ class InterpolationProblem:
     pinned: np.ndarray | None
     n_coarse: int | None
     rigid_subset: np.ndarray | None = None
+    scale: float = 1.0
 
 
 def _vertex_indices(idx, n: int, name: str):
@@ -163,7 +168,8 @@ def _vertex_indices(idx, n: int, name: str):
 def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=None, K=None,
                           pinned=None) -> InterpolationProblem:
     """Bind ``opts`` to the keyframes ``kf``: canonical frames and ``K``, pins (default the
-    keyframes' own), the reference keyframe index and the coarse vertex count checked.
+    keyframes' own), the reference keyframe index and the coarse vertex count checked; the
+    keyframes divided by their :func:`~shellspline.metrics.length_scale`.
 
     Raises
     ------
@@ -183,15 +189,17 @@ def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=N
             raise ShellsplineError("`fine=True` refines a multiresolution run: it needs `coarse` "
                                    f"(a vertex count or fraction below the {n} vertices), got "
                                    f"coarse={opts.coarse!r}")
-    return InterpolationProblem(keyframes=kf, Vkey=kf.V, T=kf.topology, frames=frames, K=K,
-                                pinned=pinned, n_coarse=n_coarse)
+    D = length_scale(kf.V[0], kf.topology.F)
+    return InterpolationProblem(keyframes=kf, Vkey=kf.V / D if D != 1.0 else kf.V,
+                                T=kf.topology, frames=frames, K=K, pinned=pinned,
+                                n_coarse=n_coarse, scale=D)
 
 
 def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]:
     """The one-line notes a run starts with (extrapolated frames, moving pins, where the
     nonlinear spline runs, the cost of a large full-resolution run)."""
     out = []
-    frames, K, n, Vkey = prob.frames, prob.K, prob.Vkey.shape[1], prob.Vkey
+    frames, K, n, Vkey = prob.frames, prob.K, prob.Vkey.shape[1], prob.keyframes.V
     if opts.bc != "periodic" and K > frames[-1] and opts.method != "linear":
         out.append(f"frames {int(frames[-1]) + 1}..{K} lie after the last keyframe: the "
                    "spline extrapolates them (linearly in its variables)")

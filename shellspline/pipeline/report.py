@@ -1,8 +1,9 @@
 """The report of an interpolation: parameters, solver records, energies and quality.
 
-:func:`start_report` records what was asked, the stages add their sections, and
-:func:`finish_report` adds energies, per-frame Gauss–Newton records, quality checks and
-timings; ``report.json`` is that dict (strict JSON).
+:func:`start_report` records what was asked, the stages add their sections,
+:func:`energies_record` measures the energies (in the stages' scale-free units) and
+:func:`finish_report` adds per-frame Gauss–Newton records, quality checks and timings;
+``report.json`` is that dict (strict JSON).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from ..shells.lta_spline import lta_energy_per_frame
 from ..mesh.topology import Topology
 from ..version import __version__
 
-__all__ = ["start_report", "finish_report", "sequence_quality", "quality_record", "quality_ok",
+__all__ = ["start_report", "energies_record", "finish_report", "sequence_quality", "quality_record", "quality_ok",
            "sequence_energies", "gauss_newton_summary", "nonlinear_record", "fixpoint_change",
            "POP_LIMIT"]
 
@@ -152,10 +153,10 @@ def start_report(opts, prob) -> dict:
     }
 
 
-def finish_report(report: dict, seq, prob, opts, prog, t_start: float) -> dict:
-    """Add energies, frame records, quality, the Gauss–Newton summary, timings and the
-    platform to ``report`` (in place) and return it. ``seq`` is the method stage's
-    :class:`~shellspline.pipeline.stages.StageResult` (the final sequence ``seq.V``)."""
+def energies_record(seq, prob, opts, prog) -> dict:
+    """``report["energies"]`` of the method stage's result ``seq`` (a
+    :class:`~shellspline.pipeline.stages.StageResult`), in the stages' units (lengths in
+    units of ``prob.scale``: the energies do not depend on the input's unit)."""
     with prog.stage("energies"):
         if seq.energy_source is not None:
             Ve, Ze, Te, We, resolution = (*seq.energy_source, "coarse")
@@ -164,17 +165,26 @@ def finish_report(report: dict, seq, prob, opts, prog, t_start: float) -> dict:
             if We is None:
                 We = lta_weights(prob.Vkey[0], prob.T, mu=opts.mu, lam=opts.lam, eta=opts.eta)
         if np.all(np.isfinite(Ve)):
-            report["energies"] = sequence_energies(Ve, Ze, Te, opts.bc, We)
+            out = sequence_energies(Ve, Ze, Te, opts.bc, We)
         else:  # a failed frame: keep the report (the quality check flags the sequence)
-            report["energies"] = {"error": "the sequence has non-finite coordinates"}
-        report["energies"]["resolution"] = resolution
-    report["frames"] = seq.frame_records
+            out = {"error": "the sequence has non-finite coordinates"}
+        out["resolution"] = resolution
+    return out
+
+
+def finish_report(report: dict, V, frame_records, prob, opts, prog, t_start: float) -> dict:
+    """Add frame records, quality of the final sequence ``V`` (K+1,n,3) in the input's
+    units, the Gauss–Newton summary, timings and the platform to ``report`` (in place) and
+    return it."""
+    report["parameters"]["length_scale"] = float(prob.scale)
+    for rec in report.get("fixpoint", []):
+        rec["max_vertex_change"] *= prob.scale
+    report["frames"] = frame_records
     with prog.stage("quality"):
-        report["quality"] = quality_record(seq.V, prob.T, prob.frames, opts.bc,
-                                           prob.keyframes.V)
-    if seq.frame_records:
-        report["gauss_newton"] = gauss_newton_summary(seq.frame_records)
-        failed = [r["frame"] for r in seq.frame_records if not r["success"]]
+        report["quality"] = quality_record(V, prob.T, prob.frames, opts.bc, prob.keyframes.V)
+    if frame_records:
+        report["gauss_newton"] = gauss_newton_summary(frame_records)
+        failed = [r["frame"] for r in frame_records if not r["success"]]
         if failed:
             prog.message(f"Gauss–Newton did not converge on frames {failed[:10]}"
                          f"{' …' if len(failed) > 10 else ''}")

@@ -18,7 +18,7 @@ from .placement import place
 from .reconstruction import parallel_decode, reconstruct_frames, run_reconstruction, safe_init
 from .report import fixpoint_change, nonlinear_record
 
-__all__ = ["StageResult", "run_method", "linear_stage", "geodesic_stage", "lta_stage",
+__all__ = ["StageResult", "run_method", "in_input_units", "linear_stage", "geodesic_stage", "lta_stage",
            "lta_sequence", "fixpoint_iterations", "multires_sequence", "nonlinear_solve"]
 
 
@@ -59,6 +59,38 @@ def run_method(prob, opts, prog) -> StageResult:
     if opts.method == "geodesic":
         return geodesic_stage(prob, opts, prog)
     return lta_stage(prob, opts, prog)
+
+
+def in_input_units(seq, prob, opts):
+    """The stage result ``seq`` back in the keyframes' units (the stages work on keyframes
+    divided by ``prob.scale``, see :func:`~shellspline.pipeline.options.length_scale`).
+
+    Returns
+    -------
+    V : (K+1,n,3) float64 array
+        ``seq.V`` times the scale (in place), keyframes restored bit for bit and pinned
+        vertices at their blended position (as at unit scale).
+    Z : (K+1,d) float64 array or None
+        Targets with lengths times the scale and areas times its square.
+    """
+    D, V, Z = prob.scale, seq.V, seq.Z
+    if opts.method == "linear":  # blended in the input's units: bit for bit what it promises
+        return linear_blend(prob.keyframes.V, prob.frames, prob.K, opts.bc), None
+    if D == 1.0:
+        return V, Z
+    V *= D
+    Vkey = prob.keyframes.V
+    V[prob.frames] = Vkey
+    if opts.periodic:
+        V[prob.K] = Vkey[0]
+    if prob.pinned is not None:
+        V[:, prob.pinned] = linear_blend(Vkey[:, prob.pinned], prob.frames, prob.K, opts.bc)
+    if Z is not None:
+        sL, _, sA = prob.T.descriptor_slices()
+        Z = np.array(Z, dtype=np.float64, copy=True)
+        Z[:, sL] *= D
+        Z[:, sA] *= D * D
+    return V, Z
 
 
 def _placed(V, Vkey, T, pinned, prob, opts):
