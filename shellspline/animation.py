@@ -36,7 +36,7 @@ __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_gr
            "warp_motion", "up_axis", "body_height", "translation_root", "find_feet",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
-           "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
+           "loop_range", "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
            "mesh_close", "close_euclidean", "mesh_align", "mesh_distance", "mesh_blend",
            "reparametrize_vertices"]
 
@@ -1015,6 +1015,57 @@ def warp_motion(motion: Motion, phi, frame_time: float | None = None) -> Motion:
     return c.with_samples(R, X, frame_time, ref).to_motion()
 
 
+def loop_range(motion: Motion, *, min_fraction: float = 0.5, up=None) -> tuple[int, int]:
+    """The frames ``start..stop`` of a clip that loop best: frame ``stop`` (and the one after
+    it) closest to frame ``start`` (and the one after it), keeping at least
+    ``min_fraction`` of the clip.
+
+    Parameters
+    ----------
+    motion : Motion
+    min_fraction : float
+        Shortest loop kept, as a fraction of the clip (0 < min_fraction <= 1).
+    up : str, optional
+        Up axis override (the horizontal position channels, the travel, are not compared).
+
+    Returns
+    -------
+    (int, int)
+        ``start < stop``; ``motion.frames(start, stop + 1)`` is the clip to close.
+
+    Notes
+    -----
+    Pose distance ``sum_j |R_j(a) - R_j(b)|_F^2`` (chordal, all joints at once as one
+    matrix product) plus the squared difference of the non-horizontal position channels in
+    body heights; the pair ``(a, b)`` and ``(a + 1, b + 1)`` are compared, so that the
+    velocities match too. Candidates on a stride above 1,500 frames.
+    """
+    if not 0 < min_fraction <= 1:
+        raise ShellsplineError(f"min_fraction must be in (0, 1], got {min_fraction!r}")
+    T = motion.n_frames
+    if T < 3:
+        raise ShellsplineError(f"loop_range: need at least 3 frames, got {T}")
+    c = motion_curve(motion)
+    P = forward_kinematics(motion)[0]
+    ax = (up_axis(motion, P) if up is None else _parse_up(up))[0]
+    H = body_height(motion, P, ax)
+    keep = np.setdiff1d(np.arange(c.X.shape[1]), _horizontal_cols(c, ax))
+    Y = np.concatenate([c.R.reshape(T, -1), c.X[:, keep] / H], axis=1)
+    stride = max(1, int(np.ceil(T / 1500)))
+    idx = np.arange(0, T - 1, stride)
+    G = Y[idx] @ Y[idx].T
+    sq = np.diag(G)
+    D = sq[:, None] + sq[None, :] - 2 * G  # squared distances between candidate frames
+    Y1 = Y[idx + 1]
+    G1 = Y1 @ Y1.T
+    sq1 = np.diag(G1)
+    D = D + sq1[:, None] + sq1[None, :] - 2 * G1
+    span = idx[None, :] - idx[:, None]
+    D[span < int(np.ceil(min_fraction * (T - 1)))] = np.inf
+    a, b = np.unravel_index(np.argmin(D), D.shape)
+    return int(idx[a]), int(idx[b])
+
+
 @dataclass(frozen=True, eq=False)
 class CloseReport:
     """What closing a clip did.
@@ -1035,6 +1086,8 @@ class CloseReport:
     status : str
         The closing solver's: ``"converged"``, ``"limit"`` or ``"stalled"``.
     message : str
+    frames : (int, int)
+        The input frames ``start..stop`` that were closed (all of them unless ``trim``).
     """
 
     history: np.ndarray
@@ -1047,6 +1100,7 @@ class CloseReport:
     iterations: int
     status: str
     message: str
+    frames: tuple = (0, 0)
 
     @property
     def success(self) -> bool:
@@ -1055,8 +1109,8 @@ class CloseReport:
 
 
 def close(motion: Motion, *, iterations: int = 10, c1: bool = False,
-          root_motion: str = "keep", plant: bool = True, up=None,
-          **kw) -> tuple[Motion, CloseReport]:
+          root_motion: str = "keep", plant: bool = True, up=None, trim: bool = False,
+          min_fraction: float = 0.5, **kw) -> tuple[Motion, CloseReport]:
     """Make a clip loop: close its curve on SO(3)^d x R^m, then keep planted feet planted.
 
     Parameters
@@ -1077,14 +1131,17 @@ def close(motion: Motion, *, iterations: int = 10, c1: bool = False,
         spread linearly so that the loop stays closed.
     up : str, optional
         Up axis override.
+    trim : bool
+        First cut the clip to the frames that loop best (:func:`loop_range`, keeping at
+        least ``min_fraction`` of it): whole gait cycles close with a far smaller change.
     **kw
         Passed to the curve closing (``method``, ``kappa``, ``tol``).
 
     Returns
     -------
     motion : Motion
-        The same layout and frame count; the last frame matches the first (drop it when
-        playing the clip in a loop).
+        The same layout and frame count (of the trimmed range with ``trim``); the last frame
+        matches the first (drop it when playing the clip in a loop).
     report : CloseReport
     """
     from .curves.closing import close as close_curve
@@ -1093,6 +1150,10 @@ def close(motion: Motion, *, iterations: int = 10, c1: bool = False,
         raise ShellsplineError(f"root_motion must be 'keep' or 'close', got {root_motion!r}")
     if motion.n_frames < 3:
         raise ShellsplineError(f"close: need at least 3 frames, got {motion.n_frames}")
+    frames = (0, motion.n_frames - 1)
+    if trim:
+        frames = loop_range(motion, min_fraction=min_fraction, up=up)
+        motion = motion.frames(frames[0], frames[1] + 1)
     contacts = foot_contacts(motion, up=up)
     ax = contacts.up[0]
     c = motion_curve(motion)
@@ -1116,7 +1177,7 @@ def close(motion: Motion, *, iterations: int = 10, c1: bool = False,
                          seam_gap(out, up=contacts.up, root_motion=root_motion),
                          foot_skate(motion, contacts), foot_skate(closed, contacts),
                          foot_skate(out, contacts), int(res.iterations), res.status,
-                         res.message)
+                         res.message, frames)
     return out, report
 
 

@@ -342,6 +342,28 @@ def test_closing_a_real_walk():
     assert r2.skate_after == r2.skate_closed
 
 
+def test_trimmed_closing_changes_the_walk_less():
+    m = real()
+    start, stop = A.loop_range(m)
+    assert stop - start >= 0.5 * (m.n_frames - 1)
+    # the chosen ends are closer than the clip's own ends (pose and next pose)
+    R = A.motion_curve(m).R
+    d = lambda i, j: np.sum((R[i] - R[j]) ** 2) + np.sum((R[i + 1] - R[j + 1]) ** 2)  # noqa
+    assert d(start, stop) < 0.1 * d(0, m.n_frames - 2)
+
+    def change(out, r):
+        src = m.frames(r.frames[0], r.frames[1] + 1)
+        P0, P1 = forward_kinematics(src)[0], forward_kinematics(out)[0]
+        return np.linalg.norm((P0[:, 1:] - P0[:, 1:2]) - (P1[:, 1:] - P1[:, 1:2]), axis=2).mean()
+    full, rf = A.close(m, plant=False)
+    cut, rc = A.close(m, plant=False, trim=True)
+    assert rc.frames == (start, stop) and cut.n_frames == stop - start + 1
+    assert rc.gap_after["rotation_max"] <= 1e-6
+    assert change(cut, rc) < 0.5 * change(full, rf)
+    with pytest.raises(ShellsplineError, match="min_fraction"):
+        A.loop_range(m, min_fraction=0.0)
+
+
 def test_closing_c1_removes_the_velocity_jump():
     m = real().frames(0, 120)
     _, r0 = A.close(m, iterations=10)

@@ -75,6 +75,8 @@ def test_close_writes_a_loop(capsys, tmp_path):
     m = read_bvh(out)
     g = A.seam_gap(m)
     assert g["rotation_max"] <= 1e-6 and A.seam_gap(read_bvh(walk()))["rotation_max"] > 20
+    code, _, err = run(capsys, "close", walk(), "-o", out, "--trim", "--overwrite")
+    assert code == 0 and "trim" in err and read_bvh(out).n_frames < read_bvh(walk()).n_frames
     # one iteration does not close it: reported, exit status 1
     code, _, err = run(capsys, "close", walk(), "-o", out, "--iterations", "1", "--overwrite",
                        "--c1", "--no-plant")

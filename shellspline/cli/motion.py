@@ -107,6 +107,9 @@ def add_parsers(sub) -> None:
                         "loops forward; default); close: the root returns to its start")
     q.add_argument("--no-plant", action="store_true",
                    help="do not correct the root where planted feet slide")
+    q.add_argument("--trim", action="store_true",
+                   help="first cut the clip to the frames that loop best (at least half of "
+                        "it): whole cycles close with a much smaller change")
     q.set_defaults(func=_close)
 
 
@@ -350,8 +353,8 @@ def _blend_meshes(args, a, b, say) -> int:
 def _close_meshes(args, kf, say) -> int:
     from ..animation import mesh_close
 
-    if args.render:
-        raise ShellsplineError("--render draws skeletons: BVH clips only")
+    if args.render or args.trim:
+        raise ShellsplineError("--render and --trim: BVH clips only")
     Vs, rep = mesh_close(kf.V, kf.F, iterations=args.iterations, c1=args.c1)
     _write_mesh(args, Vs, kf, {"operation": "motion close", "c1": args.c1,
                                "seam_gap": rep.history, "frames": rep.frames,
@@ -381,8 +384,10 @@ def _close(args) -> int:
     if _is_mesh(m):
         return _close_meshes(args, m, say)
     out, rep = close(m, iterations=args.iterations, c1=args.c1, root_motion=args.root_motion,
-                     plant=not args.no_plant, up=args.up)
+                     plant=not args.no_plant, up=args.up, trim=args.trim)
     write_bvh(out, args.out)
+    if args.trim:
+        say(f"  trim        frames {rep.frames[0]}..{rep.frames[1]} of {m.n_frames} loop best")
     g0, g1 = rep.gap_before, rep.gap_after
     say(f"  seam gap    {g0['rotation_max']:.3g} -> {g1['rotation_max']:.3g} deg (largest "
         f"joint), {g0['position_max']:.3g} -> {g1['position_max']:.3g} units (largest joint "
