@@ -10,9 +10,9 @@ from shellspline.shells.lta_spline import lta_spline
 from shellspline.numerics.krylov import KrylovResult, pcg, steihaug
 from shellspline.shells.nonlinear import (GaussNewtonModel, LTARetraction, ModelPreconditioner,
                                           NonlinearSplineProblem, SpaceTimePreconditioner,
-                                          TrustRegionNewton, linear_blend_path,
-                                          nonlinear_spline)
+                                          TrustRegionNewton, nonlinear_spline)
 from shellspline.shells.nonlinear.models import project_rigid
+from shellspline.timeline import linear_blend
 from shellspline.shells.energy import DiscreteShells, EuclideanEnergy
 from shellspline.mesh.topology import topology
 
@@ -49,7 +49,7 @@ def tiny():
 def test_adjoint_gradient_matches_central_differences(tiny):
     Vkey, T = tiny
     prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.1), [0, 2, 4], 4, midpoint_tol=1e-14)
-    S = linear_blend_path(Vkey, prob.frames, 4, False)
+    S = linear_blend(Vkey, prob.frames, 4)
     rng = np.random.default_rng(1)
     S[prob.free_nodes] += 0.02 * rng.standard_normal(S[prob.free_nodes].shape)
     F0, G = prob.evaluate(S)
@@ -127,7 +127,7 @@ def test_gauss_newton_model_is_the_exact_hessian_for_the_euclidean_energy():
     rng = np.random.default_rng(3)
     Vkey = rng.standard_normal((3, 5, 3))
     prob = NonlinearSplineProblem(EuclideanEnergy(5), [0, 3, 6], 6)
-    S = linear_blend_path(Vkey, prob.frames, 6, False) + 0.1 * rng.standard_normal((7, 5, 3))
+    S = linear_blend(Vkey, prob.frames, 6) + 0.1 * rng.standard_normal((7, 5, 3))
     prob.evaluate(S, keep=True)
     model = GaussNewtonModel(prob)
     x, v = prob.x_of(S), rng.standard_normal(prob.n_variables)
@@ -159,7 +159,7 @@ def test_gauss_newton_model_matches_finite_differences_near_the_solution(tiny):
 def test_preconditioner_cuts_cg_iterations(tiny):
     Vkey, T = tiny
     prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.1), [0, 3, 6], 6)
-    S = linear_blend_path(Vkey, prob.frames, 6, False)
+    S = linear_blend(Vkey, prob.frames, 6)
     F, G = prob.evaluate(S, keep=True)
     model = GaussNewtonModel(prob)
     Q = prob.rigid_bases(S)
@@ -211,7 +211,7 @@ def test_exact_hessian_products_match_finite_differences_far_from_the_solution(t
     minimiser (the blend, large eta) where the Gauss-Newton model is off."""
     Vkey, T = tiny
     prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.5), [0, 3, 6], 6, midpoint_tol=1e-13)
-    S = linear_blend_path(Vkey, np.array([0, 3, 6]), 6, False)
+    S = linear_blend(Vkey, [0, 3, 6], 6)
     S[1:3] += 0.02 * np.random.default_rng(7).standard_normal(S[1:3].shape)
     prob.evaluate(S, keep=True)
     model = GaussNewtonModel(prob)
@@ -252,7 +252,7 @@ def test_retraction_is_first_order_and_keeps_pins(tiny):
     Vkey, T = tiny
     pinned = np.array([0, 1, 2])
     prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.1), [0, 3, 6], 6, pinned=pinned)
-    S = linear_blend_path(Vkey, np.array([0, 3, 6]), 6, False)
+    S = linear_blend(Vkey, [0, 3, 6], 6)
     R = LTARetraction(prob, S)
     D = np.zeros_like(S)
     D[prob.free_nodes] = np.random.default_rng(2).standard_normal(D[prob.free_nodes].shape)
@@ -329,7 +329,7 @@ def test_accurate_products_are_symmetric_in_soft_directions(tiny):
     Vkey, T = tiny
     prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.01), [0, 3, 6], 6, pinned=[0, 5, 9],
                                   midpoint_tol=1e-13)
-    S = linear_blend_path(Vkey, np.array([0, 3, 6]), 6, False)
+    S = linear_blend(Vkey, [0, 3, 6], 6)
     S[1:3] += 0.02 * np.random.default_rng(7).standard_normal(S[1:3].shape)
     S[:, [0, 5, 9]] = Vkey[0, [0, 5, 9]]
     prob.evaluate(S, keep=True)
@@ -425,7 +425,7 @@ def test_a_solver_that_cannot_decrease_f_returns_its_start_unchanged(tiny, optim
 
     Vkey, T = tiny
     frames, K = [0, 3, 6], 6
-    init = linear_blend_path(Vkey, np.array(frames), K, False)
+    init = linear_blend(Vkey, frames, K)
     init[1:3] *= 1.05                          # a start that is not the minimiser
 
     def ascent(matvec, b, *args, **kw):

@@ -252,7 +252,25 @@ def _checked_param(value, name: str) -> float:
     return v
 
 
+def checked_poses(V, n: int | None = None, name: str = "Vkey") -> np.ndarray:
+    """``V`` as a finite ``(J,n,3)`` float64 array of poses (``n`` vertices when given);
+    raises :class:`~shellspline.errors.ShellsplineError` naming ``name`` otherwise."""
+    try:
+        A = np.asarray(V, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ShellsplineError(f"`{name}` must be a float array, got {type(V).__name__}") from None
+    if A.ndim != 3 or A.shape[2] != 3:
+        raise ShellsplineError(f"`{name}` must have shape (J,n,3), got {A.shape}")
+    if n is not None and A.shape[1] != n:
+        raise ShellsplineError(f"`{name}` must have n = {n} vertices, got {A.shape[1]}")
+    if not np.all(np.isfinite(A)):
+        raise ShellsplineError(f"`{name}` must be finite")
+    return A
+
+
 def checked_pose(V, n: int, name: str) -> np.ndarray:
+    """``V`` as a finite ``(n,3)`` float64 pose (``(3n,)`` reshaped); raises
+    :class:`~shellspline.errors.ShellsplineError` naming ``name`` otherwise."""
     try:
         A = np.asarray(V, dtype=np.float64)
     except (TypeError, ValueError):

@@ -32,7 +32,7 @@ from ..numerics.linalg import SparseCholesky
 from ..numerics.linesearch import backtracking
 from ..numerics.result import SolverResult
 from ..timeline import canonical_bc, checked_frames, checked_K
-from .energy import DiscreteShells, HessianPattern, checked_pose
+from .energy import DiscreteShells, HessianPattern, checked_pose, checked_poses
 from ..mesh.pinned import canonical_pinned
 from ..mesh.rigid import rigid_modes
 from ..mesh.topology import Topology
@@ -536,9 +536,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
         Warns (``RuntimeWarning``) when a segment did not converge.
     """
     t0 = time.perf_counter()
-    Vkey = np.asarray(Vkey, dtype=np.float64)
-    if Vkey.ndim != 3 or Vkey.shape[2] != 3:
-        raise ShellsplineError(f"`Vkey` must have shape (J,n,3), got {Vkey.shape}")
+    Vkey = checked_poses(Vkey)
     bc = canonical_bc(bc)
     K = checked_K(K)
     frames = checked_frames(frames, K, bc)
@@ -553,9 +551,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                                f"{max_time_s!r}")
     deadline = None if max_time_s is None else t0 + float(max_time_s)
     W = make_energy(T, energy, mu, lam, eta)
-    if Vkey.shape[1] != W.n_vertices:
-        raise ShellsplineError(f"`Vkey` must have n = {W.n_vertices} vertices, got "
-                               f"{Vkey.shape[1]}")
+    Vkey = checked_poses(Vkey, W.n_vertices)
     J = len(frames)
     V = np.zeros((K + 1, Vkey.shape[1], 3))
     segs = [(j, j + 1, frames[j], frames[j + 1]) for j in range(J - 1)]

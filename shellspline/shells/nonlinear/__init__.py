@@ -34,7 +34,8 @@ placement).
 The package is a solver with pluggable parts:
 
 - :mod:`~.problem`: :class:`NonlinearSplineProblem` (``F^K``, its adjoint gradient, the
-  keyframe and pin constraints) and the default initialisation :func:`linear_blend_path`;
+  keyframe and pin constraints); the default initialisation is the per-vertex linear blend
+  (:func:`shellspline.timeline.linear_blend`);
 - :mod:`~.models`: the Hessian model :class:`GaussNewtonModel`, the preconditioners, the LΘA
   retraction;
 - :mod:`~.optimizers`: :class:`TrustRegionNewton` (default), :class:`LineSearchNewton`,
@@ -48,11 +49,11 @@ from __future__ import annotations
 from .models import (GaussNewtonModel, LTARetraction, ModelPreconditioner,
                      SpaceTimePreconditioner)
 from .optimizers import LBFGS, LineSearchNewton, Optimizer, TrustRegionNewton
-from .problem import NonlinearSplineProblem, TimeLimitReached, linear_blend_path
+from .problem import NonlinearSplineProblem, TimeLimitReached
 from .solver import (FTOL_WINDOW, NonlinearSplineResult, NonlinearSplineSolver, StopPolicy,
                      nonlinear_spline)
 
 __all__ = ["FTOL_WINDOW", "GaussNewtonModel", "LBFGS", "LTARetraction", "LineSearchNewton",
            "ModelPreconditioner", "NonlinearSplineProblem", "NonlinearSplineResult",
            "NonlinearSplineSolver", "Optimizer", "SpaceTimePreconditioner", "StopPolicy",
-           "TimeLimitReached", "TrustRegionNewton", "linear_blend_path", "nonlinear_spline"]
+           "TimeLimitReached", "TrustRegionNewton", "nonlinear_spline"]

@@ -14,8 +14,7 @@ from ...mesh.rigid import rigid_modes
 from ...timeline import canonical_bc, checked_frames, checked_K
 from ..geodesic import PathSolver
 
-__all__ = ["NonlinearSplineProblem", "TimeLimitReached", "checked_keyframes",
-           "linear_blend_path"]
+__all__ = ["NonlinearSplineProblem", "TimeLimitReached"]
 
 
 class TimeLimitReached(Exception):
@@ -228,35 +227,3 @@ class NonlinearSplineProblem:
             return [np.zeros((len(self.free_dofs), 0)) for _ in self.free_nodes]
         pd = np.setdiff1d(np.arange(3 * self.n), self.free_dofs)
         return [rigid_modes(np.asarray(S[k]), self.free_dofs, pd) for k in self.free_nodes]
-
-
-def checked_keyframes(Vkey, n=None):
-    """``Vkey`` as a finite ``(J,n,3)`` float64 array (``n`` vertices when given)."""
-    try:
-        V = np.asarray(Vkey, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ShellsplineError(f"`Vkey` must be a float array, got {type(Vkey).__name__}") from None
-    if V.ndim != 3 or V.shape[2] != 3:
-        raise ShellsplineError(f"`Vkey` must have shape (J,n,3), got {V.shape}")
-    if n is not None and V.shape[1] != n:
-        raise ShellsplineError(f"`Vkey` must have n = {n} vertices, got {V.shape[1]}")
-    if not np.all(np.isfinite(V)):
-        raise ShellsplineError("`Vkey` must be finite")
-    return V
-
-
-def linear_blend_path(Vkey, frames, K, periodic):
-    """Per-vertex linear blend ``(K+1,n,3)`` (frames after the last keyframe hold it)."""
-    k = np.arange(K + 1, dtype=np.float64)
-    fr = frames.astype(np.float64)
-    J = len(frames)
-    if periodic:
-        fr = np.concatenate([fr, [K]])
-        jj = np.concatenate([np.arange(J), [0]])
-    else:
-        jj = np.arange(J)
-    pos = np.clip(np.searchsorted(fr, k, side="right") - 1, 0, len(fr) - 2)
-    t = np.clip((k - fr[pos]) / (fr[pos + 1] - fr[pos]), 0.0, 1.0)[:, None, None]
-    out = (1 - t) * Vkey[jj[pos]] + t * Vkey[jj[pos + 1]]
-    out[frames] = Vkey
-    return out

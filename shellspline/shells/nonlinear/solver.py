@@ -13,10 +13,11 @@ from ...numerics.result import SolverResult
 from ..geodesic import make_energy
 from ..reconstruct import rigid_placement
 from ...mesh.topology import Topology
+from ...timeline import linear_blend
 from .optimizers import (LBFGS, LineSearchNewton, Optimizer, TrustRegionNewton,
                          canonical_hessian)
-from .problem import (NonlinearSplineProblem, TimeLimitReached, checked_keyframes,
-                      linear_blend_path)
+from ..energy import checked_poses
+from .problem import NonlinearSplineProblem, TimeLimitReached
 
 __all__ = ["FTOL_WINDOW", "NonlinearSplineResult", "NonlinearSplineSolver", "StopPolicy",
            "nonlinear_spline"]
@@ -274,15 +275,14 @@ class NonlinearSplineSolver:
 
     def _solve(self, Vkey, init, stacklevel):
         stop, prob = self.stop, self.problem
-        Vkey = checked_keyframes(Vkey, prob.n)
+        Vkey = checked_poses(Vkey, prob.n)
         K, frames = prob.K, prob.frames
         if len(frames) != len(Vkey):
             raise ShellsplineError(f"`frames` must have one entry per keyframe ({len(Vkey)}), "
                                    f"got {len(frames)}")
         self.optimizer.check(prob)
-        periodic = prob.bc == "periodic"
         if init is None:
-            V0 = linear_blend_path(Vkey, frames, K, periodic)
+            V0 = linear_blend(Vkey, frames, K, prob.bc)
         else:
             V0 = np.array(init, dtype=np.float64)
             if V0.shape != (K + 1, prob.n, 3):
@@ -509,7 +509,7 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
     t0 = time.perf_counter()  # max_time_s covers the set-up and the first evaluation too
     stop = StopPolicy(gtol=gtol, ftol=ftol, max_iter=max_iter, max_time_s=max_time_s)
     W = make_energy(T, energy, mu, lam, eta)
-    Vkey = checked_keyframes(Vkey, W.n_vertices)
+    Vkey = checked_poses(Vkey, W.n_vertices)
     opt = _optimizer(optimizer, globalization, hessian=hessian, cg_tol=cg_tol,
                      cg_max_iter=cg_max_iter, retract=retract, final_phase=final_phase,
                      memory=memory, precondition=precondition)
