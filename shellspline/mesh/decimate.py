@@ -623,9 +623,25 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     """
     t0 = time.perf_counter()
     Vs, T = _canonical_poses(Vs, F)
-    J, n, _ = Vs.shape
+    n = Vs.shape[1]
     nt = canonical_target(target, n)
     pin = pinned_mask(pinned, n)
+    _check_options(boundary_weight, length_weight, min_normal_cos, min_quality, round_fraction)
+    st = _CollapseState(Vs, T, pin, float(boundary_weight), float(length_weight))
+    rng = np.random.default_rng(seed)
+    while st.n_cur > nt and st.rounds < max_rounds:
+        if not _collapse_round(st, nt, float(round_fraction), float(min_normal_cos),
+                               float(min_quality), int(max_alternatives), rng):
+            break
+    if st.n_cur > nt:
+        warnings.warn(f"decimate: stopped at {st.n_cur} vertices, target {nt} (no further "
+                      "valid collapse)", RuntimeWarning, stacklevel=2)
+    return _decimation(st, Vs, pin if pinned is not None else None, nt, t0)
+
+
+def _check_options(boundary_weight, length_weight, min_normal_cos, min_quality,
+                   round_fraction) -> None:
+    """The scalar options of :func:`decimate` (one-line errors naming the argument)."""
     for name, val, lo in (("boundary_weight", boundary_weight, 0.0),
                           ("length_weight", length_weight, 0.0),
                           ("min_quality", min_quality, 0.0)):
@@ -636,8 +652,51 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     if not 0.0 < float(round_fraction) <= 1.0:
         raise ShellsplineError(f"`round_fraction` must lie in (0, 1], got {round_fraction!r}")
 
-    X = Vs - Vs.mean(axis=1, keepdims=True)          # centred: better conditioned quadrics
-    Xn = np.ascontiguousarray(X.transpose(1, 0, 2))   # (n,J,3): one row per vertex
+
+class _CollapseState:
+    """The quadrics of the fine poses and the current (partly collapsed) mesh.
+
+    Fine-indexed, ``(n, J, ·)``: centred poses ``Xn``, accumulated quadrics ``Q``, pair-term
+    quadrics ``Qp = Q + length term``, point moments ``M``, vertex terms ``evert``, fine vertex
+    normals ``vnormals``, ``parent`` (the vertex each one collapsed into). The current mesh in
+    compact indexing: current vertex ``c`` is fine vertex ``gid[c]``, faces ``Fc``, pinned and
+    boundary flags ``pin_c``, ``bnd_c``; ``n_cur`` counts its vertices (unreferenced ones
+    count but are never removed). ``prev_key``/``prev_pair``/``dirty`` reuse last round's pair
+    costs.
+    """
+
+    def __init__(self, Vs, T, pin, boundary_weight, length_weight):
+        J, n, _ = Vs.shape
+        X = Vs - Vs.mean(axis=1, keepdims=True)          # centred: better conditioned quadrics
+        self.Xn = np.ascontiguousarray(X.transpose(1, 0, 2))  # (n,J,3): one row per vertex
+        self.Q, self.vnormals, area = _fine_quadrics(X, T, boundary_weight)
+        is_bnd = np.zeros(n, dtype=bool)
+        is_bnd[T.boundary_vertices] = True
+        self.lw = length_weight * area
+        # Cost of u -> v: Σ_j [(Q_u^j + lw L_u^j) + Q_v^j] : m(x_v^j), where m(x) holds the
+        # coefficients of x̂ x̂ᵀ (x̂ = (x, 1)) so that a quadric error is a row dot product,
+        # and L_u = |x − x_u|² is the length term as a quadric. Split as pair(u, v) +
+        # vertex(v): the pair term only changes when u absorbs a quadric, the vertex term is
+        # one value per vertex.
+        self.M = _point_moments(self.Xn)                   # (n,J,10)
+        self.Qp = _length_quadrics(self.Xn, self.lw)       # quadric of the pair term
+        self.Qp += self.Q
+        self.evert = _quadric_errors(self.Q, self.M, np.arange(n), np.arange(n))  # (n,)
+        self.n = n
+        self.parent = np.arange(n, dtype=np.int64)
+        self.gid = np.arange(n, dtype=np.int64)
+        self.Fc = T.F.copy()
+        self.pin_c, self.bnd_c = pin.copy(), is_bnd
+        self.n_cur = n
+        self.rounds = self.collapses = 0
+        self.prev_key = self.prev_pair = None
+        self.dirty = np.zeros(n, dtype=bool)
+
+
+def _fine_quadrics(X, T, boundary_weight):
+    """Accumulated quadrics ``(n,J,10)``, unit fine vertex normals ``(n,J,3)`` and the mean
+    face area (averaged over the poses) of the centred poses ``X (J,n,3)``."""
+    J, n, _ = X.shape
     bnd_e = T.edge_faces[:, 1] < 0
     E_b, F_b = T.E[bnd_e], T.edge_faces[bnd_e, 0]
     m = T.F.shape[0]
@@ -652,98 +711,95 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     vnormals = np.empty((n, J, 3))                    # fine vertex normals
     area = 0.0
     for j in range(J):
-        Q[:, j], vnormals[:, j], a_j = _setup_pose(X[j], T.F, E_b, F_b,
-                                                    float(boundary_weight), inc, incb)
+        Q[:, j], vnormals[:, j], a_j = _setup_pose(X[j], T.F, E_b, F_b, boundary_weight, inc,
+                                                    incb)
         area += a_j / J
     vnormals /= np.maximum(np.sqrt(_dot(vnormals, vnormals)), 1e-300)[..., None]
-    is_bnd = np.zeros(n, dtype=bool)
-    is_bnd[T.boundary_vertices] = True
-    lw = float(length_weight) * area
-    min_cos, min_q = float(min_normal_cos), float(min_quality)
-    # Cost of u -> v: Σ_j [(Q_u^j + lw L_u^j) + Q_v^j] : m(x_v^j), where m(x) holds the
-    # coefficients of x̂ x̂ᵀ (x̂ = (x, 1)) so that a quadric error is a row dot product, and
-    # L_u = |x − x_u|² is the length term as a quadric. Split as pair(u, v) + vertex(v): the
-    # pair term only changes when u absorbs a quadric, the vertex term is one value per vertex.
-    M = _point_moments(Xn)                            # (n,J,10)
-    Qp = _length_quadrics(Xn, lw)                     # quadric of the pair term
-    Qp += Q
-    evert = _quadric_errors(Q, M, np.arange(n), np.arange(n))     # vertex term, (n,)
+    return Q, vnormals, area
 
-    parent = np.arange(n, dtype=np.int64)
-    # the current mesh in compact indexing: current vertex c is fine vertex gid[c]
-    gid = np.arange(n, dtype=np.int64)
-    Fc = T.F.copy()
-    pin_c, bnd_c = pin.copy(), is_bnd.copy()
-    n_cur = n                       # unreferenced vertices count but are never removed
-    rounds = collapses = 0
-    rng = np.random.default_rng(seed)
-    prev_key = prev_pair = None
-    dirty = np.zeros(n, dtype=bool)
-    while n_cur > nt and rounds < max_rounds:
-        nl = gid.shape[0]
-        hs = _Halfedges(Fc, nl, bnd_c)
-        cu, cv = hs.g.src, hs.g.dst
-        # cheap rules: pinned only into pinned, boundary u only along a boundary edge
-        okc = ~(pin_c[cu] & ~pin_c[cv]) & (~bnd_c[cu] | (bnd_c[cv] & hs.bnd))
-        idx_ok = np.flatnonzero(okc)
-        if idx_ok.shape[0] == 0:
-            break
-        iu, iv = cu[idx_ok], cv[idx_ok]
-        gu, gv = gid[iu], gid[iv]
-        gkey = gu * n + gv                            # increasing: gid is increasing
-        # pair terms: reuse last round's unless u absorbed a quadric (new halfedges always
-        # touch such a vertex or are new keys)
-        if prev_key is None:
-            pair = _quadric_errors(Qp, M, gu, gv)
-        else:
-            pair = np.zeros(iu.shape[0])
-            p = np.minimum(np.searchsorted(prev_key, gkey), prev_key.shape[0] - 1)
-            hit = (prev_key[p] == gkey) & ~dirty[gu]
-            pair[hit] = prev_pair[p[hit]]
-            redo = np.flatnonzero(~hit)
-            pair[redo] = _quadric_errors(Qp, M, gu[redo], gv[redo])
-        prev_key, prev_pair = gkey, pair
-        cost = pair + evert[gv]
 
-        excess = n_cur - nt
-        budget = excess if excess <= _TAIL else max(1, int(math.ceil(round_fraction * excess)))
-        us, vs = _select_collapses(hs.g, hs.key, hs.bnd[idx_ok], iu, iv, cost, budget,
-                                   lambda u, v: _face_checks(Xn, gid, vnormals, hs, u, v,
-                                                             min_cos, min_q),
-                                   rng, int(max_alternatives))
-        if us.shape[0] == 0:
-            break
+def _candidates(st: _CollapseState, hs: "_Halfedges"):
+    """Halfedges of the current mesh that pass the cheap rules (pinned only into pinned, a
+    boundary ``u`` only along a boundary edge) and their costs; None when there are none.
 
-        # apply: u disappears, its faces move to v, the two (one) faces of uv vanish
-        to = np.arange(nl, dtype=np.int64)
-        to[us] = vs
-        Fn = to[Fc]
-        alive_f = (Fn[:, 0] != Fn[:, 1]) & (Fn[:, 1] != Fn[:, 2]) & (Fn[:, 2] != Fn[:, 0])
-        gus, gvs = gid[us], gid[vs]
-        Q[gvs] += Q[gus]
-        Qp[gvs] = Q[gvs] + _length_quadrics(Xn[gvs], lw)
-        evert[gvs] = _quadric_errors(Q, M, gvs, gvs)
-        dirty[:] = False
-        dirty[gvs] = True
-        parent[gus] = gvs
-        # compact: drop the removed vertices from the current indexing
-        keep = np.ones(nl, dtype=bool)
-        keep[us] = False
-        new = np.cumsum(keep) - 1
-        Fc = new[Fn[alive_f]]
-        gid, pin_c, bnd_c = gid[keep], pin_c[keep], bnd_c[keep]
-        n_cur -= us.shape[0]
-        collapses += us.shape[0]
-        rounds += 1
+    Returns ``(idx_ok, iu, iv, cost)``: indices into the halfedges, their current end
+    vertices, ``pair + vertex`` cost. Pair terms are reused from the last round unless ``u``
+    absorbed a quadric (new halfedges always touch such a vertex or are new keys).
+    """
+    cu, cv = hs.g.src, hs.g.dst
+    okc = ~(st.pin_c[cu] & ~st.pin_c[cv]) & (~st.bnd_c[cu] | (st.bnd_c[cv] & hs.bnd))
+    idx_ok = np.flatnonzero(okc)
+    if idx_ok.shape[0] == 0:
+        return None
+    iu, iv = cu[idx_ok], cv[idx_ok]
+    gu, gv = st.gid[iu], st.gid[iv]
+    gkey = gu * st.n + gv                            # increasing: gid is increasing
+    if st.prev_key is None:
+        pair = _quadric_errors(st.Qp, st.M, gu, gv)
+    else:
+        pair = np.zeros(iu.shape[0])
+        p = np.minimum(np.searchsorted(st.prev_key, gkey), st.prev_key.shape[0] - 1)
+        hit = (st.prev_key[p] == gkey) & ~st.dirty[gu]
+        pair[hit] = st.prev_pair[p[hit]]
+        redo = np.flatnonzero(~hit)
+        pair[redo] = _quadric_errors(st.Qp, st.M, gu[redo], gv[redo])
+    st.prev_key, st.prev_pair = gkey, pair
+    return idx_ok, iu, iv, pair + st.evert[gv]
 
-    reached = n_cur <= nt
-    if not reached:
-        warnings.warn(f"decimate: stopped at {n_cur} vertices, target {nt} (no further valid "
-                      "collapse)", RuntimeWarning, stacklevel=2)
-    kept_mask = np.ones(n, dtype=bool)
-    kept_mask[parent != np.arange(n)] = False
-    kept = np.flatnonzero(kept_mask).astype(np.int64)
-    root = parent
+
+def _collapse_round(st: _CollapseState, nt, round_fraction, min_cos, min_q,
+                    max_alternatives, rng) -> bool:
+    """One round: evaluate every candidate, accept an independent set of valid collapses
+    (at most ``round_fraction`` of the excess), apply it. False when nothing was collapsed."""
+    nl = st.gid.shape[0]
+    hs = _Halfedges(st.Fc, nl, st.bnd_c)
+    cand = _candidates(st, hs)
+    if cand is None:
+        return False
+    idx_ok, iu, iv, cost = cand
+    excess = st.n_cur - nt
+    budget = excess if excess <= _TAIL else max(1, int(math.ceil(round_fraction * excess)))
+    us, vs = _select_collapses(hs.g, hs.key, hs.bnd[idx_ok], iu, iv, cost, budget,
+                               lambda u, v: _face_checks(st.Xn, st.gid, st.vnormals, hs, u, v,
+                                                         min_cos, min_q),
+                               rng, max_alternatives)
+    if us.shape[0] == 0:
+        return False
+    _apply_collapses(st, us, vs)
+    return True
+
+
+def _apply_collapses(st: _CollapseState, us, vs) -> None:
+    """``u -> v`` for every pair (current indices): u disappears, its faces move to v, the
+    two (one) faces of uv vanish, v absorbs u's quadric; the removed vertices are compacted
+    away."""
+    nl = st.gid.shape[0]
+    to = np.arange(nl, dtype=np.int64)
+    to[us] = vs
+    Fn = to[st.Fc]
+    alive_f = (Fn[:, 0] != Fn[:, 1]) & (Fn[:, 1] != Fn[:, 2]) & (Fn[:, 2] != Fn[:, 0])
+    gus, gvs = st.gid[us], st.gid[vs]
+    st.Q[gvs] += st.Q[gus]
+    st.Qp[gvs] = st.Q[gvs] + _length_quadrics(st.Xn[gvs], st.lw)
+    st.evert[gvs] = _quadric_errors(st.Q, st.M, gvs, gvs)
+    st.dirty[:] = False
+    st.dirty[gvs] = True
+    st.parent[gus] = gvs
+    keep = np.ones(nl, dtype=bool)
+    keep[us] = False
+    new = np.cumsum(keep) - 1
+    st.Fc = new[Fn[alive_f]]
+    st.gid, st.pin_c, st.bnd_c = st.gid[keep], st.pin_c[keep], st.bnd_c[keep]
+    st.n_cur -= us.shape[0]
+    st.collapses += us.shape[0]
+    st.rounds += 1
+
+
+def _decimation(st: _CollapseState, Vs, pin, nt, t0) -> Decimation:
+    """The :class:`Decimation` of the final state (``pin``: the fine pinned mask, or None)."""
+    n = st.n
+    kept = np.flatnonzero(st.parent == np.arange(n)).astype(np.int64)
+    root = st.parent
     while True:
         nxt = root[root]
         if np.array_equal(nxt, root):
@@ -751,13 +807,12 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
         root = nxt
     cidx = np.full(n, -1, dtype=np.int64)
     cidx[kept] = np.arange(kept.shape[0])
-    collapse_map = cidx[root]
-    F_coarse = cidx[gid[Fc]]
-    pin_c = np.flatnonzero(pin[kept]).astype(np.int64) if pinned is not None else None
-    stats = {"rounds": rounds, "collapses": collapses, "seconds": time.perf_counter() - t0,
-             "reached": bool(reached), "target": nt, "n_vertices": int(kept.shape[0]),
-             "n_faces": int(F_coarse.shape[0])}
-    return Decimation(kept=kept, F=F_coarse, V=Vs[:, kept], collapse_map=collapse_map,
+    F_coarse = cidx[st.gid[st.Fc]]
+    pin_c = np.flatnonzero(pin[kept]).astype(np.int64) if pin is not None else None
+    stats = {"rounds": st.rounds, "collapses": st.collapses,
+             "seconds": time.perf_counter() - t0, "reached": bool(st.n_cur <= nt),
+             "target": nt, "n_vertices": int(kept.shape[0]), "n_faces": int(F_coarse.shape[0])}
+    return Decimation(kept=kept, F=F_coarse, V=Vs[:, kept], collapse_map=cidx[root],
                       n_fine=n, pinned=pin_c, stats=stats)
 
 
