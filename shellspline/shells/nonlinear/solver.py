@@ -406,9 +406,12 @@ def nonlinear_spline(Vkey, frames, K, T: Topology | None = None, *, bc: str = "n
         has 5 digits at ~150 s while ``‖∇F‖`` is still ~2e-2 of its start.
     midpoint_tol : float
         Tolerance of the midpoint Newton solves (relative gradient max-norm).
-    optimizer : {"gauss-newton", "lbfgs"}
+    optimizer : {"gauss-newton", "lbfgs"} or Optimizer
         Outer optimiser (see Notes). ``"gauss-newton"`` (default) needs ~10 outer iterations
-        to a gradient reduction of 1e-6 where L-BFGS needs hundreds.
+        to a gradient reduction of 1e-6 where L-BFGS needs hundreds. An
+        :class:`~.optimizers.Optimizer` object is used as given (``globalization``,
+        ``hessian``, ``cg_tol``, ``cg_max_iter``, ``retract``, ``final_phase``, ``memory``
+        and ``precondition`` then configure nothing: they are the object's own).
     cg_tol, cg_max_iter : float, int
         Relative residual and iteration limit of the inner CG of ``"gauss-newton"``.
         Default ``cg_tol``: 0.5 with the trust region, where the forcing term is
