@@ -312,18 +312,30 @@ def bench_motion_ops(repeat=3):
             rows.append([f"blend {label} (s=0.5, dp{', plant' if plant else ''})", sec,
                          m.n_frames, f"skate {sk['speed']:.3g} u/s",
                          f"{sk['speed_per_leg']:.3g} leg/s"])
+    from shellspline.io.bvh import forward_kinematics
+
+    def pose_change(src, out):
+        """Mean displacement of the joints relative to the body's centroid (file units)."""
+        P0, P1 = forward_kinematics(src)[0][:, 1:], forward_kinematics(out)[0][:, 1:]
+        rel = lambda P: P - P.mean(axis=1, keepdims=True)  # noqa: E731
+        return float(np.linalg.norm(rel(P0) - rel(P1), axis=2).mean())
+
     close_rows = []
     for name in WALKS:
         short = name.replace("dataset-1_", "").replace("_001.bvh", "")
-        for c1 in (False, True):
-            (m, r), sec, _ = _best(lambda: A.close(clips[name], iterations=10, c1=c1), repeat)
+        for c1, trim in ((False, False), (True, False), (False, True)):
+            (m, r), sec, _ = _best(lambda: A.close(clips[name], iterations=10, c1=c1,
+                                                   trim=trim), repeat)
             red = r.history[0] / max(r.history[-1], 1e-300)
-            res[f"close {short}{' c1' if c1 else ''}"] = {
+            label = f"{short}{', C1' if c1 else ''}{', trim' if trim else ''}"
+            change = pose_change(clips[name].frames(r.frames[0], r.frames[1] + 1), m)
+            res[f"close {label}"] = {
                 "seconds": sec, "iterations": r.iterations, "status": r.status,
+                "frames": list(r.frames), "pose_change": change,
                 "history": r.history.tolist(), "gap_before": r.gap_before,
                 "gap_after": r.gap_after, "skate_before": r.skate_before,
                 "skate_closed": r.skate_closed, "skate_after": r.skate_after}
-            close_rows.append([f"{short}{', C1' if c1 else ''}", sec, r.iterations,
+            close_rows.append([label, sec, r.iterations, f"{change:.3g}",
                                f"{red:.2g}x", f"{r.gap_before['rotation_max']:.3g} -> "
                                f"{r.gap_after['rotation_max']:.2g}",
                                f"{r.gap_before['position_max']:.3g} -> "
@@ -405,8 +417,9 @@ def main(argv=None):
           f"{a.repeat})")
     print(format_table(["operation", "seconds", "frames", "result", ""], rows))
     print("\n5. Closing the walks (motion level: root travel kept, feet planted after)")
-    print(format_table(["clip", "seconds", "iterations", "seam gap", "rotation gap deg",
-                        "joint jump units", "skate u/s in/closed/out"], close_rows))
+    print(format_table(["clip", "seconds", "iterations", "pose change", "seam gap",
+                        "rotation gap deg", "joint jump units", "skate u/s in/closed/out"],
+                       close_rows))
     mesh, rows = bench_mesh_animation()
     res["mesh_animation"] = mesh
     print(f"\n6. Mesh animation: body skinned to the walk ({mesh['vertices']} vertices, "
