@@ -11,7 +11,6 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-import math
 import os
 import secrets
 from pathlib import Path
@@ -109,24 +108,17 @@ def now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).astimezone().isoformat(timespec="seconds")
 
 
-def _json_safe(obj):
-    """NaN/inf -> None (strict JSON), recursively."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
-
-
 def write_json_atomic(path: Path, obj) -> None:
-    """Write ``obj`` as strict JSON (NaN/inf as null, indent 2) to ``path`` atomically: a
-    hidden sibling ``.<name>.tmp-*`` renamed over it, removed on any failure."""
+    """Write ``obj`` as strict JSON (:func:`shellspline.io.sequences.jsonable`: NaN/inf as
+    null; indent 2) to ``path`` atomically: a hidden sibling ``.<name>.tmp-*`` (a name that
+    :func:`~shellspline.batch.outroot.cleanup_leftovers` recognises) renamed over it, removed
+    on any failure."""
+    from ..io.sequences import jsonable
+
+    text = json.dumps(jsonable(obj, str(path), finite=True), indent=2, allow_nan=False)
     tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
     try:
-        tmp.write_text(json.dumps(_json_safe(obj), indent=2, allow_nan=False) + "\n",
-                       encoding="utf-8")
+        tmp.write_text(text + "\n", encoding="utf-8")
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
