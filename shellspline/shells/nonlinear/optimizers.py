@@ -226,6 +226,38 @@ class TrustRegionNewton(Optimizer):
         self.retract, self.final_phase = retract, bool(final_phase)
         self.gtol_margin, self.inner = float(gtol_margin), inner
 
+    def forcing(self, gnorm: float, g0n: float, gtol: float, final: bool) -> float:
+        """CG's relative residual at gradient norm ``gnorm`` (``g0n`` the first one).
+
+        Inexact Newton (Eisenstat–Walker forcing): loose far away, tighter as ‖g‖ drops,
+        ``min(cg_tol, max(√(‖g‖/‖g₀‖), 1e-3))`` (at most :data:`FINAL_CG_TOL` in the final
+        phase), but no tighter than what meets ``gtol``: the next gradient is about the CG
+        residual, so never below ``gtol_margin · gtol ‖g₀‖/‖g‖`` (itself capped at 0.5).
+        """
+        rtol = min(self.cg_tol if not final else min(self.cg_tol, FINAL_CG_TOL),
+                   max(np.sqrt(gnorm / g0n), 1e-3))
+        return max(rtol, min(self.gtol_margin * gtol * g0n / max(gnorm, tol.zero), 0.5))
+
+    @staticmethod
+    def ratio(F: float, Fn: float, dec: float) -> float:
+        """Actual over predicted decrease ``ρ = (F − Fn) / dec`` (``−inf`` for a failed
+        trial; ``1`` when both are below the energy's last digits: the model holds)."""
+        rho = (F - Fn) / dec if np.isfinite(Fn) and dec > 0 else -np.inf
+        noise = 1e-13 * max(abs(F), 1.0)
+        if np.isfinite(Fn) and dec <= 10 * noise and Fn <= F + noise:
+            rho = 1.0
+        return rho
+
+    @staticmethod
+    def updated_radius(radius: float, rho: float, dnorm: float) -> float:
+        """A quarter of the step below ``ρ = 0.25``, doubled after a boundary step
+        (``‖d‖ >= 0.99 radius``) with ``ρ > 0.75``, else unchanged."""
+        if rho < 0.25:
+            return 0.25 * min(radius, dnorm)
+        if rho > 0.75 and dnorm >= 0.99 * radius:
+            return 2.0 * radius
+        return radius
+
     def check(self, problem) -> None:
         if self.retract and not hasattr(problem.energy, "T"):
             raise ShellsplineError("`retract` needs a mesh energy (DiscreteShells)")
@@ -274,12 +306,7 @@ class TrustRegionNewton(Optimizer):
             model = GaussNewtonModel(prob)
             ncg_total = 0
             accepted = False
-            # inexact Newton (Eisenstat–Walker forcing): loose far away, tighter as ‖g‖ drops
-            gnorm = float(np.linalg.norm(g))
-            rtol = min(self.cg_tol if not final else min(self.cg_tol, FINAL_CG_TOL),
-                       max(np.sqrt(gnorm / g0n), 1e-3))
-            # ... but no tighter than what meets gtol (the next gradient ≈ the CG residual)
-            rtol = max(rtol, min(self.gtol_margin * gtol * g0n / max(gnorm, tol.zero), 0.5))
+            rtol = self.forcing(float(np.linalg.norm(g)), g0n, gtol, final)
             for _trial in range(30):
                 matvec = model.accurate_matvec if final else \
                     model.exact_matvec if exact else model.matvec
@@ -305,14 +332,8 @@ class TrustRegionNewton(Optimizer):
                 xn = prob.x_of(Sn)
                 warm = model.M + model.midpoint_change(d)
                 Fn, gn = solver.evaluate(xn, warm=warm, trial=True, slot_set=1 - current)
-                rho = (F - Fn) / dec if np.isfinite(Fn) and dec > 0 else -np.inf
-                noise = 1e-13 * max(abs(F), 1.0)
-                if np.isfinite(Fn) and dec <= 10 * noise and Fn <= F + noise:
-                    rho = 1.0  # both decreases below the energy's last digits: the model holds
-                if rho < 0.25:
-                    radius = 0.25 * min(radius, dnorm)
-                elif rho > 0.75 and dnorm >= 0.99 * radius:
-                    radius = 2.0 * radius
+                rho = self.ratio(F, Fn, dec)
+                radius = self.updated_radius(radius, rho, dnorm)
                 if rho > 0.01:
                     accepted = True
                     break
