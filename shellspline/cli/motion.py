@@ -95,10 +95,11 @@ def add_parsers(sub) -> None:
     q.set_defaults(func=_blend)
 
     q = ms.add_parser("close", help="make a clip loop seamlessly",
-                      description="Close a clip into a loop by the gradient flow of the seam "
-                                  "gap (seed 000), optionally C1, then keep planted feet from "
-                                  "sliding by moving the root.")
-    common(q, two=False, out="BVH file to write")
+                      description="Close a clip into a loop with the smallest SRV change that "
+                                  "closes the seam (Gauss-Newton form of seed 000's gradient "
+                                  "flow), optionally C1, then keep planted feet from sliding "
+                                  "by moving the root.")
+    common(q, two=False, out="BVH file to write (a sequence folder for a mesh sequence)")
     q.add_argument("--iterations", type=int, default=10, metavar="N",
                    help="closing iterations (default 10)")
     q.add_argument("--c1", action="store_true", help="also match the velocities at the seam")
