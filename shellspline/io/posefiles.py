@@ -149,8 +149,8 @@ def _check_times(path, t, lines):
     d = np.diff(t)
     if np.any(d <= 0):
         i = int(np.argmax(d <= 0))
-        _fail(path, lines[i + 1], f"times must increase strictly, got {t[i + 1]!r} after "
-                                  f"{t[i]!r}")
+        _fail(path, lines[i + 1], f"times must increase strictly, got {float(t[i + 1])!r} "
+                                  f"after {float(t[i])!r}")
 
 
 _LAYOUT = {"tum": (8, "t tx ty tz qx qy qz qw"), "kitti": (12, "a 3x4 matrix row by row"),
