@@ -432,3 +432,17 @@ def test_mesh_blend_and_align(skinned_walk):
     assert np.abs(r.phi - t ** 1.5).max() <= 0.03
     with pytest.raises(ShellsplineError, match="one mesh"):
         A.mesh_blend(Vs, Vs[:, :-1], F)
+
+
+def test_data_synth_motion_command(tmp_path, capsys):
+    from data_synth.__main__ import main as synth_main
+
+    out = tmp_path / "w.bvh"
+    assert synth_main(["motion", str(out), "--fps", "120", "--order", "mixed", "--up", "z",
+                       "--names", "numbered", "--seconds", "0.5"]) == 0
+    m = read_bvh(out)
+    assert m.n_frames == 61 and m.frame_time == 1 / 120 and m.names[0] == "j00"
+    assert A.up_axis(m) == (2, 1.0)
+    with pytest.raises(SystemExit):
+        synth_main(["motion", str(out), "--order", "XXY"])
+    capsys.readouterr()
