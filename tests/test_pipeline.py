@@ -410,3 +410,127 @@ def test_pins_stay_exact_after_scaling_back():
     assert res.report["parameters"]["length_scale"] != 1.0
     assert np.array_equal(res.V[:, d["pinned"]],
                           np.broadcast_to(V[0, d["pinned"]], res.V[:, d["pinned"]].shape))
+
+
+# -- rigid subset (issue 16 item 3) ------------------------------------------------------------
+def _tube(n_rings=17, sections=12, length=3.0, radius=0.3):
+    """A closed tube along x (rings of ``sections`` vertices, capped by fans)."""
+    x = np.linspace(-length / 2, length / 2, n_rings)
+    th = np.linspace(0, 2 * np.pi, sections, endpoint=False)
+    V = np.stack([np.repeat(x, sections), radius * np.tile(np.cos(th), n_rings),
+                  radius * np.tile(np.sin(th), n_rings)], axis=1)
+    r, s = np.meshgrid(np.arange(n_rings - 1), np.arange(sections), indexing="ij")
+    a, b = r * sections + s, r * sections + (s + 1) % sections
+    F = np.concatenate([np.stack([a, b, b + sections], -1).reshape(-1, 3),
+                        np.stack([a, b + sections, a + sections], -1).reshape(-1, 3)])
+    n, o, s = len(V), (n_rings - 1) * sections, np.arange(sections)
+    caps = np.concatenate([np.stack([np.full(sections, n), (s + 1) % sections, s], -1),
+                           np.stack([np.full(sections, n + 1), o + s, o + (s + 1) % sections],
+                                    -1)])
+    return np.vstack([V, [[x[0], 0, 0], [x[-1], 0, 0]]]), np.concatenate([F, caps])
+
+
+def _rot(axis, a):
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i] = R[j, j] = c
+    R[i, j], R[j, i] = -s, s
+    return R
+
+
+@pytest.fixture(scope="module")
+def circling_body():
+    """A tube whose torso (x <= 0) turns on a circle of radius 4 about the z axis, 60° per
+    keyframe gap of 6 frames, while its limb (x > 0) swings about the joint at x = 0."""
+    V, F = _tube()
+    torso = np.flatnonzero(V[:, 0] <= 1e-9)
+    limb = V[:, 0] > 1e-9
+    keys = []
+    for j, swing in enumerate([0.0, 0.9, -0.6, 0.7]):
+        B = V.copy()
+        B[limb] = B[limb] @ _rot(1, swing).T
+        keys.append((B + [4.0, 0, 0]) @ _rot(2, j * np.pi / 3).T)
+    return V, F, np.stack(keys), torso
+
+
+def _circle_distance(P, P0):
+    """Distance of points ``P (..., s, 3)`` to the circles about the z axis through ``P0``."""
+    r = np.linalg.norm(P[..., :2], axis=-1) - np.linalg.norm(P0[..., :2], axis=-1)
+    return np.sqrt(r ** 2 + (P[..., 2] - P0[..., 2]) ** 2)
+
+
+def test_rigid_subset_keeps_the_torso_on_its_circle(circling_body):
+    V, F, keys, torso = circling_body
+    frames = [0, 6, 12, 18]
+    inb = np.setdiff1d(np.arange(19), frames)
+    core = np.flatnonzero(V[:, 0] <= -0.5)                # the torso away from the joint
+    P0 = V + [4.0, 0, 0]
+    res = {}
+    for name, sub in (("subset", torso), ("all", None)):
+        r = ss.interpolate((keys, F), frames=frames, rigid_track="spline", rigid_subset=sub)
+        for j, f in enumerate(frames):
+            assert np.array_equal(r.V[f], keys[j])
+        res[name] = r
+    assert res["subset"].report["parameters"]["rigid_subset_vertices"] == len(torso)
+    # the torso's centroid rides the screw spline through the torso poses: the true circle,
+    # at the true constant rate
+    c = res["subset"].V[:, torso].mean(axis=1)
+    c0 = P0[torso].mean(axis=0)
+    assert _circle_distance(c, c0).max() < 1e-9
+    angle = np.unwrap(np.arctan2(c[:, 1], c[:, 0]))
+    np.testing.assert_allclose(angle - angle[0], np.arange(19) * np.pi / 18, atol=1e-9)
+    # without the subset the swinging limb drags the pose off the circle
+    c_all = res["all"].V[:, torso].mean(axis=1)
+    assert _circle_distance(c_all, c0).max() > 0.02
+    # every torso vertex away from the joint: near its circle with the subset, not without
+    d_sub = _circle_distance(res["subset"].V[inb][:, core], P0[core]).max()
+    d_all = _circle_distance(res["all"].V[inb][:, core], P0[core]).max()
+    assert d_sub < 0.05 < 0.1 < d_all
+
+
+def test_rigid_subset_with_the_fit_track_and_pins(circling_body):
+    V, F, keys, torso = circling_body
+    frames = [0, 6, 12, 18]
+    r = ss.interpolate((keys, F), frames=frames, rigid_subset=torso)       # rigid_track="fit"
+    a = ss.interpolate((keys, F), frames=frames)
+    # placed by the torso: its vertices sit closer to their own per-vertex cubic track
+    track = ss.pipeline.placement_track(keys, frames, 18)
+    err = {n: np.abs(x.V[:, torso] - track[:, torso]).max() for n, x in (("sub", r), ("all", a))}
+    assert err["sub"] < 0.8 * err["all"]
+    for j, f in enumerate(frames):
+        assert np.array_equal(r.V[f], keys[j])
+
+
+@pytest.mark.parametrize("sub, phrase", [([0, 1], "at least 3"), ([0, 12, 24], "on a line"),
+                                         ([0, 1, 10**6], "rigid_subset")])
+def test_rigid_subset_invalid(circling_body, sub, phrase):
+    V, F, keys, torso = circling_body
+    with pytest.raises(ss.ShellsplineError, match=phrase):
+        ss.interpolate((keys, F), frames=[0, 6, 12, 18], rigid_subset=sub)
+    with pytest.raises(ss.ShellsplineError, match="linear"):
+        ss.interpolate((keys, F), frames=[0, 6, 12, 18], rigid_subset=torso, method="linear")
+
+
+def test_rigid_subset_from_the_command_line(circling_body, tmp_path):
+    from shellspline.cli.main import main
+
+    V, F, keys, torso = circling_body
+    paths = []
+    for j, K in enumerate(keys):
+        paths.append(tmp_path / f"pose_{j}.obj")
+        ss.write_sequence(tmp_path / f"k{j}", K[None], F)
+        (tmp_path / f"k{j}" / "frame_0000.obj").rename(paths[-1])
+    (tmp_path / "torso.txt").write_text("\n".join(map(str, torso)) + "\n")
+    out = tmp_path / "out"
+    rc = main(["interpolate", *map(str, paths), "--frames", "0,6,12,18", "--rigid-track",
+               "spline", "--rigid-subset", str(tmp_path / "torso.txt"), "-o", str(out), "-q"])
+    assert rc in (0, 1)
+    Vs, _, rep = ss.read_sequence(out)
+    assert rep["parameters"]["rigid_subset_vertices"] == len(torso)
+    c = Vs[:, torso].mean(axis=1)
+    assert _circle_distance(c, (V[torso] + [4.0, 0, 0]).mean(axis=0)).max() < 1e-9
+    (tmp_path / "bad.txt").write_text("0\n5000\n")
+    rc = main(["interpolate", *map(str, paths), "--rigid-subset", str(tmp_path / "bad.txt"),
+               "-o", str(tmp_path / "o2"), "-q"])
+    assert rc == 2 and not (tmp_path / "o2").exists()

@@ -151,6 +151,11 @@ def _build_parser() -> argparse.ArgumentParser:
                         "walks), along a C² SE(3) spline through the keyframes' rigid poses "
                         "(spline: exact for rigid turns, e.g. a circle), or onto the linear "
                         "blend (linear)")
+    q.add_argument("--rigid-subset", metavar="FILE",
+                   help="file of vertex indices (like --pinned) that carry the rigid pose, "
+                        "e.g. the torso: each keyframe's pose is their Kabsch fit and the "
+                        "in-betweens are placed by fitting them onto the --rigid-track, so a "
+                        "swinging limb does not drag the body's path (default: all vertices)")
     q.add_argument("--pinned", help="file of vertex indices held fixed (e.g. a base)")
     q.add_argument("--fix-boundary", action="store_true",
                    help="hold the mesh boundary vertices fixed")
@@ -211,7 +216,7 @@ def _source_line(summary: dict) -> str:
 def _interpolate(args) -> int:
     import numpy as np
 
-    from ..io import check_output_dir, read_frames, read_indices, read_keyframes, write_sequence
+    from ..io import check_output_dir, read_frames, read_keyframes, write_sequence
     from ..pipeline import interpolate
 
     bar = _Bar(quiet=args.quiet)
@@ -237,21 +242,10 @@ def _interpolate(args) -> int:
     else:
         kf = read_keyframes(args.keyframes, frames=frames)
     t_read = time.perf_counter() - t_read
-    pinned = None
-    if args.pinned:
-        try:
-            pinned = read_indices(args.pinned)
-        except OverflowError:
-            raise ShellsplineError(f"--pinned {args.pinned}: a vertex index is too "
-                                   "large") from None
-        n_input = kf.n if kf.source is None else kf.source.n_source
-        bad = (pinned < 0) | (pinned >= n_input)
-        if bad.any():
-            raise ShellsplineError(f"--pinned {args.pinned}: vertex indices must lie in [0, "
-                                   f"{n_input}), got {int(pinned[bad][0])} ({int(bad.sum())} "
-                                   "out of range)")
-        if kf.source is not None:  # the file numbers the input's vertices
-            pinned = kf.source.solve_vertices(pinned, "--pinned")
+    # the files number the input's vertices
+    pinned = _vertex_file(args.pinned, "--pinned", kf) if args.pinned else None
+    rigid_subset = _vertex_file(args.rigid_subset, "--rigid-subset", kf) \
+        if args.rigid_subset else None
     if args.fix_boundary:
         bv = kf.topology.boundary_vertices
         if bv.size == 0:
@@ -288,7 +282,8 @@ def _interpolate(args) -> int:
             solver_options["ftol"] = args.ftol
     # the output location is checked before any computing (writable, not over an input,
     # room for the estimated output), so a bad -o costs no solve
-    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames, args.topology)
+    protect = list(args.keyframes) + [p for p in (args.pinned, args.frames, args.topology,
+                                                   args.rigid_subset)
                                       if p and Path(p).is_file()]
     _, K_out = canonical_frames(kf.J, kf.frames, args.K, args.bc)
     check_output_dir(args.out, n_frames=K_out + 1, n_vertices=kf.n, n_faces=kf.m,
@@ -303,7 +298,7 @@ def _interpolate(args) -> int:
                          workers=args.workers, gn_options=gn_options,
                          solver_options=solver_options, coarse=args.coarse, fine=args.fine,
                          fixpoint=args.fixpoint, rigid_track=args.rigid_track,
-                         progress=bar)
+                         rigid_subset=rigid_subset, progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     if res.source is not None:  # the input's polygons and numbering, written back
@@ -316,6 +311,23 @@ def _interpolate(args) -> int:
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)
     return _summary(res, Path(out), quiet=args.quiet, fmt=args.format)
+
+
+def _vertex_file(path, option: str, kf):
+    """Vertex indices read from ``path`` (numbering the input's vertices), checked and mapped to
+    the solve mesh's."""
+    from ..io import read_indices
+
+    try:
+        idx = read_indices(path)
+    except OverflowError:
+        raise ShellsplineError(f"{option} {path}: a vertex index is too large") from None
+    n_input = kf.n if kf.source is None else kf.source.n_source
+    bad = (idx < 0) | (idx >= n_input)
+    if bad.any():
+        raise ShellsplineError(f"{option} {path}: vertex indices must lie in [0, {n_input}), "
+                               f"got {int(idx[bad][0])} ({int(bad.sum())} out of range)")
+    return idx if kf.source is None else kf.source.solve_vertices(idx, option)
 
 
 def _rewrite_report(out: Path, report: dict) -> None:

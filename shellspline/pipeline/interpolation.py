@@ -69,7 +69,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 pinned=None, workers: int = 1, gn_options: dict | None = None,
                 warm_start: bool = True, solver_options: dict | None = None,
                 coarse="auto", fine: bool = False, fixpoint: int = 0,
-                rigid_track: str = "fit", progress=None) -> InterpolationResult:
+                rigid_track: str = "fit", rigid_subset=None,
+                progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
     Parameters
@@ -138,6 +139,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         onto the per-vertex C² cubic through the keyframes (``"fit"``), along a C² SE(3)
         spline through the keyframes' rigid poses (``"spline"``), or onto the per-vertex
         linear blend (``"linear"``); see :func:`placement_track`.
+    rigid_subset : (s,) int array, optional
+        Vertices that carry the rigid pose (e.g. the torso; at least 3, not on a line): each
+        keyframe's pose for the ``"spline"`` track is the Kabsch fit of these vertices, and
+        every in-between is placed by fitting them onto the track, so a swinging limb does
+        not drag the body's path; the rest of the shape follows the shell spline. Keyframes
+        stay exact. Default: all vertices. Not with ``method="linear"``.
     progress : callable(ProgressEvent), optional
         Receives stage/progress events (the CLI draws a bar with it).
 
@@ -162,7 +169,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                 coarse=coarse, fine=fine, fixpoint=fixpoint,
                                 rigid_track=rigid_track)
     kf = _keyframes(keyframes, prog)
-    prob = interpolation_problem(opts, kf, frames=frames, K=K, pinned=pinned)
+    prob = interpolation_problem(opts, kf, frames=frames, K=K, pinned=pinned,
+                                 rigid_subset=rigid_subset)
     for text in notices(opts, prob):
         prog.message(text)
     report = start_report(opts, prob)

@@ -166,15 +166,18 @@ def _vertex_indices(idx, n: int, name: str):
 
 
 def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=None, K=None,
-                          pinned=None) -> InterpolationProblem:
+                          pinned=None, rigid_subset=None) -> InterpolationProblem:
     """Bind ``opts`` to the keyframes ``kf``: canonical frames and ``K``, pins (default the
     keyframes' own), the reference keyframe index and the coarse vertex count checked; the
-    keyframes divided by their :func:`~shellspline.metrics.length_scale`.
+    keyframes divided by their :func:`~shellspline.metrics.length_scale`. ``rigid_subset``:
+    vertex indices (at least 3, not on one line in the first keyframe) whose rigid pose
+    places the in-betweens (not with ``method="linear"``, which places nothing).
 
     Raises
     ------
     ShellsplineError
-        Naming the argument (``frames``, ``K``, ``pinned``, ``reference``, ``fine``).
+        Naming the argument (``frames``, ``K``, ``pinned``, ``reference``, ``fine``,
+        ``rigid_subset``).
     """
     J, n = kf.V.shape[:2]
     pinned = _vertex_indices(kf.pinned if pinned is None else pinned, n, "pinned")
@@ -189,10 +192,28 @@ def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=N
             raise ShellsplineError("`fine=True` refines a multiresolution run: it needs `coarse` "
                                    f"(a vertex count or fraction below the {n} vertices), got "
                                    f"coarse={opts.coarse!r}")
+    subset = _rigid_subset(rigid_subset, kf.V[0], opts.method)
     D = length_scale(kf.V[0], kf.topology.F)
     return InterpolationProblem(keyframes=kf, Vkey=kf.V / D if D != 1.0 else kf.V,
                                 T=kf.topology, frames=frames, K=K, pinned=pinned,
-                                n_coarse=n_coarse, scale=D)
+                                n_coarse=n_coarse, rigid_subset=subset, scale=D)
+
+
+def _rigid_subset(subset, V0, method):
+    subset = _vertex_indices(subset, V0.shape[0], "rigid_subset")
+    if subset is None:
+        return None
+    if method == "linear":
+        raise ShellsplineError("`rigid_subset` places the in-betweens of a shell method (lta, "
+                               "geodesic, nonlinear); method='linear' places nothing")
+    subset = np.unique(subset)
+    X = V0[subset] - V0[subset].mean(axis=0)
+    sv = np.linalg.svd(X, compute_uv=False) if len(subset) >= 3 else np.zeros(2)
+    if len(subset) < 3 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
+        raise ShellsplineError(f"`rigid_subset` must hold at least 3 vertices not on one line "
+                               f"(a rigid pose needs them), got {len(subset)} vertices"
+                               + (" on a line" if len(subset) >= 3 else ""))
+    return subset
 
 
 def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]:

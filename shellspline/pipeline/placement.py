@@ -17,7 +17,7 @@ from .options import RIGID_TRACKS
 __all__ = ["place", "placement_track", "RIGID_TRACKS"]
 
 
-def placement_track(Vkey, frames, K, bc: str = "natural", kind: str = "fit"):
+def placement_track(Vkey, frames, K, bc: str = "natural", kind: str = "fit", subset=None):
     """Where the frames of a sequence are placed rigidly: a per-vertex C² cubic spline through
     the keyframes (natural, or periodic through frame K), held at the last keyframe after it.
 
@@ -41,6 +41,9 @@ def placement_track(Vkey, frames, K, bc: str = "natural", kind: str = "fit"):
         that turns while it travels follows a screw motion (a circle exactly), where the
         per-vertex cubic cuts the corner; falls back to ``"fit"`` when consecutive keyframes
         turn by half a turn or more. ``"linear"``: the per-vertex linear blend.
+    subset : (s,) int array, optional
+        ``kind="spline"``: the vertices whose Kabsch fit is each keyframe's rigid pose (e.g.
+        the torso, so that a swinging limb does not drag the pose); default all.
 
     Returns
     -------
@@ -54,7 +57,7 @@ def placement_track(Vkey, frames, K, bc: str = "natural", kind: str = "fit"):
     if kind == "linear":
         return linear_blend(Vkey, frames, K, bc)
     if kind == "spline":
-        track = _screw_track(Vkey, frames, K, bc)
+        track = _screw_track(Vkey, frames, K, bc, subset)
         if track is not None:
             return track
     frames = np.asarray(frames)
@@ -76,16 +79,17 @@ def placement_track(Vkey, frames, K, bc: str = "natural", kind: str = "fit"):
     return cs(k).reshape(K + 1, *Vkey.shape[1:])
 
 
-def _screw_track(Vkey, frames, K, bc):
+def _screw_track(Vkey, frames, K, bc, subset=None):
     """The ``kind="spline"`` track of :func:`placement_track`, or None where the SE(3) spline
     is not defined (consecutive keyframe poses half a turn or more apart)."""
     from ..curves import cubic_spline
 
     J = Vkey.shape[0]
     periodic = bc == "periodic"
-    c = Vkey.mean(axis=1)                                    # (J,3)
-    X0 = Vkey[0] - c[0]
-    H = np.einsum("ni,jnk->jik", X0, Vkey - c[:, None])      # (J,3,3) cross-covariances
+    Vs = Vkey if subset is None else Vkey[:, subset]         # the vertices that carry the pose
+    c = Vs.mean(axis=1)                                      # (J,3)
+    X0 = Vs[0] - c[0]
+    H = np.einsum("ni,jnk->jik", X0, Vs - c[:, None])        # (J,3,3) cross-covariances
     U, _, Wt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.einsum("jki,jlk->jil", Wt, U)))
     D = np.zeros((J, 3, 3))
@@ -112,22 +116,46 @@ def _screw_track(Vkey, frames, K, bc):
     return np.einsum("kni,kji->knj", rest, Gk[:, :3, :3]) + Gk[:, None, :3, 3]
 
 
-def place(V, frames, K, bc, pinned, Vkey, F, rigid_track="fit"):
+def place(V, frames, K, bc, pinned, Vkey, F, rigid_track="fit", subset=None):
     """Rigidly place the in-between frames onto :func:`placement_track` (with pins: only by the
     rigid motions that keep them fixed) and restore the keyframes bit for bit. Each connected
     component of the mesh is placed on its own: shell energies do not see how separate pieces
-    sit relative to each other, so a reconstruction leaves that free."""
+    sit relative to each other, so a reconstruction leaves that free.
+
+    Parameters
+    ----------
+    V : (K+1,n,3) float64 array
+        Reconstructed frames (their rigid position is arbitrary).
+    frames : (J,) int array
+    K : int
+    bc : str
+    pinned : (p,) int array or None
+    Vkey : (J,n,3) float64 array
+    F : (m,3) int array
+    rigid_track : {"fit", "spline", "linear"}
+        See :func:`placement_track`.
+    subset : (s,) int array, optional
+        Vertices that carry the rigid pose (e.g. the torso): the keyframe poses of the
+        ``"spline"`` track are fitted on them, and each frame is placed by the Kabsch fit of
+        these vertices onto the track (a component without any of them: by all its vertices),
+        so the rest of the body follows the shape spline.
+
+    Returns
+    -------
+    (K+1,n,3) float64 array
+    """
     V = np.array(V, dtype=np.float64, copy=True)
     periodic = bc == "periodic"
-    track = placement_track(Vkey, frames, K, bc, kind=rigid_track)
+    track = placement_track(Vkey, frames, K, bc, kind=rigid_track, subset=subset)
     is_key = np.zeros(K + 1, dtype=bool)
     is_key[frames] = True
     is_key[K] |= periodic
     parts = _components(F, Vkey.shape[1], pinned)
+    weights = [_subset_weights(idx, Vkey.shape[1], subset) for idx, _ in parts]
     for k in np.flatnonzero(~is_key):
         # with pins only the motions they leave free (none for 3+ non-collinear pins)
-        for idx, fixed in parts:
-            V[k, idx] = rigid_placement(V[k, idx], track[k, idx], fixed=fixed)
+        for (idx, fixed), w in zip(parts, weights):
+            V[k, idx] = rigid_placement(V[k, idx], track[k, idx], weights=w, fixed=fixed)
     for j, f in enumerate(frames):
         V[f] = Vkey[j]
     if periodic:
@@ -155,3 +183,14 @@ def _components(F, n, pinned):
             fixed = local if local.size else None
         out.append((idx, fixed))
     return out
+
+
+def _subset_weights(idx, n, subset):
+    """Kabsch weights of a component's vertices ``idx``: 1 on the subset, 0 elsewhere; None
+    (all equal) without a subset or when the component holds none of it."""
+    if subset is None:
+        return None
+    w = np.zeros(n)
+    w[subset] = 1.0
+    w = w[idx]
+    return w if w.any() else None

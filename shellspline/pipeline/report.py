@@ -147,6 +147,8 @@ def start_report(opts, prob) -> dict:
             "gn_options": dict(opts.gn_options), "solver_options": dict(opts.solver_options),
             "coarse": opts.coarse, "fine": opts.fine, "fixpoint": opts.fixpoint,
             "rigid_track": opts.rigid_track,
+            "rigid_subset_vertices": 0 if prob.rigid_subset is None else
+            int(prob.rigid_subset.size),
         },
         "mesh": {"vertices": int(n), "faces": int(T.n_faces), "edges": int(T.n_edges),
                  "keyframes": int(J), "names": list(kf.names)},

@@ -94,7 +94,9 @@ def in_input_units(seq, prob, opts):
 
 
 def _placed(V, Vkey, T, pinned, prob, opts):
-    return place(V, prob.frames, prob.K, opts.bc, pinned, Vkey, T.F, opts.rigid_track)
+    # the rigid subset numbers the full mesh's vertices: coarse meshes are placed by all theirs
+    return place(V, prob.frames, prob.K, opts.bc, pinned, Vkey, T.F, opts.rigid_track,
+                 subset=prob.rigid_subset if T is prob.T else None)
 
 
 def linear_stage(prob, opts, prog) -> StageResult:
