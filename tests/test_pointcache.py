@@ -363,3 +363,23 @@ def test_blender_opens_our_output_directory(tmp_path, fmt):
     mod.cache_format, mod.filepath = fmt.upper(), str(out / f"animation.{fmt}")
     for k in (0, 3, 4, 10):
         np.testing.assert_array_equal(_evaluated(bpy, ob, k), V[k].astype(np.float32))
+
+
+def test_usd_without_pxr_is_a_one_line_error_before_the_solve(tmp_path, monkeypatch, capsys):
+    """Without usd-core, ``--format usd`` stops with exit 2 (a missing extra, not a bug) before
+    any computing, and the library raises an ImportError that names the extra."""
+    import sys
+
+    from shellspline.cli.main import main
+    from shellspline.io.usd import write_usd
+
+    monkeypatch.setitem(sys.modules, "pxr", None)  # import pxr now raises ImportError
+    with pytest.raises(ImportError, match=r"shellspline\[usd\]"):
+        write_usd(tmp_path / "a.usda", np.zeros((1, 4, 3)), TET_F)
+    keys = _quad_strip_files(tmp_path)
+    capsys.readouterr()
+    assert main(["interpolate", *map(str, keys), "--frames", "0,4,10", "-o",
+                 str(tmp_path / "out"), "--format", "usd", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "usd-core" in err[0] and "internal error" not in err[0]
+    assert not (tmp_path / "out").exists()

@@ -224,8 +224,8 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
     n_frames, n_vertices, n_faces : int
         Size of the sequence to be written (``K+1`` frames), for the free-space estimate;
         ``0`` skips that check.
-    fmt : {"obj", "ply", "glb"}
-        Output format (bytes per vertex differ).
+    fmt : {"obj", "ply", "glb", "mdd", "pc2", "usd"}
+        Output format (bytes per vertex differ; ``"usd"`` also needs ``pxr``).
     overwrite, protect
         As for :func:`write_sequence`.
 
@@ -240,7 +240,8 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
         If ``out_dir`` exists and ``overwrite`` is false, or it exists and is not a directory.
     ShellsplineError
         If ``out_dir`` lies under a file, its parent cannot be written, it would contain or
-        replace a protected input, or the file system has too little free space.
+        replace a protected input, the file system has too little free space, or ``fmt`` is
+        ``"usd"`` and ``pxr`` is not installed.
 
     Examples
     --------
@@ -256,6 +257,9 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
     fmt = str(fmt).lower().lstrip(".")
     if fmt not in _BYTES_PER_VERTEX:
         raise ShellsplineError(f"fmt must be one of {', '.join(SEQUENCE_FORMATS)}, got {fmt!r}")
+    if fmt == "usd":  # the missing extra before the solve, not after it
+        from .usd import require_usd
+        require_usd()
     target = out.resolve()
     _check_destination(target, out, overwrite, protect)
     base = target.parent

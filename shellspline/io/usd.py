@@ -25,8 +25,14 @@ import numpy as np
 
 from ..errors import ShellsplineError
 
-__all__ = ["write_usd", "read_usd", "USD_EXTENSIONS", "UP_AXIS_CONVENTIONS",
-           "conventional_up_axis"]
+__all__ = ["write_usd", "read_usd", "require_usd", "UsdUnavailableError", "USD_EXTENSIONS",
+           "UP_AXIS_CONVENTIONS", "conventional_up_axis"]
+
+
+class UsdUnavailableError(ShellsplineError, ImportError):
+    """``pxr`` (the ``usd-core`` wheel, extra ``usd``) is not installed: an ImportError that is
+    also a :class:`~shellspline.errors.ShellsplineError`, so the CLI reports it in one line
+    with exit 2 (a missing extra is not a bug)."""
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc")
 """Extensions of the USD files :func:`write_usd` writes (``.usd``/``.usdc``: binary crate,
@@ -66,9 +72,14 @@ def _pxr():
     try:
         from pxr import Sdf, Usd, UsdGeom, Vt
     except ImportError:
-        raise ImportError("USD output needs the 'pxr' module: pip install 'shellspline[usd]' "
-                          "(the usd-core wheel)") from None
+        raise UsdUnavailableError("USD needs the 'pxr' module: pip install 'shellspline[usd]' "
+                                  "(the usd-core wheel)") from None
     return Sdf, Usd, UsdGeom, Vt
+
+
+def require_usd() -> None:
+    """Raise :class:`UsdUnavailableError` unless ``pxr`` imports (a check before computing)."""
+    _pxr()
 
 
 def write_usd(path, V, F=None, *, polygons=None, fps: float = 24.0, up_axis: str = "Y",
@@ -104,8 +115,8 @@ def write_usd(path, V, F=None, *, polygons=None, fps: float = 24.0, up_axis: str
     ------
     ShellsplineError
         For bad poses, faces, ``fps``, ``up_axis``, extension or prim name.
-    ImportError
-        If ``pxr`` is not installed (extra ``usd``).
+    UsdUnavailableError
+        If ``pxr`` is not installed (extra ``usd``; an ImportError).
 
     Notes
     -----
@@ -197,8 +208,8 @@ def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     ------
     ShellsplineError
         If the file cannot be opened, holds no mesh, or its points change length over time.
-    ImportError
-        If ``pxr`` is not installed.
+    UsdUnavailableError
+        If ``pxr`` is not installed (an ImportError).
     """
     Sdf, Usd, UsdGeom, Vt = _pxr()
     try:
