@@ -72,15 +72,57 @@ def test_dp_energy_is_the_exact_energy_of_its_warp():
     q1 = srv(ProductCurve(X=space_curve(np.sqrt(t))[::-1][::-1]))
     r = align_srv(q0, q1, refine=False)
     assert warp_energy(q0, q1, r.phi)[0] == pytest.approx(r.energy_dp, rel=1e-10)
-    # and no warp on the lattice beats it: compare with a few random lattice warps
-    rng = np.random.default_rng(0)
-    for _ in range(20):
-        j = np.r_[0, np.sort(rng.choice(np.arange(1, N - 1), N - 2, replace=True)), N - 1]
-        phi = j / (N - 1.0)
-        phi = np.maximum.accumulate(phi)
-        phi = phi + np.arange(N) * 1e-9
-        phi /= phi[-1]
-        assert warp_energy(q0, q1, phi)[0] >= r.energy_dp - 1e-9
+    # (that it is the lattice optimum: test_dp_equals_a_brute_force_lattice_search)
+
+
+def _segment_cost(q0, q1, i0, j0, i1, j1):
+    """Exact int_{t_i0}^{t_i1} |q0 - sqrt(s) q1(phi)|^2 for the linear phi from (i0, j0) to
+    (i1, j1): the integrand is constant between the merged breakpoints of both grids."""
+    h0, h1 = 1.0 / q0.shape[0], 1.0 / q1.shape[0]
+    s = (j1 - j0) * h1 / ((i1 - i0) * h0)
+    ta, tb = i0 * h0, i1 * h0
+    cuts = np.r_[np.arange(i0, i1 + 1) * h0, ta + (np.arange(j0, j1 + 1) * h1 - j0 * h1) / s]
+    cuts = np.unique(np.clip(cuts, ta, tb))
+    mid = 0.5 * (cuts[1:] + cuts[:-1])
+    n = np.minimum((mid / h0).astype(int), q0.shape[0] - 1)
+    p = np.minimum(((j0 * h1 + s * (mid - ta)) / h1).astype(int), q1.shape[0] - 1)
+    r = q0[n] - np.sqrt(s) * q1[p]
+    return float(np.sum(np.diff(cuts) * np.einsum("ij,ij->i", r, r)))
+
+
+@pytest.mark.parametrize("symmetric", [False, True])
+def test_dp_equals_a_brute_force_lattice_search(symmetric):
+    """The vectorised DP against a plain dynamic programme over the same lattice and the same
+    23 steps, with segment costs integrated exactly on merged breakpoints and the feature term
+    evaluated on the segment that contains the feature time."""
+    rng = np.random.default_rng(7)
+    N0, N1 = 11, 14
+    q0, q1 = rng.normal(size=(N0 - 1, 3)), rng.normal(size=(N1 - 1, 3))
+    a, b, lam = 0.37, 0.61, 3.0                     # on neither grid: one segment holds each
+    h0, h1 = 1.0 / (N0 - 1), 1.0 / (N1 - 1)
+    steps = [(i, j) for i in range(1, 7) for j in range(1, 7) if np.gcd(i, j) == 1]
+    H = np.full((N0, N1), np.inf)
+    H[0, 0] = 0.0
+    for i in range(1, N0):
+        for j in range(1, N1):
+            for di, dj in steps:
+                i0, j0 = i - di, j - dj
+                if i0 < 0 or j0 < 0 or not np.isfinite(H[i0, j0]):
+                    continue
+                c = _segment_cost(q0, q1, i0, j0, i, j)
+                if i0 * h0 < a <= i * h0:           # phi(a) on this segment
+                    c += lam * (j0 * h1 + (a - i0 * h0) * dj * h1 / (di * h0) - b) ** 2
+                if symmetric and j0 * h1 < b <= j * h1:
+                    c += lam * (i0 * h0 + (b - j0 * h1) * di * h0 / (dj * h1) - a) ** 2
+                H[i, j] = min(H[i, j], H[i0, j0] + c)
+    r = align_srv(q0, q1, features=([a], [b]), lam=lam, symmetric=symmetric, window=None,
+                  refine=False)
+    assert r.energy_dp == pytest.approx(H[-1, -1], rel=1e-12)
+    # and the energy of the warp it returns is that optimum (exact energy of a lattice warp)
+    total = warp_energy(q0, q1, r.phi, features=([a], [b]), lam=lam, symmetric=symmetric)[0]
+    assert total == pytest.approx(H[-1, -1], rel=1e-10)
+    # the optimum is not a trivial one: the identity warp is worse
+    assert H[-1, -1] < r.energy_identity - 0.1
 
 
 def test_energy_closed_form_against_quadrature():
