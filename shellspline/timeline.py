@@ -11,7 +11,8 @@ import numpy as np
 from .errors import ShellsplineError
 
 __all__ = ["keyframe_bracket", "keyframe_gap", "canonical_bc", "checked_K", "checked_frames",
-           "canonical_frames", "linear_blend", "BOUNDARY_CONDITIONS", "DEFAULT_STEP",
+           "canonical_frames", "linear_blend", "linear_time_weights", "BOUNDARY_CONDITIONS",
+           "DEFAULT_STEP",
            "MAX_FRAMES"]
 
 BOUNDARY_CONDITIONS = ("natural", "periodic", "hermite")
@@ -122,7 +123,7 @@ def keyframe_bracket(frames, K: int, periodic: bool = False):
         j_ext = np.concatenate([np.arange(J), [0]])
         pos = np.clip(np.searchsorted(fr_ext, k, side="right") - 1, 0, J - 1)
         j0, j1 = j_ext[pos], j_ext[pos + 1]
-        t = (k - fr_ext[pos]) / (fr_ext[pos + 1] - fr_ext[pos])
+        t = np.clip((k - fr_ext[pos]) / (fr_ext[pos + 1] - fr_ext[pos]), 0.0, 1.0)
     else:
         pos = np.clip(np.searchsorted(fr, k, side="right") - 1, 0, max(J - 2, 0))
         j0, j1 = pos, np.minimum(pos + 1, J - 1)
@@ -226,6 +227,40 @@ def _bounded_K(K) -> int:
     if K < 1 or K > MAX_FRAMES:
         raise ShellsplineError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
     return K
+
+
+def linear_time_weights(frames, K: int, bc: str = "natural") -> np.ndarray:
+    """Piecewise-linear interpolation weights of the keyframes, frame by frame: row ``k`` of
+    the result blends the keyframes as :func:`linear_blend` does at frame ``k``.
+
+    Parameters
+    ----------
+    frames : (J,) int array
+        Strictly increasing keyframe frames in ``[0, K]``.
+    K : int
+    bc : {"natural", "periodic", "hermite"}
+        ``"periodic"`` blends the last keyframe back into the first at frame ``K``; otherwise
+        frames after the last keyframe (and before the first) hold that keyframe.
+
+    Returns
+    -------
+    W : (K+1,J) float64 array
+        Rows sum to 1; ``W[frames[j]] = e_j`` exactly.
+
+    Examples
+    --------
+    >>> linear_time_weights([0, 4], 4)[:, 1].tolist()
+    [0.0, 0.25, 0.5, 0.75, 1.0]
+    """
+    frames = np.asarray(frames, dtype=np.int64)
+    J = len(frames)
+    j0, j1, t = keyframe_bracket(frames, K, str(bc).lower() == "periodic")
+    W = np.zeros((K + 1, J))
+    rows = np.arange(K + 1)
+    np.add.at(W, (rows, j0), 1.0 - t)
+    np.add.at(W, (rows, j1), t)
+    W[frames] = np.eye(J)
+    return W
 
 
 def linear_blend(Vkey, frames, K: int, bc: str = "natural"):

@@ -187,6 +187,22 @@ def test_linear_blend_closed_form():
     assert np.allclose(P[:, 0, 0], [0, 0.5, 1.0, 0.5, 0.0])
 
 
+@pytest.mark.parametrize("bc", ["natural", "periodic"])
+def test_one_linear_blend(bc):
+    """The blend, its time weights and the prolongation's weights are one implementation."""
+    from shellspline.shells.prolong import linear_time_weights as prolong_weights
+    from shellspline.timeline import linear_time_weights
+
+    rng = np.random.default_rng(3)
+    V, frames, K = rng.standard_normal((3, 5, 3)), np.array([0, 3, 7]), 10
+    W = linear_time_weights(frames, K, bc)
+    np.testing.assert_allclose(W.sum(axis=1), 1.0, rtol=1e-15)
+    np.testing.assert_allclose(np.einsum("kj,jni->kni", W, V), linear_blend(V, frames, K, bc),
+                               rtol=0, atol=1e-14)
+    assert np.array_equal(prolong_weights(frames, K, bc), W)
+    assert np.array_equal(W[frames], np.eye(3))
+
+
 @pytest.mark.slow
 def test_real_cactus_is_clean():
     D = shared_data("cactus")

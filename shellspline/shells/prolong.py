@@ -32,6 +32,7 @@ from ..mesh.decimate import Decimation
 from ..mesh.pinned import pinned_mask
 from .descriptors import cross
 from ..mesh.topology import Topology, topology
+from ..timeline import linear_time_weights as timeline_linear_time_weights
 
 __all__ = ["Prolongation", "linear_time_weights", "spline_time_weights", "prolong"]
 
@@ -55,25 +56,7 @@ def linear_time_weights(frames, K: int, bc: str = "natural") -> np.ndarray:
         Rows sum to 1; ``W[frames[j]] = e_j`` exactly.
     """
     fr, K = _checked_frames(frames, K)
-    J = fr.shape[0]
-    k = np.arange(K + 1, dtype=np.float64)
-    W = np.zeros((K + 1, J))
-    if str(bc).lower() == "periodic":
-        ext = np.r_[fr, K].astype(np.float64)
-        jj = np.r_[np.arange(J), 0]
-    else:
-        ext = fr.astype(np.float64)
-        jj = np.arange(J)
-    if ext.shape[0] == 1:
-        W[:, 0] = 1.0
-        return W
-    pos = np.clip(np.searchsorted(ext, k, side="right") - 1, 0, ext.shape[0] - 2)
-    t = np.clip((k - ext[pos]) / (ext[pos + 1] - ext[pos]), 0.0, 1.0)
-    rows = np.arange(K + 1)
-    np.add.at(W, (rows, jj[pos]), 1.0 - t)
-    np.add.at(W, (rows, jj[pos + 1]), t)
-    W[fr] = np.eye(J)
-    return W
+    return timeline_linear_time_weights(fr, K, bc)
 
 
 def spline_time_weights(frames, K: int, bc: str = "natural") -> np.ndarray:
