@@ -13,12 +13,13 @@ import time
 import numpy as np
 
 from ..shells.descriptors import face_normals
-from ..shells.reconstruct import GaussNewton
+from ..shells.reconstruct import GaussNewton, rigid_placement
 from ..timeline import keyframe_bracket
 
 __all__ = ["reconstruct_frames", "run_reconstruction", "reconstruction_runs", "continued_runs",
-           "solve_run", "parallel_decode", "safe_init", "single_blas_thread",
-           "SERIAL_RECONSTRUCT_WORK", "SERIAL_DECODE_WORK", "CONTINUE_MARGIN"]
+           "solve_run", "parallel_decode", "safe_init", "single_blas_thread", "seam_jump",
+           "seam_records", "SERIAL_RECONSTRUCT_WORK", "SERIAL_DECODE_WORK", "CONTINUE_MARGIN",
+           "SEAM_POP"]
 
 #: Below this many vertex-frames the Gauss–Newton reconstruction runs in this process even
 #: with ``workers > 1``: starting a pool costs more than the work (cactus γ = 0.05, K = 20:
@@ -122,7 +123,7 @@ def continued_runs(runs, results, Vinit):
     finds lower energies there than the first pass did.
 
     Returns the continuation runs ``(frames, (V[k∓2], V[k∓1]), energies to beat)`` for
-    :func:`run_reconstruction`.
+    :func:`run_reconstruction`. The jump that remains is measured by :func:`seam_records`.
     """
     tasks = []
     # pair each forward run (anchor before its frames) with the backward run of its gap
@@ -340,7 +341,9 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
     -------
     dict
         ``{k: (V (n,3) float64 array, record dict)}``; frames replaced by the continuation
-        have ``record["continued"] = True``.
+        have ``record["continued"] = True``; the first frame after a jump between the two runs
+        of a gap (:func:`seam_records`) has ``record["seam_jump"]``, the step there over the
+        typical step next to it.
     """
     runs = reconstruction_runs(ks, frames, K, periodic)
     stage = stage_prefix + "reconstruct"
@@ -358,4 +361,103 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
     for kk, (Vk, rec) in better.items():
         rec["continued"] = True
         results[kk] = (Vk, rec)
+    for seam in seam_records(runs, results, Vinit, pinned):
+        results[seam["frame"]][1]["seam_jump"] = seam["jump"]
     return results
+
+
+
+#: A seam between the two runs of a keyframe gap whose step is more than this many times the
+#: typical step next to it is a switch between two local minima of the reconstruction (see
+#: :func:`seam_records`); the same bound as the pop target of issue 13.
+SEAM_POP = 1.5
+
+
+def seam_jump(V_before2, V_before, V_after, V_after2, pinned=None) -> float:
+    """The step across a seam over the typical step next to it.
+
+    Parameters
+    ----------
+    V_before2, V_before : (n,3) float64 arrays
+        The two frames before the seam, on the run that ends there.
+    V_after, V_after2 : (n,3) float64 arrays
+        The two frames after it, on the run that starts there.
+    pinned : (p,) int array, optional
+        Pinned vertices (then no frame is moved rigidly before comparing).
+
+    Returns
+    -------
+    float
+        ``max_i |V_after,i − V_before,i|`` over the mean of the same quantity for the steps
+        ``V_before2 → V_before`` and ``V_after → V_after2``, each frame first placed rigidly
+        onto the one it is compared with (the reconstruction leaves rigid motions free); 1 for
+        a seam as smooth as its neighbours.
+    """
+    def step(A, B):
+        if pinned is None or not len(pinned):
+            A = rigid_placement(A, B)
+        return float(np.sqrt(np.einsum("ij,ij->i", A - B, A - B).max()))
+
+    typical = 0.5 * (step(V_before2, V_before) + step(V_after2, V_after))
+    jump = step(V_after, V_before)
+    return jump / typical if typical > 0 else (np.inf if jump > 0 else 1.0)
+
+
+def seam_records(runs, results, Vinit, pinned=None) -> list:
+    """Where the two runs of a keyframe gap meet in different local minima.
+
+    The reconstruction of one frame has several local minima on real meshes, and the run
+    from each keyframe of a gap can follow its own family of them all the way across. On
+    the horse (8.4k vertices, keyframes horse-reference and horse-03 at frames 0 and 20) the
+    run from frame 0 keeps the hind leg's skin fold unformed and reaches frame 19 at energy
+    0.10 (0.0002 from frame 20); the run from frame 20 keeps it folded and reaches frame 1
+    at 0.061 (0.0004 from frame 0); the two differ by 17–35 % of the bounding-box diagonal
+    in every frame, and the energy of each grows like the square of the distance to its
+    keyframe. Neither a stiffer bending weight (10x, 100x, or a homotopy 1000x → 1x), nor a
+    start from the keyframe blend, nor following the descriptor path between the two runs'
+    own shapes from one end joins them: every sequence of minimisers jumps somewhere
+    between the keyframes, and :func:`continued_runs` puts the jump where the two energies
+    cross. A cross-fade of the two runs over a few frames removes the jump (horse pair: pop
+    7.9 → 1.1, flipped faces 4 → 0) but passes skin folds through each other (folded edges
+    0 → 6; the flexing joint of ``data_synth.stress``: 0 → 10, the same with a rotation-aware
+    blend); it is not done.
+
+    Parameters
+    ----------
+    runs : list
+        The first-pass runs (:func:`reconstruction_runs`).
+    results : dict
+        ``{k: (V, record)}`` after the continuation pass.
+    Vinit : (K+1,n,3) float64 array
+        Initial sequence (the keyframes at their frames).
+    pinned : (p,) int array, optional
+
+    Returns
+    -------
+    list of dict
+        One ``{"frame": s, "jump": ratio}`` per keyframe gap whose runs meet with a step
+        ``V[s−1] → V[s]`` above :data:`SEAM_POP` times the typical step next to it
+        (:func:`seam_jump`); ``s`` is the first frame of the gap taken from the backward run.
+    """
+    fwd_of = {int(r[-1]): (r, a) for r, a in runs if len(r) and r[0] > a}
+    out = []
+    for rb, b in runs:
+        if not len(rb) or rb[0] > b or int(rb[-1]) - 1 not in fwd_of:
+            continue
+        rf, a = fwd_of[int(rb[-1]) - 1]
+        # the sequence takes the forward run up to the seam and the backward run from it
+        # on; a continued run moved the seam into the other half
+        back = [k for k in range(a + 1, b)
+                if (results[k][1].get("continued") and k in rf) or
+                (not results[k][1].get("continued") and k in rb)]
+        if not back or back[0] == a + 1:
+            continue
+        s = back[0]
+
+        def at(k):
+            return Vinit[k] if k in (a, b) else results[k][0]
+
+        ratio = seam_jump(at(max(s - 2, a)), at(s - 1), at(s), at(min(s + 1, b)), pinned)
+        if ratio > SEAM_POP:
+            out.append({"frame": int(s), "jump": float(ratio)})
+    return out

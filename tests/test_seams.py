@@ -1,0 +1,72 @@
+"""Seams between the two runs of a keyframe gap (issue 13: pops are switches between local
+minima of the reconstruction): the jump measure and the seam records."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from shellspline.pipeline import reconstruction as R
+from shellspline.progress import Progress
+
+
+def _shape(seed=0, n=30):
+    return np.random.default_rng(seed).normal(size=(n, 3))
+
+
+def _rigid(V, seed):
+    rot = Rotation.random(random_state=seed).as_matrix()
+    return V @ rot.T + np.array([1.0, -2.0, 0.5]) * seed
+
+
+def test_seam_jump_is_one_for_a_steady_motion_and_ignores_rigid_placement():
+    P = _shape()
+    frames = [P * (1.0 + 0.01 * k) for k in range(4)]          # uniform non-rigid growth
+    assert R.seam_jump(*frames) == pytest.approx(1.0, rel=1e-6)
+    # each frame placed anywhere in space: the reconstruction leaves rigid motions free
+    moved = [_rigid(V, s + 1) for s, V in enumerate(frames)]
+    assert R.seam_jump(*moved) == pytest.approx(1.0, rel=1e-6)
+    # a vertex that jumps by 10x the typical step at the seam
+    after = [V.copy() for V in frames[2:]]
+    step = np.linalg.norm(frames[1] - frames[0], axis=1).max()
+    for V in after:
+        V[0] += [10.0 * step, 0.0, 0.0]
+    ratio = R.seam_jump(frames[0], frames[1], *after)
+    assert 8.0 < ratio < 12.0
+    # with pins nothing is placed rigidly: a rigid move is a real step
+    assert R.seam_jump(frames[0], frames[1], _rigid(frames[2], 3), _rigid(frames[3], 3),
+                       pinned=np.array([0])) > 10.0
+
+
+def _rec(k, continued=False):
+    return {"frame": k, "status": "converged", "success": True, "energy_final": 1.0,
+            **({"continued": True} if continued else {})}
+
+
+def _gap(bump, continued=()):
+    """One keyframe gap 0..10 solved from both ends: the forward run grows the shape, the
+    backward run is the same motion with vertex 0 moved by ``bump`` (another local minimum);
+    frames in ``continued`` were taken over by the backward run's continuation."""
+    P = _shape(3)
+    fwd = {k: P * (1.0 + 0.01 * k) for k in range(11)}
+    bwd = {k: fwd[k].copy() for k in fwd}
+    for k in bwd:
+        bwd[k][0] += bump
+    Vinit = np.stack([fwd[0]] + [fwd[k] for k in range(1, 10)] + [bwd[10]])
+    runs = R.reconstruction_runs(np.arange(1, 10), [0, 10], 10, False)
+    results = {k: (fwd[k], _rec(k)) for k in range(1, 6)}
+    results.update({k: (bwd[k], _rec(k)) for k in range(6, 10)})
+    results.update({k: (bwd[k], _rec(k, True)) for k in continued})
+    return runs, results, Vinit
+
+
+def test_seam_records_find_the_jump_between_two_minima():
+    runs, results, Vinit = _gap(np.array([0.5, 0.0, 0.0]))
+    seams = R.seam_records(runs, results, Vinit)
+    step = 0.01 * np.linalg.norm(_shape(3), axis=1).max()    # the growth's largest step
+    # the bump is 0.5 / step ≈ 15 typical steps; a rigid fit absorbs a little of it
+    assert [s["frame"] for s in seams] == [6] and 0.7 * 0.5 / step < seams[0]["jump"] < 0.5 / step
+    # the backward run continued into the forward half (frames 4, 5): the seam moved to 4
+    runs, results, Vinit = _gap(np.array([0.5, 0.0, 0.0]), continued=(4, 5))
+    assert [s["frame"] for s in R.seam_records(runs, results, Vinit)] == [4]
+    # two runs that meet in the same minimum: no seam
+    runs, results, Vinit = _gap(np.zeros(3))
+    assert R.seam_records(runs, results, Vinit) == []
