@@ -106,7 +106,9 @@ def test_readers_reject_damaged_files(tmp_path):
     mdd, pc2 = mdd_bytes(V), pc2_bytes(V)
     cases = {"short.mdd": mdd[:-4], "tiny.mdd": b"\0\0", "neg.mdd": b"\xff" * 8 + mdd[8:],
              "short.pc2": pc2[:-1], "sig.pc2": b"POINTCACHE3\0" + pc2[12:],
-             "ver.pc2": pc2[:12] + struct.pack("<i", 2) + pc2[16:]}
+             "ver.pc2": pc2[:12] + struct.pack("<i", 2) + pc2[16:],
+             "nantime.mdd": mdd[:12] + struct.pack(">f", np.nan) + mdd[16:],
+             "nanrate.pc2": pc2[:24] + struct.pack("<f", np.inf) + pc2[28:]}
     for name, data in cases.items():
         (tmp_path / name).write_bytes(data)
         reader = read_mdd if name.endswith(".mdd") else read_pc2
@@ -325,6 +327,20 @@ def test_point_cache_and_mesh_as_keyframe_input(tmp_path, fmt):
     (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     assert main(["interpolate", str(out / f"animation.{fmt}"), "--topology",
                  str(tmp_path / "tri.obj"), "-o", str(tmp_path / "x"), "-q"]) == 2
+
+
+def test_cache_samples_out_of_order_need_frames(tmp_path):
+    from shellspline.io.pointcache import keyframes_from_cache
+
+    (tmp_path / "tet.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                                      "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    V0 = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    write_mdd(tmp_path / "back.mdd", [V0, 2 * V0, 3 * V0], times=[0.0, 1.0, 1.0])
+    with pytest.raises(ShellsplineError, match=r"back\.mdd: sample 2 lies at frame 24, not "
+                                                r"after sample 1 at 24"):
+        keyframes_from_cache(tmp_path / "back.mdd", tmp_path / "tet.obj")
+    kf = keyframes_from_cache(tmp_path / "back.mdd", tmp_path / "tet.obj", frames=[0, 5, 9])
+    assert kf.frames.tolist() == [0, 5, 9]
 
 
 def test_mdd_frames_must_be_whole_numbers_apart(tmp_path):

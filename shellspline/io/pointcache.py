@@ -154,8 +154,9 @@ def read_mdd(path) -> tuple[np.ndarray, np.ndarray]:
     Raises
     ------
     ShellsplineError
-        If the file cannot be read, its header is not a plausible MDD header or its size does
-        not match the header (neither exactly nor with Blender's extra rest block).
+        If the file cannot be read, its header is not a plausible MDD header, its size does
+        not match the header (neither exactly nor with Blender's extra rest block), or a frame
+        time is not finite.
     """
     data = _read_bytes(path, "MDD file")
     if len(data) < 8:
@@ -171,6 +172,10 @@ def read_mdd(path) -> tuple[np.ndarray, np.ndarray]:
         raise ShellsplineError(f"'{path}': {len(data)} bytes, but an MDD file of {frames} frames "
                                f"of {n} points has {size}")
     times = np.frombuffer(data, ">f4", frames, 8).astype(np.float64)
+    if not np.isfinite(times).all():
+        k = int(np.argmin(np.isfinite(times)))
+        raise ShellsplineError(f"'{path}': the time of frame {k} is {times[k]}, not a finite "
+                               "number (a damaged MDD file)")
     start = 8 + 4 * frames + (len(data) - size)  # skip Blender's rest block when present
     V = np.frombuffer(data, ">f4", 3 * n * frames, start).reshape(frames, n, 3)
     return V.astype(np.float64), times
@@ -251,8 +256,8 @@ def read_pc2(path) -> tuple[np.ndarray, float, float]:
     Raises
     ------
     ShellsplineError
-        If the file cannot be read, has no PC2 signature, a version other than 1, or a size
-        that does not match its header.
+        If the file cannot be read, has no PC2 signature, a version other than 1, a start
+        frame or sample rate that is not finite, or a size that does not match its header.
     """
     data = _read_bytes(path, "PC2 file")
     if len(data) < _PC2_HEADER.itemsize or not data.startswith(_PC2_SIGNATURE):
@@ -264,6 +269,9 @@ def read_pc2(path) -> tuple[np.ndarray, float, float]:
         raise ShellsplineError(f"'{path}': PC2 version {version}, only version 1 is defined")
     if n < 1 or samples < 1:
         raise ShellsplineError(f"'{path}': PC2 header says {samples} samples of {n} points")
+    if not (np.isfinite(h["start"]) and np.isfinite(h["rate"])):
+        raise ShellsplineError(f"'{path}': PC2 header has start frame {float(h['start'])} and "
+                               f"sample rate {float(h['rate'])}, not finite numbers")
     size = _PC2_HEADER.itemsize + 12 * n * samples
     if len(data) != size:
         raise ShellsplineError(f"'{path}': {len(data)} bytes, but a PC2 file of {samples} "
@@ -331,8 +339,9 @@ def keyframes_from_cache(cache, mesh, frames=None, *, fps: float = 24.0, pinned=
     Raises
     ------
     MeshError
-        If the cache and the mesh disagree in vertex count, the cache's frames are not whole
-        numbers, or as :func:`shellspline.io.keyframes_from_arrays`.
+        If the cache and the mesh disagree in vertex count, the cache's frames (when
+        ``frames`` is not given) are not whole numbers or not increasing, or as
+        :func:`shellspline.io.keyframes_from_arrays`.
 
     Examples
     --------
@@ -365,6 +374,10 @@ def keyframes_from_cache(cache, mesh, frames=None, *, fps: float = 24.0, pinned=
         if np.abs(rel - frames).max() > 1e-3:
             raise MeshError(f"{cache}: the samples lie at frames {np.round(at, 3).tolist()[:6]}, "
                             "not whole numbers apart; give the keyframe frames")
+        if np.any(np.diff(frames) <= 0):
+            k = int(np.argmax(np.diff(frames) <= 0))
+            raise MeshError(f"{cache}: sample {k + 1} lies at frame {at[k + 1]:g}, not after "
+                            f"sample {k} at {at[k]:g}; give the keyframe frames")
     F, _ = triangulate_polygons(V, offsets, indices, str(mesh))
     names = [f"{cache} sample {i}" for i in range(V.shape[0])]
     return keyframes_from_arrays(V, F, frames=frames, names=names, pinned=pinned)
