@@ -70,6 +70,29 @@ def test_engine_problems_lists_what_the_report_flags():
     assert any("nonlinear" in s and "time limit" in s for s in lines)
     assert not any("folded" in s for s in lines)
     assert engine.problems({}) == []
+    shifted = engine.problems(rep, start=100)
+    assert any("stalled at frames [103, 104]" in s for s in shifted)
+    assert any("worst frames [104]" in s for s in shifted)
+    assert any("pop 3.50 at frame 109" in s for s in shifted)
+
+
+@pytest.mark.parametrize("backend", ["library", "cli"])
+def test_engine_problems_read_a_real_report(backend):
+    """problems() on the report a real run writes (not a hand-made dict): Gauss-Newton cut
+    at one iteration is flagged at exactly the in-between frames, through both back ends."""
+    V0, F = _strip()
+    keys = np.stack([_bent(V0, a) for a in (0.0, 1.5, 0.5)])
+    res = engine.interpolate(keys, F, [3, 7, 13], options=engine.Options(method="lta",
+                                                                           max_iter=1),
+                             backend=backend)
+    gn = res.report["gauss_newton"]
+    assert gn["iteration_limit"] == [1, 2, 3, 5, 6, 7, 8, 9] and gn["iterations_max"] == 1
+    # named as Blender's frames: the first keyframe is frame 3
+    assert res.problems == ["Gauss-Newton at the iteration limit at frames "
+                            "[4, 5, 6, 8, 9, 10, 11, 12]"]
+    ok = engine.interpolate(keys, F, [3, 7, 13], options=engine.Options(method="lta"),
+                            backend=backend)
+    assert ok.report["gauss_newton"]["converged"] == 8 and ok.problems == []
 
 
 def test_engine_library_and_cli_back_ends_agree():

@@ -63,17 +63,21 @@ class Result:
 
     @property
     def problems(self) -> list:
-        return problems(self.report)
+        """:func:`problems` of the report, frames numbered as Blender's timeline."""
+        return problems(self.report, start=self.start)
 
 
-def problems(report: dict) -> list:
+def problems(report: dict, start: int = 0) -> list:
     """One line per problem the report records: frames whose Gauss–Newton stalled or hit the
     iteration limit, new flipped/collapsed faces, folded edges, pops, keyframes not exact,
-    a geodesic/nonlinear solver that did not converge."""
+    a geodesic/nonlinear solver that did not converge.
+
+    The report numbers frames from 0 (the first keyframe); ``start`` (the first keyframe's
+    Blender frame) is added, so that the lines name the frames of Blender's timeline."""
     out = []
     gn = report.get("gauss_newton") or {}
     for key, what in (("stalled", "stalled"), ("iteration_limit", "at the iteration limit")):
-        fr = gn.get(key) or []
+        fr = [int(f) + start for f in gn.get(key) or []]
         if fr:
             out.append(f"Gauss-Newton {what} at frames {fr[:8]}{' ...' if len(fr) > 8 else ''}")
     q = report.get("quality") or {}
@@ -82,9 +86,12 @@ def problems(report: dict) -> list:
     for key, what in (("flipped_faces", "new flipped faces"),
                       ("collapsed_faces", "collapsed faces"), ("folded_edges", "folded edges")):
         if q.get(key):
-            out.append(f"{q[key]} {what} (worst frames {q.get('worst_frames', [])[:5]})")
+            worst = [int(f) + start for f in q.get("worst_frames", [])[:5]]
+            out.append(f"{q[key]} {what} (worst frames {worst})")
     if q.get("pop", 0.0) > q.get("pop_limit", 2.0):
-        out.append(f"pop {q['pop']:.2f} at frame {q.get('pop_frame')} (a jump between frames)")
+        at = q.get("pop_frame")
+        out.append(f"pop {q['pop']:.2f} at frame {at if at is None else int(at) + start} "
+                   "(a jump between frames)")
     for name in ("geodesic", "nonlinear"):
         r = report.get(name)
         if r and not r.get("success", True):
