@@ -706,9 +706,11 @@ def plant_feet(motion: Motion, contacts: FootContacts, *, smooth: int = 0) -> Mo
     Returns
     -------
     Motion
-        The root's horizontal position channels changed; exact for one planted foot (world
-        positions are linear in the root translation), a compromise in double support.
-        The motion unchanged when the root has no horizontal position channels.
+        The position channels of the body's carrier changed (per root, the first joint with
+        all three position channels: the root itself in CMU and game-studio files; the shift
+        is turned into the carrier's parent frame); exact for one planted foot (world
+        positions are linear in that translation), a compromise in double support. The
+        motion unchanged when no joint has three position channels.
     """
     hor = [a for a in range(3) if a != contacts.up[0]]
     steps, planted = _planted_steps(motion, contacts)
@@ -718,20 +720,36 @@ def plant_feet(motion: Motion, contacts: FootContacts, *, smooth: int = 0) -> Mo
         ker = np.ones(2 * smooth + 1) / (2 * smooth + 1)
         corr = np.stack([np.convolve(corr[:, i], ker, mode="same") for i in range(2)], 1)
     offset = np.vstack([np.zeros((1, 2)), np.cumsum(corr, axis=0)])
-    roots = np.flatnonzero(motion.parents < 0)
+    delta = np.zeros((motion.n_frames, 3))
+    delta[:, hor] = offset
+    Rw = forward_kinematics(motion)[1]
     values = motion.values.copy()
-    for r in roots:
-        cols = motion.channel_columns(int(r))
-        names = motion.channels[r]
-        found = {names[k][0]: cols[k] for k in range(len(names)) if names[k].endswith("position")}
-        if all("XYZ"[a] in found for a in hor):
-            for i, a in enumerate(hor):
-                values[:, found["XYZ"[a]]] += offset[:, i]
-        else:
-            # a root translated by its offset only: nothing to move without a channel
-            continue
+    for j in _carriers(motion):
+        # p_j = p_parent + R_parent t_j: a world shift d is R_parent^T d in j's channels
+        p = int(motion.parents[j])
+        local = delta if p < 0 else np.einsum("tba,tb->ta", Rw[:, p], delta)
+        names = motion.channels[j]
+        cols = motion.channel_columns(j)
+        for k, name in enumerate(names):
+            if name.endswith("position"):
+                values[:, cols[k]] += local[:, "XYZ".index(name[0])]
     return Motion(motion.names, motion.parents, motion.offsets, motion.channels,
                   motion.frame_time, values, motion.end_sites)
+
+
+def _carriers(motion: Motion) -> list[int]:
+    """Per root, the first joint of its subtree (file order) with all three position
+    channels: the joint whose translation moves the whole body."""
+    out = []
+    tree = -np.ones(motion.n_joints, dtype=np.int64)
+    for j, p in enumerate(motion.parents):
+        tree[j] = j if p < 0 else tree[p]
+    for r in np.flatnonzero(motion.parents < 0):
+        for j in np.flatnonzero(tree == r):
+            if sum(c.endswith("position") for c in motion.channels[j]) == 3:
+                out.append(int(j))
+                break
+    return out
 
 
 # ----------------------------------------------------------------------------------------

@@ -453,3 +453,25 @@ def test_data_synth_motion_command(tmp_path, capsys):
     with pytest.raises(SystemExit):
         synth_main(["motion", str(out), "--order", "XXY"])
     capsys.readouterr()
+
+
+def test_plant_feet_moves_a_carrier_below_a_rotated_root():
+    """A root without position channels, turned 90 degrees about the up axis, above a hips
+    joint that carries the travel: the correction goes through the root's rotation."""
+    m = synth.motion(fps=60.0, seconds=1.5, channels=3, order="ZYX")
+    J = m.n_joints
+    names = ("ground",) + m.names
+    parents = np.r_[-1, m.parents + 1]
+    parents[1] = 0
+    offsets = np.vstack([np.zeros(3), m.offsets])
+    chans = (("Yrotation",),) + m.channels
+    values = np.hstack([np.full((m.n_frames, 1), 90.0), m.values])
+    v = values.copy()
+    v[:, 3] += np.arange(m.n_frames) * 0.8  # hips Z drifts: planted feet slide
+    turned = Motion(names, parents, offsets, chans, m.frame_time, v, tuple(
+        (p + 1, o) for p, o in m.end_sites))
+    c = A.foot_contacts(turned)
+    assert c.contact.any() and J + 1 == turned.n_joints
+    fixed = A.plant_feet(turned, c)
+    assert A.foot_skate(fixed, c)["drift"] < 0.2 * A.foot_skate(turned, c)["drift"]
+    assert np.array_equal(fixed.values[:, 0], turned.values[:, 0])  # the root is not moved
