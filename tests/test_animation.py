@@ -475,3 +475,16 @@ def test_plant_feet_moves_a_carrier_below_a_rotated_root():
     fixed = A.plant_feet(turned, c)
     assert A.foot_skate(fixed, c)["drift"] < 0.2 * A.foot_skate(turned, c)["drift"]
     assert np.array_equal(fixed.values[:, 0], turned.values[:, 0])  # the root is not moved
+
+
+def test_contacts_do_not_depend_on_frame_rate_or_units():
+    m = real()
+    hi = A.resample(m, frame_time=m.frame_time / 4)  # 120 Hz
+    c, ch = A.foot_contacts(m), A.foot_contacts(hi)
+    for i in range(2):
+        a, b = c.onsets(i) * 4, ch.onsets(i)
+        assert a.size == b.size and np.abs(a - b).max() <= 4  # within one 30 Hz frame
+    cm = synth.motion(fps=60.0, seconds=2.0, channels=3, order="ZXY")
+    metres = synth.motion(fps=60.0, seconds=2.0, channels=3, order="ZXY", scale=0.01)
+    assert np.array_equal(A.foot_contacts(cm).contact, A.foot_contacts(metres).contact)
+    assert np.isclose(A.foot_contacts(metres).leg_length, 0.01 * A.foot_contacts(cm).leg_length)
