@@ -222,6 +222,11 @@ def test_usd_polygons_and_bad_input(tmp_path):
             write_usd(tmp_path / "e.usda", V, TET_F, **kw)
     with pytest.raises(ShellsplineError, match="outside"):
         write_usd(tmp_path / "e.usda", V[:, :3], TET_F)
+    for bad in (np.nan, 1e39):  # 1e39 would be stored as inf in a point3f
+        W = V[:, :4].copy()
+        W[1, 2, 0] = bad
+        with pytest.raises(ShellsplineError, match="frame 1, point 2"):
+            write_usd(tmp_path / "e.usda", W, TET_F)
     with pytest.raises(ShellsplineError, match=".usda"):
         write_usd(tmp_path / "e.txt", V, TET_F)
     (tmp_path / "bad.usda").write_text("not usd")

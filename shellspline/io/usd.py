@@ -129,8 +129,11 @@ def write_usd(path, V, F=None, *, polygons=None, fps: float = 24.0, up_axis: str
     V = np.asarray(V, dtype=np.float64)
     if V.ndim != 3 or V.shape[2] != 3 or V.shape[0] == 0 or V.shape[1] == 0:
         raise ShellsplineError(f"V must be a (K+1,n,3) array of poses, got shape {V.shape}")
-    if not np.isfinite(V).all():
-        raise ShellsplineError("V must be finite")
+    big = ~(np.abs(V) <= np.finfo(np.float32).max)  # NaN, inf, or inf once stored as float32
+    if big.any():
+        k, i, _ = np.argwhere(big)[0]
+        raise ShellsplineError(f"V must be finite and within float32 range, got "
+                               f"{V[k, i].tolist()} at frame {k}, point {i}")
     n = V.shape[1]
     if polygons is not None:
         offsets, indices = (np.asarray(a, dtype=np.int64) for a in polygons)
