@@ -343,5 +343,5 @@ def _kill_local_workers(cluster, wait: float = 1.5) -> None:
     try:
         done = asyncio.run_coroutine_threadsafe(close_and_kill(), cluster.loop.asyncio_loop)
         done.result(timeout=wait + 0.5)
-    except Exception:  # pragma: no cover - another Dask layout: kill, the close follows
-        kill_all()
+    except Exception:  # pragma: no cover - a slow close or another Dask layout: make sure
+        kill_all()     # the workers are dead; the cluster's own close follows
