@@ -108,12 +108,15 @@ def test_readers_reject_damaged_files(tmp_path):
              "short.pc2": pc2[:-1], "sig.pc2": b"POINTCACHE3\0" + pc2[12:],
              "ver.pc2": pc2[:12] + struct.pack("<i", 2) + pc2[16:],
              "nantime.mdd": mdd[:12] + struct.pack(">f", np.nan) + mdd[16:],
-             "nanrate.pc2": pc2[:24] + struct.pack("<f", np.inf) + pc2[28:]}
+             "nanrate.pc2": pc2[:24] + struct.pack("<f", np.inf) + pc2[28:],
+             "head.pc2": pc2[:20]}
     for name, data in cases.items():
         (tmp_path / name).write_bytes(data)
         reader = read_mdd if name.endswith(".mdd") else read_pc2
         with pytest.raises(ShellsplineError, match=name):
             reader(tmp_path / name)
+    with pytest.raises(ShellsplineError, match="truncated"):
+        read_pc2(tmp_path / "head.pc2")
     with pytest.raises(ShellsplineError, match="missing.pc2"):
         read_pc2(tmp_path / "missing.pc2")
     with pytest.raises(ShellsplineError, match=r"\.mdd or \.pc2"):

@@ -260,9 +260,12 @@ def read_pc2(path) -> tuple[np.ndarray, float, float]:
         frame or sample rate that is not finite, or a size that does not match its header.
     """
     data = _read_bytes(path, "PC2 file")
-    if len(data) < _PC2_HEADER.itemsize or not data.startswith(_PC2_SIGNATURE):
+    if not data.startswith(_PC2_SIGNATURE):
         raise ShellsplineError(f"'{path}' is not a PC2 file: it does not start with "
                                f"{_PC2_SIGNATURE!r}")
+    if len(data) < _PC2_HEADER.itemsize:
+        raise ShellsplineError(f"'{path}': {len(data)} bytes, shorter than the "
+                               f"{_PC2_HEADER.itemsize}-byte PC2 header (a truncated file)")
     h = np.frombuffer(data, _PC2_HEADER, 1)[0]
     version, n, samples = int(h["version"]), int(h["points"]), int(h["samples"])
     if version != 1:
