@@ -275,3 +275,6 @@ def test_invalid_inputs_raise():
         align(a, a, features=([0.5], [0.5]), lam=-1)
     with pytest.raises(ShellsplineError, match="distance"):
         shape_distance(a, a, features=([0.5], [0.5]))
+    with pytest.raises(ShellsplineError, match=r"29 and 5 intervals.*\[1/4, 4\]"):
+        align(a, space_curve(np.linspace(0, 1, 6)), neighborhood_size=4)
+    assert align(a, space_curve(np.linspace(0, 1, 6)), refine=False).status == "dp"  # 29 <= 6*5

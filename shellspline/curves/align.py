@@ -313,6 +313,10 @@ def _dp(q0, q1, steps, window, feats):
     h0, h1 = 1.0 / (N0 - 1), 1.0 / (N1 - 1)
     S = steps.shape[0]
     P = int(steps.max())
+    if N1 - 1 > P * (N0 - 1) or N0 - 1 > P * (N1 - 1):
+        raise ShellsplineError(f"align: no admissible warp: the curves have {N0 - 1} and "
+                               f"{N1 - 1} intervals, and the DP's slopes lie in [1/{P}, {P}] "
+                               "(resample one curve, or a larger neighborhood_size)")
     G = np.zeros((N0 - 1 + P, N1 - 1 + P))
     G[P:, P:] = q0 @ q1.T
     A0 = np.concatenate([np.zeros(P + 1), np.cumsum(h0 * np.einsum("ij,ij->i", q0, q0))])
