@@ -79,7 +79,9 @@ HORSE_NONLINEAR_FRAMES = (0, 12, 24, 36, 48)
 # measurements shared by both parts
 # ----------------------------------------------------------------------------------------
 def gn_summary(report: dict) -> dict:
-    """Gauss–Newton frames converged / stalled and iterations (median, max) of a report."""
+    """Gauss–Newton frames converged / stalled, iterations (median, max) and the seams (first
+    frame after a jump between the two runs of a keyframe gap, and the jump over the typical
+    step: ``shellspline.pipeline.reconstruction.seam_records``) of a report."""
     recs = report.get("frames") or []
     nit = [r["nit"] for r in recs]
     statuses = {}
@@ -89,7 +91,9 @@ def gn_summary(report: dict) -> dict:
             "converged": int(sum(bool(r["success"]) for r in recs)),
             "stalled": int(sum(r.get("status") == "stalled" for r in recs)),
             "it_median": float(np.median(nit)) if nit else None,
-            "it_max": int(max(nit)) if nit else None}
+            "it_max": int(max(nit)) if nit else None,
+            "seams": [[int(r["frame"]), round(float(r["seam_jump"]), 2)] for r in recs
+                      if "seam_jump" in r]}
 
 
 def defects(V, T, frames) -> dict:
@@ -296,9 +300,10 @@ def horse_table(runs) -> str:
                      f"{gn['converged']}/{gn['stalled']}/{gn['frames']}" if gn else "-",
                      f"{gn['it_median']:g}/{gn['it_max']}" if gn else "-",
                      r["flipped"], r["collapsed"], r["folded"], r["pop"],
+                     " ".join(f"{k}:{j:g}" for k, j in gn.get("seams", [])) or "-",
                      r["keyframes_exact"]])
     return format_table(["horse", "K", "s", "GN conv/stall/n", "it med/max", "flip", "coll",
-                         "fold", "pop", "keys exact"], rows)
+                         "fold", "pop", "seams", "keys exact"], rows)
 
 
 # ----------------------------------------------------------------------------------------
