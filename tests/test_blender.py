@@ -1,6 +1,7 @@
 """The Blender add-on: the installable zip, its engine (no bpy), and the operator run headless in
 Blender as a Python module (``pip install 'shellspline[blender]'``; skipped without it)."""
 import importlib
+import inspect
 import sys
 import zipfile
 from pathlib import Path
@@ -47,6 +48,20 @@ def test_addon_zip_holds_the_addon_sources(tmp_path):
     write_addon_zip(p, overwrite=True)
     with pytest.raises(ShellsplineError, match=r"\.zip"):
         write_addon_zip(tmp_path / "addon.tar")
+
+
+def test_engine_choices_are_the_librarys():
+    """The engine spells the choices out (it must import without shellspline); they must not
+    drift from the library's, or the dialog offers what the CLI refuses."""
+    from shellspline.pipeline.options import METHODS, RIGID_TRACKS
+    from shellspline.timeline import BOUNDARY_CONDITIONS
+
+    assert engine.METHODS == METHODS
+    assert engine.BOUNDARY_CONDITIONS == BOUNDARY_CONDITIONS
+    assert engine.RIGID_TRACKS == RIGID_TRACKS
+    defaults = inspect.signature(ss.interpolate).parameters
+    for name in ("method", "bc", "eta", "rigid_track"):
+        assert getattr(engine.Options(), name) == defaults[name].default, name
 
 
 def test_engine_pc2_matches_the_library_writer(tmp_path):
