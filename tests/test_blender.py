@@ -245,15 +245,20 @@ def test_operator_reports_problems_as_errors(addon):
         bpy.ops.object.shellspline_interpolate(timing="EVEN", pin_group="nope")
 
 
-def test_cli_writes_the_addon_zip(tmp_path):
+def test_cli_writes_the_addon_zip(tmp_path, capsys):
     from shellspline.cli.main import main
 
     p = tmp_path / "shellspline_addon.zip"
     assert main(["blender-addon", "-o", str(p), "-q"]) == 0
     assert zipfile.ZipFile(p).read(f"{ADDON_PACKAGE}/engine.py") == \
         (Path(engine.__file__)).read_bytes()
-    assert main(["blender-addon", "-o", str(p), "-q"]) == 2  # exists
+    capsys.readouterr()
+    assert main(["blender-addon", "-o", str(p), "-q"]) == 2  # exists: says which option helps
+    err = capsys.readouterr().err.strip()
+    assert err == f"shellspline: error: '{p}' already exists (--overwrite replaces it)"
     assert main(["blender-addon", "-o", str(p), "--overwrite", "-q"]) == 0
+    assert main(["blender-addon", "-o", str(tmp_path / "addon.txt"), "-q"]) == 2
+    assert "must end in .zip" in capsys.readouterr().err
 
 
 _INSTALL_AND_RUN = r"""

@@ -20,7 +20,10 @@ def add_parsers(sub) -> None:
 def _blender_addon(args) -> int:
     from ..integrations.blender import write_addon_zip
 
-    out = write_addon_zip(args.out, overwrite=args.overwrite)
+    try:
+        out = write_addon_zip(args.out, overwrite=args.overwrite)
+    except FileExistsError:
+        raise FileExistsError(f"'{args.out}' already exists (--overwrite replaces it)") from None
     if not args.quiet:
         print(f"wrote {out}: in Blender, Edit > Preferences > Add-ons > Install from Disk",
               file=sys.stderr)
