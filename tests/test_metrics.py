@@ -1,8 +1,9 @@
 import numpy as np
+import pytest
 
 import shellspline as ss
 from shellspline.metrics import (edge_strain, half_axes, keyframe_kinks, length_scale,
-                                 lta_energies, shell_energies, speed)
+                                 lta_energies, sequence_defects, shell_energies, speed)
 
 from conftest import icosphere
 
@@ -67,3 +68,25 @@ def test_lta_energies_concentrate_at_a_kink():
     kinked = V[None] * np.where(t <= 0.5, 1 + t, 2 - t)   # grows, then shrinks back
     ek = lta_energies(kinked, T)
     assert np.argmax(ek) == 3 and ek[3] > 100 * max(ek[1], ek[5], e.max())
+
+
+def _hinge(phi):
+    """Two triangles on the edge 0-1; the flap turned by ``phi`` from lying on the other
+    (phi = 0: folded flat, signed dihedral angle ±π; it crosses ±π as phi changes sign)."""
+    return np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, np.cos(phi), np.sin(phi)]])
+
+
+@pytest.mark.parametrize("key_phi, folds", [(1e-12, 0), (0.8, 2)])
+def test_a_step_at_a_keyframe_held_at_pi_is_not_a_fold(key_phi, folds):
+    # keyframes at frames 0 and 4; the in-betweens sit 0.01-0.02 rad across the touching
+    # point. A keyframe within FOLD_BAND of ±π has no trustworthy sign (an angle of exactly π
+    # came out +π or −π with round-off), so the steps from and to it are not folds; with
+    # keyframes away from ±π the same two crossings are
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    T = ss.topology(F)
+    V = np.stack([_hinge(p) for p in (key_phi, -0.01, -0.02, -0.01, key_phi + 0.3)])
+    from shellspline.shells.descriptors import dihedral_angles
+
+    th = dihedral_angles(V, T)[:, 0]
+    assert (np.abs(np.diff(th)) > np.pi).sum() == 2                 # two steps through ±π
+    assert sequence_defects(V, T, [0, 4])["folded_edges"] == folds
