@@ -53,6 +53,10 @@ CONTACT_SPEED = 0.5
 # apart on average (the DP matches a step with the next one), lam = 100 brings them to 1.1
 # frames for 1 % more SRV distance (6.14 -> 6.21); lam = 1000: 0.75 frames, 6.25.
 FEATURE_WEIGHT = 100.0
+# Contacts and gaps shorter than this (seconds) are noise: a foot that brushes the ground
+# for one frame after lift-off, or a planted foot that jitters for one frame (on the
+# synthetic 120 Hz walk a 1-frame brush after every lift-off doubled the touch-downs).
+CONTACT_MIN_TIME = 0.06
 
 
 # ----------------------------------------------------------------------------------------
@@ -543,8 +547,25 @@ def foot_contacts(motion: Motion, *, feet=None, up=None, height: float = CONTACT
         v = np.linalg.norm(V, axis=-1)
     else:
         v = np.zeros(H.shape)
-    jc = (H <= height * leg) & (v <= speed * leg)
+    jc = _debounce((H <= height * leg) & (v <= speed * leg),
+                   int(np.ceil(CONTACT_MIN_TIME / motion.frame_time - 1e-9)))
     return FootContacts(tuple(feet), joints, jc.any(axis=2), jc, H, (ax, sign), leg, P)
+
+
+def _debounce(c, n: int) -> np.ndarray:
+    """``c (T,...)`` bool with runs, then gaps, shorter than ``n`` frames removed along axis
+    0 (a morphological opening, then a closing: a brush of the ground is dropped before it
+    could bridge a gap; the clip's ends are extended, so a run cut by the clip's start or
+    end is kept)."""
+    if n <= 1 or c.shape[0] < 2:
+        return c
+    from scipy.ndimage import binary_closing, binary_opening
+
+    st = np.ones((n,) + (1,) * (c.ndim - 1), dtype=bool)
+    pad = [(n, n)] + [(0, 0)] * (c.ndim - 1)
+    x = np.pad(c, pad, mode="edge")
+    x = binary_closing(binary_opening(x, st), st)
+    return x[n:-n]
 
 
 def foot_skate(motion: Motion, contacts: FootContacts | None = None, **kw) -> dict:
@@ -774,6 +795,9 @@ def _varying(*Xs) -> np.ndarray:
 
 
 def _pair(a: Motion, b: Motion, n_frames=None):
+    if min(a.n_frames, b.n_frames) < 2:
+        raise ShellsplineError(f"the clips have {a.n_frames} and {b.n_frames} frames: "
+                               "distance, align and blend need at least 2 per clip")
     a2, b2 = common_grid(a, b, n_frames)
     ca, cb = motion_curve(a2), motion_curve(b2)
     H = 0.5 * (body_height(a) + body_height(b))  # symmetric in a and b
@@ -1082,7 +1106,9 @@ def loop_range(motion: Motion, *, min_fraction: float = 0.5, up=None) -> tuple[i
     sq1 = np.diag(G1)
     D = D + sq1[:, None] + sq1[None, :] - 2 * G1
     span = idx[None, :] - idx[:, None]
-    D[span < int(np.ceil(min_fraction * (T - 1)))] = np.inf
+    D[span < max(int(np.ceil(min_fraction * (T - 1))), 2)] = np.inf  # >= 3 frames kept
+    if not np.isfinite(D).any():  # too short to choose: the whole clip
+        return 0, T - 1
     a, b = np.unravel_index(np.argmin(D), D.shape)
     return int(idx[a]), int(idx[b])
 

@@ -488,3 +488,83 @@ def test_contacts_do_not_depend_on_frame_rate_or_units():
     metres = synth.motion(fps=60.0, seconds=2.0, channels=3, order="ZXY", scale=0.01)
     assert np.array_equal(A.foot_contacts(cm).contact, A.foot_contacts(metres).contact)
     assert np.isclose(A.foot_contacts(metres).leg_length, 0.01 * A.foot_contacts(cm).leg_length)
+
+
+# ----------------------------------------------------------------------------------------
+# Held-out layouts (CMU, Mixamo-like, game rigs with fingers, short clips): the generator's
+# own stance phase is the oracle for the contacts
+# ----------------------------------------------------------------------------------------
+HELD_OUT = {"cmu": dict(skeleton="cmu", fps=120.0, channels=3),
+            "mixamo": dict(skeleton="cmu", names="mixamo", channels=6, fps=30.0),
+            "fingers_zup": dict(skeleton="fingers", up="z", order="mixed", fps=30.0),
+            "metres_lifted": dict(scale=0.01, lift=40.0, fps=60.0),
+            "tpose_first": dict(skeleton="cmu", tpose_first=True, fps=30.0)}
+
+
+@pytest.mark.parametrize("name", sorted(HELD_OUT))
+def test_contacts_follow_the_true_stance_on_held_out_layouts(name):
+    m = synth.motion(seconds=3.0, **HELD_OUT[name])
+    fc = A.foot_contacts(m)
+    names = [m.names[f].split(":")[-1] for f in fc.feet]  # "mixamorig:" prefix dropped
+    cmu = HELD_OUT[name].get("skeleton") == "cmu"
+    assert names == (["LeftToeBase", "RightToeBase"] if cmu else ["toe_l", "toe_r"])
+    w = 2 * np.pi * np.arange(m.n_frames) * m.frame_time  # one gait cycle per second
+    stance = np.stack([np.cos(w) <= 0, np.cos(w + np.pi) <= 0], axis=1)  # left, right
+    agree = (fc.contact == stance).mean(axis=0)
+    assert agree.min() >= 0.85, agree
+    for i in range(2):  # one touch-down per foot and cycle, where the stance starts
+        true_on = np.flatnonzero(stance[1:, i] & ~stance[:-1, i]) + 1
+        on = fc.onsets(i)
+        assert on.size == true_on.size == 3
+        assert np.abs(on - true_on).max() * m.frame_time <= 0.1
+    # the generator's planted foot does not slide: measured skate ~ 0 (FK, not the detector)
+    P = forward_kinematics(m)[0]
+    ax = 2 if HELD_OUT[name].get("up") == "z" else 1
+    hor = [a for a in range(3) if a != ax]
+    toe = P[:, list(fc.feet)][..., hor]
+    mid = stance[1:] & stance[:-1]
+    assert np.abs(np.diff(toe, axis=0)[mid[:, :]]).max() <= 1e-9 * fc.leg_length
+    assert A.foot_skate(m, fc)["speed_per_leg"] <= 0.02
+
+
+def test_contacts_drop_a_one_frame_brush():
+    c = np.zeros((40, 1, 2), dtype=bool)
+    c[5:20] = True
+    c[11, 0, 0] = False  # one-frame gap inside a stance
+    c[26] = True  # a one-frame brush of the ground after lift-off
+    c[38:] = True  # a contact cut by the clip's end
+    out = A._debounce(c, 3)
+    want = np.zeros_like(c)
+    want[5:20] = True
+    want[38:] = True
+    assert np.array_equal(out, want)
+
+
+@pytest.mark.parametrize("name", ["cmu", "fingers_zup"])
+def test_operations_on_held_out_layouts(name):
+    m = synth.motion(seconds=1.3, **HELD_OUT[name])
+    assert A.distance(m, m, align="none") == 0.0
+    assert A.distance(m, m) <= 1e-12
+    b, _ = A.blend(m, m, 0.5, features="contacts")
+    assert b.n_frames == m.n_frames and np.abs(b.values - m.values).max() <= 1e-9
+    out, rep = A.close(m)
+    assert rep.success and rep.history[-1] <= 1e-2 * rep.history[0]
+    g0, g1 = rep.gap_before, rep.gap_after
+    assert g1["rotation_max"] <= 1e-2 * g0["rotation_max"]
+    assert g1["position_max"] <= 1e-2 * g0["position_max"]
+    # what the report says is what the file shows: last frame's rotations = first frame's
+    c = A.motion_curve(out)
+    assert so3.angle(c.R[-1] @ np.swapaxes(c.R[0], -1, -2)).max() <= 1e-6
+
+
+def test_short_and_single_frame_clips():
+    one = synth.motion(frames=1)
+    assert one.n_frames == 1
+    for f in (lambda: A.distance(one, one), lambda: A.blend(one, one),
+              lambda: A.align(one, one), lambda: A.close(one)):
+        with pytest.raises(ShellsplineError, match="frame"):
+            f()
+    three = synth.motion(frames=3, fps=30.0)
+    assert A.loop_range(three) == (0, 2)  # too short to trim: the whole clip
+    out, rep = A.close(three, trim=True)
+    assert rep.frames == (0, 2) and out.n_frames == 3 and rep.success

@@ -165,3 +165,27 @@ def test_mesh_sequence_folders(capsys, tmp_path):
     assert code == 0 and np.abs(read_sequence(tmp_path / "mid")[0] - Vs).max() <= 1e-8
     code, _, err = run(capsys, "blend", tmp_path / "a", walk(), "-o", tmp_path / "x")
     assert code == 2 and "two BVH files or two mesh" in err
+
+
+def test_held_out_layouts_through_the_cli(tmp_path, capsys):
+    one, cmu, simple = tmp_path / "one.bvh", tmp_path / "cmu.bvh", tmp_path / "simple.bvh"
+    write_bvh(synth.motion(frames=1), one)
+    write_bvh(synth.motion(skeleton="cmu", names="mixamo", channels=6, fps=30.0,
+                           seconds=1.3), cmu)
+    write_bvh(synth.motion(fps=30.0, seconds=1.3), simple)
+    for cmd in (["distance", one, one], ["blend", one, one, "-o", tmp_path / "b.bvh"],
+                ["align", one, one, "-o", tmp_path / "w.csv"]):
+        code, _, err = run(capsys, *cmd)
+        assert code == 2 and "one.bvh: 1 frame" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "close", one, "-o", tmp_path / "c.bvh")
+    assert code == 2 and "at least 3 frames" in err
+    code, _, err = run(capsys, "distance", cmu, simple)
+    assert code == 2 and "different skeletons" in err and len(err.strip().splitlines()) == 1
+    code, out, _ = run(capsys, "distance", cmu, cmu, "--features", "contacts")
+    assert code == 0 and float(out) <= 1e-12
+    code, _, err = run(capsys, "close", cmu, "-o", tmp_path / "loop.bvh", "--trim")
+    assert code == 0, err
+    loop = read_bvh(tmp_path / "loop.bvh")
+    assert loop.names[0] == "mixamorig:Hips"
+    c = A.motion_curve(loop)
+    assert np.abs(c.R[-1] - c.R[0]).max() <= 1e-6

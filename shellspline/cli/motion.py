@@ -171,6 +171,10 @@ def _is_mesh(x) -> bool:
 
 def _read_pair(args):
     a, b = _read(args.a), _read(args.b)
+    for path, x in ((args.a, a), (args.b, b)):
+        if not _is_mesh(x) and x.n_frames < 2:
+            raise ShellsplineError(f"{path}: {x.n_frames} frame; distance, align and blend "
+                                   "need at least 2")
     if _is_mesh(a) != _is_mesh(b):
         raise ShellsplineError(f"{args.a} and {args.b}: give two BVH files or two mesh "
                                "sequence folders")
