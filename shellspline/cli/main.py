@@ -96,8 +96,11 @@ class _Bar:
 
 def _build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="shellspline",
-                                description="Smooth in-betweens of triangle-mesh keyframes: "
-                                            "splines in the space of thin shells.")
+                                description="The motion of shapes: smooth in-betweens of triangle-mesh "
+                                            "keyframes (splines in the space of thin shells), "
+                                            "smooth rigid paths on SO(3)/SE(3), and distances, "
+                                            "alignment, blends and loops of skeletal and mesh "
+                                            "animations.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     sub = p.add_subparsers(dest="command")
     q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF)",
