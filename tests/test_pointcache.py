@@ -235,6 +235,19 @@ def test_usd_polygons_and_bad_input(tmp_path):
     (tmp_path / "bad.usda").write_text("not usd")
     with pytest.raises(ShellsplineError, match="bad.usda"):
         read_usd(tmp_path / "bad.usda")
+    # foreign stages: a mesh without faces, without points, with faces beyond its points
+    mesh = 'def Mesh "m"\n{\n%s}\n'
+    pts = "    point3f[] points = [(0,0,0), (1,0,0), (0,1,0)]\n"
+    tri = "    int[] faceVertexCounts = [3]\n    int[] faceVertexIndices = [%s]\n"
+    for name, body, match in [("nofaces", pts, "has no faces"),
+                              ("nopoints", tri % "0, 1, 2", "has no points"),
+                              ("beyond", pts + tri % "0, 1, 3", r"inconsistent.*\[0, 3\] for 3")]:
+        (tmp_path / f"{name}.usda").write_text("#usda 1.0\n" + mesh % body)
+        with pytest.raises(ShellsplineError, match=f"{name}.usda.*{match}"):
+            read_usd(tmp_path / f"{name}.usda")
+    (tmp_path / "ok.usda").write_text("#usda 1.0\n" + mesh % (pts + tri % "0, 1, 2"))
+    W, off, idx, _ = read_usd(tmp_path / "ok.usda")
+    assert W.shape == (1, 3, 3) and off.tolist() == [0, 3] and idx.tolist() == [0, 1, 2]
 
 
 def test_blender_imports_our_usd(tmp_path):

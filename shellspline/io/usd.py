@@ -210,7 +210,8 @@ def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     Raises
     ------
     ShellsplineError
-        If the file cannot be opened, holds no mesh, or its points change length over time.
+        If the file cannot be opened, holds no mesh, its mesh has no points or no faces, its
+        faces do not fit its points, or its points change length over time.
     UsdUnavailableError
         If ``pxr`` is not installed (an ImportError).
     """
@@ -228,15 +229,27 @@ def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     mesh = UsdGeom.Mesh(prim)
     pts = mesh.GetPointsAttr()
     times = pts.GetTimeSamples()
-    if times:
-        frames = [np.asarray(pts.Get(Usd.TimeCode(t)), dtype=np.float64) for t in times]
-    else:
-        frames = [np.asarray(pts.Get(), dtype=np.float64)]
+    values = [pts.Get(Usd.TimeCode(t)) for t in times] if times else [pts.Get()]
+    if any(v is None for v in values):
+        raise ShellsplineError(f"'{path}': the mesh {prim.GetPath()} has no points")
+    frames = [np.asarray(v, dtype=np.float64).reshape(-1, 3) for v in values]
     if len({f.shape for f in frames}) != 1:
         raise ShellsplineError(f"'{path}': the points of {prim.GetPath()} change in number "
                                "over time")
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
-    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
+    counts, indices = (mesh.GetFaceVertexCountsAttr().Get(),
+                       mesh.GetFaceVertexIndicesAttr().Get())
+    if counts is None or indices is None or len(counts) == 0:
+        raise ShellsplineError(f"'{path}': the mesh {prim.GetPath()} has no faces "
+                               "(faceVertexCounts / faceVertexIndices)")
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    n = frames[0].shape[0]
+    if counts.min() < 3 or counts.sum() != indices.size or indices.min() < 0 or \
+            indices.max() >= n:
+        raise ShellsplineError(f"'{path}': the faces of {prim.GetPath()} are inconsistent: "
+                               f"{counts.size} faces of {counts.min()}..{counts.max()} corners, "
+                               f"{indices.size} corner indices in [{indices.min()}, "
+                               f"{indices.max()}] for {n} points")
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     info = {"times": list(times), "fps": stage.GetTimeCodesPerSecond(),
             "up_axis": str(UsdGeom.GetStageUpAxis(stage)), "prim": str(prim.GetPath())}
