@@ -235,6 +235,8 @@ def test_usd_polygons_and_bad_input(tmp_path):
     (tmp_path / "bad.usda").write_text("not usd")
     with pytest.raises(ShellsplineError, match="bad.usda"):
         read_usd(tmp_path / "bad.usda")
+    from shellspline.io.usd import conventional_up_axis
+    assert conventional_up_axis(tmp_path / "bad.usda") == "y"  # USD's default, no exception
     # foreign stages: a mesh without faces, without points, with faces beyond its points
     mesh = 'def Mesh "m"\n{\n%s}\n'
     pts = "    point3f[] points = [(0,0,0), (1,0,0), (0,1,0)]\n"

@@ -49,7 +49,8 @@ def conventional_up_axis(path) -> str:
     """The up axis (``"x"``, ``"y"`` or ``"z"``) a file's format implies.
 
     ``.usd``/``.usda``/``.usdc``: the stage's ``upAxis`` metadata (``"y"``, USD's default,
-    when it is absent or ``pxr`` is not installed); other extensions:
+    when it is absent, the file cannot be opened or ``pxr`` is not installed); other
+    extensions:
     :data:`UP_AXIS_CONVENTIONS`, ``"z"`` for anything else.
 
     Examples
@@ -63,7 +64,10 @@ def conventional_up_axis(path) -> str:
             from pxr import Usd, UsdGeom
         except ImportError:
             return "y"
-        stage = Usd.Stage.Open(str(path)) if Path(path).is_file() else None
+        try:
+            stage = Usd.Stage.Open(str(path)) if Path(path).is_file() else None
+        except Exception:  # pxr raises Tf.ErrorException on a damaged file: USD's default
+            stage = None
         return str(UsdGeom.GetStageUpAxis(stage)).lower() if stage else "y"
     return UP_AXIS_CONVENTIONS.get(ext, "z")
 
