@@ -110,3 +110,27 @@ def test_invalid_inputs_raise():
         close(np.zeros((10, 3)))
     with pytest.raises(ShellsplineError, match="3 samples"):
         close(ProductCurve(X=np.zeros((2, 1))))
+
+
+def test_c1_metric_solver_is_the_inverse_of_the_periodic_h1_metric():
+    """The banded Cholesky + Woodbury solve against the dense matrix of the metric built from
+    its definition: sum h |x|^2 + kappa sum_i |x_{i+1} - x_i|^2 / hm_i over all n cyclic edges
+    (hm_i the mean of the two intervals' lengths). A wrong corner term would still close the
+    curve (any SPD metric does), so only this pins the metric down."""
+    from shellspline.curves.closing import _metric_solver
+
+    rng = np.random.default_rng(5)
+    n, kappa = 40, 0.01
+    h = rng.uniform(0.5, 1.5, n)
+    h /= h.sum()
+    W = np.diag(h)
+    for i in range(n):
+        j = (i + 1) % n
+        w = kappa / (0.5 * (h[i] + h[j]))
+        W[[i, j], [i, j]] += w
+        W[i, j] -= w
+        W[j, i] -= w
+    F = rng.normal(size=(n, 3))
+    np.testing.assert_allclose(_metric_solver(h, kappa)(F), np.linalg.solve(W, F),
+                               rtol=1e-10, atol=1e-12 * np.abs(np.linalg.solve(W, F)).max())
+    np.testing.assert_allclose(_metric_solver(h, 0.0)(F), F / h[:, None], rtol=1e-15)
