@@ -134,3 +134,30 @@ def test_c1_metric_solver_is_the_inverse_of_the_periodic_h1_metric():
     np.testing.assert_allclose(_metric_solver(h, kappa)(F), np.linalg.solve(W, F),
                                rtol=1e-10, atol=1e-12 * np.abs(np.linalg.solve(W, F)).max())
     np.testing.assert_allclose(_metric_solver(h, 0.0)(F), F / h[:, None], rtol=1e-15)
+
+
+@pytest.mark.parametrize("c1", [False, True])
+def test_constraint_jacobian_against_central_differences(c1):
+    """J z and J^T y of the linearised closure constraints against central differences of the
+    discrete seam gap (and q_end - q_0), and J^T as the adjoint of J."""
+    from shellspline.curves.closing import _Constraints, _forward
+
+    c = synthetic_open_curve(N=30, d=2, m=2)
+    h = np.diff(np.linspace(0, 1, c.n_frames))
+    q = srv(c.with_times(np.linspace(0, 1, c.n_frames)))
+    d = c.d
+
+    def residual(qq):
+        _, gap = _forward(qq, h, c.R[0], c.X[0], d)
+        return np.concatenate([gap, qq[-1] - qq[0]]) if c1 else gap
+
+    cc, gap = _forward(q, h, c.R[0], c.X[0], d)
+    op = _Constraints(q, h, cc, gap, d, c1)
+    rng = np.random.default_rng(1)
+    Z = rng.normal(size=q.shape)
+    eps = 1e-6
+    fd = (residual(q + eps * Z) - residual(q - eps * Z)) / (2 * eps)
+    np.testing.assert_allclose(op.J(Z[:, :, None])[:, 0], fd, rtol=1e-6, atol=1e-8)
+    Y = rng.normal(size=(op.K, 1))
+    assert float(np.sum(op.JT(Y)[:, :, 0] * Z)) == pytest.approx(
+        float(Y[:, 0] @ op.J(Z[:, :, None])[:, 0]), rel=1e-12)
