@@ -364,6 +364,8 @@ def test_cache_samples_out_of_order_need_frames(tmp_path):
         keyframes_from_cache(tmp_path / "back.mdd", tmp_path / "tet.obj")
     kf = keyframes_from_cache(tmp_path / "back.mdd", tmp_path / "tet.obj", frames=[0, 5, 9])
     assert kf.frames.tolist() == [0, 5, 9]
+    with pytest.raises(ShellsplineError, match=r"back\.mdd holds 3 samples .* 2 keyframe frames"):
+        keyframes_from_cache(tmp_path / "back.mdd", tmp_path / "tet.obj", frames=[0, 5])
 
 
 def test_mdd_frames_must_be_whole_numbers_apart(tmp_path):

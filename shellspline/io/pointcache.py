@@ -371,6 +371,10 @@ def keyframes_from_cache(cache, mesh, frames=None, *, fps: float = 24.0, pinned=
     if V0.shape[0] != V.shape[1]:
         raise MeshError(f"{cache} holds {V.shape[1]} points but {mesh} has {V0.shape[0]} "
                         "vertices")
+    if frames is not None and np.size(frames) != V.shape[0]:
+        raise MeshError(f"{cache} holds {V.shape[0]} samples (one keyframe each), but "
+                        f"{np.size(frames)} keyframe frames were given: "
+                        f"{np.ravel(frames).tolist()[:8]}")
     if frames is None:
         rel = at - at[0]
         frames = np.rint(rel).astype(np.int64)
