@@ -199,3 +199,20 @@ def test_invalid_inputs_raise():
         blend(ProductCurve(X=np.zeros((4, 2))), ProductCurve(X=np.zeros((4, 3))), 0.5)
     with pytest.raises(ShellsplineError, match="columns"):
         srv_inverse(np.zeros((3, 4)), np.arange(4.0), d=2)
+
+
+def test_blend_takes_the_warp_of_a_closed_alignment():
+    from shellspline.curves.align import align
+
+    u = np.linspace(0, 1, 121)
+    loop = lambda x: np.c_[np.cos(2 * np.pi * x) * (1 + 0.3 * np.cos(6 * np.pi * x)),  # noqa
+                           np.sin(2 * np.pi * x), 0.2 * np.sin(4 * np.pi * x)]
+    c0, c1 = ProductCurve(X=loop(u + 0.25), t=u), ProductCurve(X=loop(u), t=u)
+    r = align(c0, c1, closed=True)
+    assert r.phi.max() > 1.0                      # runs from the shift over one period
+    with pytest.raises(ShellsplineError, match="phi must lie in"):
+        blend(c0, c1, 0.5, warp=r.phi)
+    b1 = blend(c0, c1, 1.0, warp=r.phi, periodic=True)
+    np.testing.assert_allclose(b1.X, c0.X, atol=1e-12)  # c1 o phi is c0 again (a shift)
+    b0 = blend(c0, c1, 0.0, warp=r.phi, periodic=True)
+    np.testing.assert_allclose(b0.X, c0.X, atol=1e-12)

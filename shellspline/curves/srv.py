@@ -378,7 +378,8 @@ def reparametrize(curve: ProductCurve, phi, t=None, *, periodic: bool = False) -
     return ProductCurve(R, X, t)
 
 
-def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None) -> ProductCurve:
+def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None, *,
+          periodic: bool = False) -> ProductCurve:
     """Geodesic of the SRV metric between two curves: ``R^{-1}((1-s) q0 + s q1)`` (seed 000
     eq. 20), started at the geodesic blend of the start points.
 
@@ -393,6 +394,9 @@ def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None) -> ProductCu
         ``phi`` on ``curve0``'s times with values in ``curve1``'s times (e.g.
         :attr:`AlignResult.phi`): ``curve1`` is blended as ``curve1 o phi``. Default: the
         affine map of ``curve0.t`` onto ``curve1.t``.
+    periodic : bool
+        ``curve1`` is closed and ``warp`` is taken modulo its period (the warp of
+        ``align(..., closed=True)``, which runs from its ``shift`` over one period).
 
     Returns
     -------
@@ -411,7 +415,7 @@ def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None) -> ProductCu
     elif np.shape(warp) != t0.shape:
         raise ShellsplineError(f"blend: warp must have one value per sample of curve0 "
                                f"({t0.shape[0]}), got shape {np.shape(warp)}")
-    c1 = reparametrize(curve1, warp, t0)
+    c1 = reparametrize(curve1, warp, t0, periodic=periodic)
     Q = (1 - s) * srv(curve0) + s * srv(c1)
     w = so3.log(np.swapaxes(curve0.R[0], -1, -2) @ c1.R[0])
     R0 = curve0.R[0] @ so3.exp(s * w)
