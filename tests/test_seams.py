@@ -70,3 +70,23 @@ def test_seam_records_find_the_jump_between_two_minima():
     # two runs that meet in the same minimum: no seam
     runs, results, Vinit = _gap(np.zeros(3))
     assert R.seam_records(runs, results, Vinit) == []
+
+
+def test_pops_and_flips_of_a_flexing_joint_sit_on_the_recorded_seams():
+    # data_synth.stress.joint (0° -> 150° -> 30°): the runs from the two keyframes of each gap
+    # settle into different minima; every jump the quality check sees (sequence_defects, an
+    # independent measurement after placement) is a seam the reconstruction recorded, and no
+    # run jumps inside itself
+    import shellspline as ss
+    from data_synth import stress
+
+    d = stress.joint()
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"])
+    q = res.report["quality"]
+    seams = {r["frame"]: r["seam_jump"] for r in res.report["frames"] if "seam_jump" in r}
+    pops = np.flatnonzero(np.array(q["per_frame"]["pop"]) > R.SEAM_POP)
+    flips = np.flatnonzero(np.array(q["per_frame"]["flipped"]) > 0)
+    assert set(pops.tolist()) <= set(seams) and set(flips.tolist()) <= set(seams)
+    assert all(j > R.SEAM_POP for j in seams.values())
+    # a recorded seam is not a keyframe and lies inside a gap
+    assert not set(seams) & set(int(f) for f in d["frames"])
