@@ -448,3 +448,26 @@ def test_a_solver_that_cannot_decrease_f_returns_its_start_unchanged(tiny, optim
     if optimizer == "trust-region":   # every trial rejected: nothing accepted at all
         assert res.energy == res.energies[0] and len(res.energies) == 1
         assert np.abs(res.V - init).max() <= 1e-12 * np.abs(init).max()
+
+
+def test_trust_region_rules():
+    """The forcing term (Eisenstat–Walker, capped by cg_tol, floored by gtol_margin), the
+    ratio test and the radius update, on numbers worked out by hand."""
+    tr = TrustRegionNewton(cg_tol=0.5)
+    assert tr.forcing(1.0, 1.0, 1e-6, False) == 0.5                  # cg_tol caps √1
+    assert tr.forcing(1e-2, 1.0, 1e-6, False) == pytest.approx(0.1)   # √(1e-2)
+    assert tr.forcing(1e-2, 1.0, 1e-6, True) == 0.05                  # FINAL_CG_TOL
+    assert tr.forcing(1e-8, 1.0, 1e-6, False) == 0.5                  # floor 0.5·1e-6/1e-8, capped
+    assert tr.forcing(1e-10, 1.0, 1e-12, False) == pytest.approx(5e-3)  # floor 0.5·1e-12/1e-10
+    assert TrustRegionNewton(gtol_margin=0.0).forcing(1e-10, 1.0, 1e-12, False) == 1e-3
+    assert tr.ratio(10.0, 9.0, 2.0) == 0.5
+    assert tr.ratio(10.0, np.inf, 2.0) == -np.inf and tr.ratio(10.0, 11.0, 0.0) == -np.inf
+    assert tr.ratio(10.0, 10.0 - 1e-14, 1e-13) == 1.0                 # below the last digits
+    assert tr.updated_radius(1.0, 0.1, 0.5) == 0.125                  # a quarter of the step
+    assert tr.updated_radius(1.0, 0.9, 1.0) == 2.0                    # boundary step, good
+    assert tr.updated_radius(1.0, 0.9, 0.5) == 1.0                    # interior step
+    assert tr.updated_radius(1.0, 0.5, 1.0) == 1.0
+    with pytest.raises(ValueError, match="hessian"):
+        TrustRegionNewton(hessian="newton")
+    with pytest.raises(ValueError, match="retract"):
+        TrustRegionNewton(retract="yes")
