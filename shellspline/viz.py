@@ -29,7 +29,6 @@ pyvista is first imported), which renders through Mesa's software renderer.
 from __future__ import annotations
 
 import os
-import secrets
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ShellsplineError
+from .io.atomic import temporary_sibling, write_atomically
 
 __all__ = ["SequenceViewer", "load_source", "preview", "render_frames", "render_animation",
            "render_strip", "plot", "plot_figure", "plot_half_axes", "half_axes_figure",
@@ -253,7 +253,7 @@ def checked_output(path, suffixes, seqs=(), what: str = "output") -> Path:
             if Path(p).resolve() == target:
                 raise ShellsplineError(f"refusing to write '{out}': it is an input file of "
                                        f"'{s.label}'")
-    probe = _temporary_sibling(target)
+    probe = temporary_sibling(target)
     try:  # a file created and removed: os.access does not know read-only mounts or sysfs
         target.parent.mkdir(parents=True, exist_ok=True)
         probe.touch(exist_ok=False)
@@ -264,29 +264,10 @@ def checked_output(path, suffixes, seqs=(), what: str = "output") -> Path:
     return target
 
 
-def _temporary_sibling(target: Path) -> Path:
-    return target.parent / (f".{target.stem}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
-                            f"{target.suffix.lower()}")
-
-
 def _write_atomically(path, write, seqs=(), suffixes=None, what: str = "output") -> Path:
     """Call ``write(tmp)`` for a temporary sibling of ``path`` and rename it into place."""
     target = checked_output(path, suffixes or (Path(path).suffix.lower(),), seqs, what)
-    tmp = _temporary_sibling(target)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, target)
-    except BaseException as exc:
-        try:
-            tmp.unlink()
-        except FileNotFoundError:
-            pass
-        if isinstance(exc, OSError) and exc.errno is not None:  # the user's path, not tmp
-            text = exc.strerror or str(exc)
-            raise OSError(exc.errno, f"{text[:1].lower()}{text[1:]} writing '{path}'") from None
-        raise
-    return target
+    return write_atomically(target, write, shown=path)
 
 
 # ----------------------------------------------------------------------------------------

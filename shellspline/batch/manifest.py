@@ -11,8 +11,6 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-import os
-import secrets
 from pathlib import Path
 
 from ..version import __version__
@@ -110,16 +108,11 @@ def now() -> str:
 
 def write_json_atomic(path: Path, obj) -> None:
     """Write ``obj`` as strict JSON (:func:`shellspline.io.sequences.jsonable`: NaN/inf as
-    null; indent 2) to ``path`` atomically: a hidden sibling ``.<name>.tmp-*`` (a name that
-    :func:`~shellspline.batch.outroot.cleanup_leftovers` recognises) renamed over it, removed
-    on any failure."""
+    null; indent 2) to ``path`` atomically (:func:`shellspline.io.atomic.write_text_atomic`:
+    a hidden sibling ``.<name>.tmp-*``, which
+    :func:`~shellspline.batch.outroot.cleanup_leftovers` recognises, renamed over it)."""
+    from ..io.atomic import write_text_atomic
     from ..io.sequences import jsonable
 
     text = json.dumps(jsonable(obj, str(path), finite=True), indent=2, allow_nan=False)
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
-    try:
-        tmp.write_text(text + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, text + "\n")

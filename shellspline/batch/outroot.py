@@ -12,13 +12,15 @@ import shutil
 from pathlib import Path
 
 from ..errors import ShellsplineError
+from ..io.atomic import TEMP_MARKERS as ATOMIC_MARKERS
 
 __all__ = ["SUMMARY_NAME", "LOG_NAME", "LOCK_NAME", "TEMP_MARKERS", "OutputLock", "HELD_LOCKS",
            "cleanup_leftovers", "batch_log", "log", "log_event"]
 
 SUMMARY_NAME, LOG_NAME, LOCK_NAME = "summary.json", "batch.log", ".batch.lock"
-#: what the hidden temporary entries of a run carry in their names (``.<name>.stage-<hex>``)
-TEMP_MARKERS = (".stage-", ".tmp-", ".old-")
+#: what the hidden temporary entries of a run carry in their names: a sequence's staging
+#: directory (``.<name>.stage-<hex>``) and :mod:`shellspline.io.atomic`'s temporaries
+TEMP_MARKERS = (".stage-", *ATOMIC_MARKERS)
 
 log = logging.getLogger("shellspline.batch")
 

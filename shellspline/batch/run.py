@@ -6,7 +6,6 @@ below.
 from __future__ import annotations
 
 import datetime as _dt
-import os
 import secrets
 import time
 from pathlib import Path
@@ -230,16 +229,11 @@ def _job_plots(job: Job, summary: BatchSummary) -> None:
     if len(curves) < 2:
         return
     path = job.output / "half_axes.png"
-    tmp = job.output / f".half_axes.tmp-{os.getpid()}-{secrets.token_hex(4)}.png"
     try:
         import numpy as np
 
         from .. import viz
 
-        viz.plot_half_axes({k: np.asarray(v) for k, v in curves.items()}, tmp, frames=frames)
-        os.replace(tmp, path)
-    except Exception as exc:
+        viz.plot_half_axes({k: np.asarray(v) for k, v in curves.items()}, path, frames=frames)
+    except Exception as exc:  # viz writes atomically: nothing is left behind
         summary.errors.append(f"job plot {path.name}: {reason(exc)}")
-    finally:
-        if tmp.exists():
-            tmp.unlink()

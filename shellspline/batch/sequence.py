@@ -188,7 +188,7 @@ def publish(staging: Path, final: Path, key: str, keep: Callable[[dict], bool]) 
         shutil.rmtree(staging, ignore_errors=True)
         raise ShellsplineError(f"refusing to replace '{final}': it does not look like an "
                                "earlier output (no manifest.json or report.json)")
-    from ..io.sequences import move_into_place
+    from ..io.atomic import move_into_place
 
     move_into_place(staging, final, overwrite=True)  # old output set aside, then removed
     return "published"

@@ -334,26 +334,13 @@ def _vertex_file(path, option: str, kf):
 
 
 def _rewrite_report(out: Path, report: dict) -> None:
-    import os
-    import tempfile
+    from ..io.atomic import write_atomically
 
-    def named(exc: OSError) -> OSError:  # the user's file, never the temporary one
-        what = exc.strerror or str(exc)
-        return OSError(exc.errno, f"{what[:1].lower()}{what[1:]} writing "
-                                  f"'{out / 'report.json'}'")
-
-    try:
-        fd, tmp = tempfile.mkstemp(dir=out, prefix=".report.", suffix=".json")
-    except OSError as exc:
-        raise named(exc) from None
-    try:
-        with os.fdopen(fd, "w") as fh:
+    def dump(tmp: Path) -> None:
+        with open(tmp, "w", encoding="utf-8") as fh:
             json.dump(report, fh, indent=2, default=_json_default, allow_nan=False)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; the report is an ordinary output file
-        os.replace(tmp, out / "report.json")
-    except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
-        raise named(exc) from None
+
+    write_atomically(out / "report.json", dump)
 
 
 def _json_default(o):

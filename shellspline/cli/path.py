@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ShellsplineError
+from ..io.atomic import write_atomically
 
 EXIT_OK, EXIT_WARN = 0, 1
 
@@ -216,11 +217,7 @@ def _plot(png, curve, tq, Tq, tk, Tk, group):
     ax[0].legend(loc="best", fontsize=8)
     ax[0].set_title(f"{len(tk)} keyframes (dots), {group}")
     fig.tight_layout()
-    tmp = Path(png).with_name(f".{Path(png).name}.tmp.png")
     try:
-        fig.savefig(tmp, dpi=100)
-        tmp.replace(png)
+        write_atomically(png, lambda tmp: fig.savefig(tmp, dpi=100))
     finally:
         plt.close(fig)
-        if tmp.exists():
-            tmp.unlink()

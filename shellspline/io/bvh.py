@@ -28,7 +28,6 @@ bit for bit.
 """
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ShellsplineError
+from .atomic import write_text_atomic
 
 __all__ = ["Motion", "read_bvh", "write_bvh", "forward_kinematics", "euler_matrices",
            "CHANNEL_NAMES"]
@@ -504,8 +504,4 @@ def write_bvh(motion: Motion, path) -> Path:
         joint(int(j), 0)
     out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {motion.frame_time!r}"]
     out += [" ".join(map(repr, row)) for row in motion.values.tolist()]
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_text_atomic(path, "\n".join(out) + "\n")

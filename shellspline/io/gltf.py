@@ -25,6 +25,7 @@ import struct
 import numpy as np
 
 from ..errors import ShellsplineError
+from .atomic import write_bytes_atomic
 
 __all__ = ["glb_bytes", "write_glb", "read_glb", "vertex_normals"]
 
@@ -209,7 +210,7 @@ def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals
 
 def write_glb(path, V, F, *, fps: float = 24.0, interpolation: str = "LINEAR",
               normals: bool = True) -> None:
-    """Write :func:`glb_bytes` to ``path`` (plain write; atomicity is the caller's business).
+    """Write :func:`glb_bytes` to ``path`` atomically (:func:`shellspline.io.atomic.write_bytes_atomic`).
 
     Parameters
     ----------
@@ -228,9 +229,8 @@ def write_glb(path, V, F, *, fps: float = 24.0, interpolation: str = "LINEAR",
     >>> V2.shape, F2.shape, fps, bool(np.allclose(V2, V, atol=1e-6))
     ((3, 42, 3), (80, 3), 12.0, True)
     """
-    data = glb_bytes(V, F, fps=fps, interpolation=interpolation, normals=normals)
-    with open(path, "wb") as fh:
-        fh.write(data)
+    write_bytes_atomic(path, glb_bytes(V, F, fps=fps, interpolation=interpolation,
+                                       normals=normals))
 
 
 def read_glb(path) -> tuple[np.ndarray, np.ndarray, float]:

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MeshError, ShellsplineError
+from .atomic import write_bytes_atomic
 
 __all__ = ["mdd_bytes", "write_mdd", "read_mdd", "pc2_bytes", "write_pc2", "read_pc2",
            "read_point_cache", "keyframes_from_cache", "POINT_CACHE_FORMATS"]
@@ -116,17 +117,14 @@ def mdd_bytes(V, *, fps: float = 24.0, times=None) -> bytes:
 
 
 def write_mdd(path, V, *, fps: float = 24.0, times=None) -> Path:
-    """Write :func:`mdd_bytes` to ``path`` (a plain write; atomicity is the caller's business).
+    """Write :func:`mdd_bytes` to ``path`` atomically (:mod:`shellspline.io.atomic`).
 
     Returns
     -------
     pathlib.Path
         ``path``.
     """
-    data = mdd_bytes(V, fps=fps, times=times)
-    p = Path(path)
-    p.write_bytes(data)
-    return p
+    return write_bytes_atomic(path, mdd_bytes(V, fps=fps, times=times))
 
 
 def _read_bytes(path, what: str) -> bytes:
@@ -224,17 +222,15 @@ def pc2_bytes(V, *, start_frame: float = 0.0, sample_rate: float = 1.0) -> bytes
 
 
 def write_pc2(path, V, *, start_frame: float = 0.0, sample_rate: float = 1.0) -> Path:
-    """Write :func:`pc2_bytes` to ``path`` (a plain write; atomicity is the caller's business).
+    """Write :func:`pc2_bytes` to ``path`` atomically (:mod:`shellspline.io.atomic`).
 
     Returns
     -------
     pathlib.Path
         ``path``.
     """
-    data = pc2_bytes(V, start_frame=start_frame, sample_rate=sample_rate)
-    p = Path(path)
-    p.write_bytes(data)
-    return p
+    return write_bytes_atomic(path, pc2_bytes(V, start_frame=start_frame,
+                                              sample_rate=sample_rate))
 
 
 def read_pc2(path) -> tuple[np.ndarray, float, float]:

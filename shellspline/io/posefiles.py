@@ -19,13 +19,12 @@ unit quaternions within 1e-3 — then normalised —, rotation blocks within 1e-
 then projected —, strictly increasing times) and raises a one-line
 :class:`~shellspline.errors.ShellsplineError` naming the file and line. Writing is atomic
 (a temporary file in the target folder, then a rename) and makes quaternion signs continuous.
-Layer rule: numpy, :mod:`shellspline.groups` and :mod:`shellspline.errors` only.
+Layer rule: numpy, :mod:`shellspline.groups`, :mod:`shellspline.errors` and
+:mod:`shellspline.io.atomic` only.
 """
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,9 +32,10 @@ import numpy as np
 
 from ..errors import ShellsplineError
 from ..groups import se3, so3
+from .atomic import write_text_atomic
 
 __all__ = ["PoseTrack", "FORMATS", "detect_format", "read_poses", "write_poses",
-           "write_text_atomic"]
+           "write_text_atomic"]  # write_text_atomic: :mod:`shellspline.io.atomic`'s, re-exported
 
 FORMATS = ("tum", "kitti", "euroc", "csv", "json")
 _EUROC_HEADER = ("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],"
@@ -262,21 +262,6 @@ def _read_json(path, text):
         _fail(path, 0, "non-finite numbers")
     lines = [f"pose {i}" for i in range(n)]
     return t, se3.from_rt(so3.matrix_from_quat(_quats(path, lines, q)), p), lines
-
-
-def write_text_atomic(path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename,
-    so readers never see a half-written file."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:

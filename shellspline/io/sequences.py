@@ -10,7 +10,6 @@ import dataclasses
 import json
 import os
 import re
-import secrets
 import shutil
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 
 from ..errors import MeshError, ShellsplineError, one_line
 from ..mesh.source_mesh import triangulate_polygons
+from .atomic import move_into_place, on_user_path, temporary_directory
 from .keyframes import check_same_polygons
 from .meshes import check_indices, read_polygons
 
@@ -166,9 +166,9 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     parent = target.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        tmp = _fresh_sibling(parent, f".{target.name}.tmp-{os.getpid()}-")
+        tmp = temporary_directory(target)
     except OSError as exc:
-        raise _on_user_path(exc, None, out, "creating") from None
+        raise on_user_path(exc, out, "creating") from None
     try:
         if fmt in ("glb", "mdd", "pc2"):
             (tmp / ANIMATION_NAMES[fmt]).write_bytes(glb)
@@ -190,7 +190,7 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, FileExistsError) and exc.errno is None:
             raise  # our own message: the output appeared while we were writing
-        raise _on_user_path(exc, tmp, out, "writing") from None
+        raise on_user_path(exc, out, "writing", tmp) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -269,7 +269,7 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
                                    "file, not a directory")
         base = base.parent
     try:  # a directory created and removed: os.access knows neither read-only mounts nor root
-        _fresh_sibling(base, f".{target.name}.probe-{os.getpid()}-").rmdir()
+        temporary_directory(base / target.name).rmdir()
     except OSError as exc:
         raise ShellsplineError(f"cannot create output directory '{out}': cannot write in "
                                f"'{base}': {(exc.strerror or str(exc)).lower()}") from None
@@ -289,27 +289,6 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
 
 def _megabytes(nbytes: int) -> str:
     return f"{nbytes / 1e6:,.1f} MB" if nbytes < 1e9 else f"{nbytes / 1e9:,.1f} GB"
-
-
-def _on_user_path(exc: OSError, tmp: Path | None, out: Path, doing: str) -> OSError:
-    """``exc`` again (same type and errno) with a message that names the user's path.
-
-    A file inside the hidden temporary directory ``tmp`` is named by where it would have
-    landed in ``out``; ``No space left on device`` becomes ``no space left on device
-    writing 'OUT/frame_0012.obj'``.
-    """
-    where = out
-    for name in (exc.filename, exc.filename2):
-        if name is None or tmp is None:
-            continue
-        try:
-            where = out / Path(os.fsdecode(name)).relative_to(tmp)
-            break
-        except ValueError:
-            continue
-    what = exc.strerror or str(exc) or type(exc).__name__
-    what = what[:1].lower() + what[1:]
-    return OSError(exc.errno, f"{what} {doing} '{where}'")  # the errno picks the subclass
 
 
 def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> None:
@@ -332,32 +311,6 @@ def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> Non
     if any(target.iterdir()) and not (target / "report.json").is_file():
         raise ShellsplineError(f"refusing to replace '{out}': it is not empty and has no "
                                "report.json, so it does not look like an earlier output")
-
-
-def _fresh_sibling(parent: Path, prefix: str) -> Path:
-    while True:
-        p = parent / f"{prefix}{secrets.token_hex(4)}"
-        try:
-            p.mkdir()
-            return p
-        except FileExistsError:  # pragma: no cover - 32 random bits
-            continue
-
-
-def move_into_place(tmp: Path, target: Path, overwrite: bool) -> None:
-    if target.exists() or target.is_symlink():
-        if not overwrite:  # created by someone else while we were writing
-            raise FileExistsError(f"output directory '{target}' already exists")
-        aside = target.parent / f".{target.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
-        os.rename(target, aside)
-        try:
-            os.rename(tmp, target)
-        except BaseException:
-            os.rename(aside, target)
-            raise
-        shutil.rmtree(aside, ignore_errors=True)
-    else:
-        os.rename(tmp, target)
 
 
 def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ShellsplineError
+from .atomic import write_atomically
 
 __all__ = ["write_usd", "read_usd", "require_usd", "UsdUnavailableError", "USD_EXTENSIONS",
            "UP_AXIS_CONVENTIONS", "conventional_up_axis"]
@@ -186,9 +187,12 @@ def write_usd(path, V, F=None, *, polygons=None, fps: float = 24.0, up_axis: str
         t = Usd.TimeCode(start + k)
         points.Set(Vt.Vec3fArray.FromNumpy(V32[k]), t)
         extent.Set(Vt.Vec3fArray.FromNumpy(np.stack([lo[k], hi[k]])), t)
-    if not layer.Export(str(p)):
-        raise ShellsplineError(f"cannot write USD file '{path}'")
-    return p
+
+    def export(tmp):  # the temporary keeps the suffix: USD picks text or crate by it
+        if not layer.Export(str(tmp)):
+            raise ShellsplineError(f"cannot write USD file '{path}'")
+
+    return write_atomically(p, export, shown=path)
 
 
 def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:

@@ -13,12 +13,11 @@ pip) or as an external ``shellspline`` command; see the README, section "Blender
 """
 from __future__ import annotations
 
-import os
-import secrets
 import zipfile
 from pathlib import Path
 
 from ...errors import ShellsplineError
+from ...io.atomic import write_atomically
 
 __all__ = ["ADDON_PACKAGE", "write_addon_zip", "addon_files"]
 
@@ -70,13 +69,11 @@ def write_addon_zip(path, *, overwrite: bool = False) -> Path:
         raise FileExistsError(f"'{path}' already exists (use overwrite to replace it)")
     files = addon_files()
     p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.parent / f".{p.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
-    try:
+
+    def write(tmp):
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
             for name, data in files.items():
                 zf.writestr(name, data)
-        os.replace(tmp, p)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+
+    write_atomically(p, write, shown=path)
     return p
