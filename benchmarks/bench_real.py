@@ -120,14 +120,17 @@ def _rigidly_onto(X, Y):
     return np.einsum("tij,tnj->tni", R, X - Xm) + Ym
 
 
-def _procrustes_residual(X, Y):
+def procrustes_residual(X, Y):
     """Per-frame rms of X (T,n,3) after the best rotation + translation onto Y (T,n,3)."""
     return np.sqrt(((_rigidly_onto(X, Y) - Y) ** 2).sum(-1).mean(-1))
 
 
-def _errors(X, truth, inner, size) -> dict:
+def ground_truth_errors(X, truth, inner, size) -> dict:
+    """Errors of poses ``X (T,n,3)`` against ``truth`` on the in-between frames ``inner``,
+    relative to ``size``: rms ``err``, worst frame ``max``, the ``shape`` part (after a
+    per-frame rigid fit) and the ``rigid`` rest (``err² = shape² + rigid²``)."""
     e = np.sqrt(((X - truth) ** 2).sum(-1).mean(-1)) / size
-    s = _procrustes_residual(X[inner], truth[inner]) / size
+    s = procrustes_residual(X[inner], truth[inner]) / size
     err, shape = float(np.sqrt(np.mean(e[inner] ** 2))), float(np.sqrt(np.mean(s ** 2)))
     # err² = shape² + rigid²: the rigid part is the rms of the per-frame rigid misplacement
     return {"err": err, "max": float(e[inner].max()), "shape": shape,
@@ -185,7 +188,7 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
         rec = {"keyframes": frames.tolist(), "truth_defects": _strip(defects(truth, T, frames)),
                "methods": {}}
         for name, (X, t, gn) in runs.items():
-            rec["methods"][name] = {"seconds": t, "gn": gn, **_errors(X, truth, inner, size),
+            rec["methods"][name] = {"seconds": t, "gn": gn, **ground_truth_errors(X, truth, inner, size),
                                     **defects(X, T, frames)}
         rec["where"] = {name: _where(name, runs, truth, inner, size, owner, motion.names, rec)
                         for name in runs if name.startswith("lta") and "@" not in name}

@@ -26,7 +26,7 @@ import threading
 import time
 
 __all__ = ["Interrupted", "interrupt_exit_code", "stop_signals_unwind", "start_method",
-           "process_pool", "stop_processes", "die_with_parent", "parent_alive"]
+           "process_pool", "stop_processes", "die_with_parent", "parent_alive", "set_pdeathsig"]
 
 #: how often a worker's watchdog looks for its parent (seconds): the delay between a parent's
 #: death and its workers' where the parent-death signal does not exist
@@ -101,7 +101,7 @@ def start_method() -> str:
     return "spawn"
 
 
-def _set_pdeathsig(sig: int) -> bool:
+def set_pdeathsig(sig: int) -> bool:
     """``prctl(PR_SET_PDEATHSIG, sig)`` on Linux; False where it is not available."""
     if platform.system() != "Linux":
         return False
@@ -148,7 +148,7 @@ def die_with_parent(parent_pid: int, sig: int = _KILL, pdeathsig: bool = True) -
     _parent["pid"] = int(parent_pid)
     if hasattr(signal, "pthread_sigmask"):  # a worker must never keep SIGTERM blocked
         signal.pthread_sigmask(signal.SIG_UNBLOCK, [sig, signal.SIGTERM])
-    armed = pdeathsig and _set_pdeathsig(sig)
+    armed = pdeathsig and set_pdeathsig(sig)
     if os.getppid() != parent_pid:  # the parent died before the signal was armed
         os.kill(os.getpid(), sig)
         os._exit(1)

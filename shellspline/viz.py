@@ -42,9 +42,11 @@ __all__ = ["SequenceViewer", "load_source", "preview", "render_frames", "render_
            "render_strip", "plot", "plot_figure", "plot_half_axes", "half_axes_figure",
            "default_strip_frames", "export_glb", "fitted_camera", "scene_up_axis", "UP_AXES",
            "CameraPath", "checked_camera_path", "CAMERA_CONVENTIONS", "CAMERA_TIMES",
-           "KEYFRAME_COLOR",
-           "PALETTE"]
+           "KEYFRAME_COLOR", "PALETTE", "AUTO_MIDPOINT_WORK"]
 
+AUTO_MIDPOINT_WORK = 60_000
+"""``shell_energy="auto"`` takes the midpoint energy (one Newton solve per frame, ~0.5–1 s per
+frame at 5k vertices on one core) up to this many vertices × inner frames, else ``"step"``."""
 KEYFRAME_COLOR = "#a6a6a6"
 """Colour of keyframe poses (gray, as in the paper's figures)."""
 PALETTE = ("#f28e2b", "#59a14f", "#4e79a7", "#e15759", "#b07aa1", "#76b7b2", "#edc948")
@@ -660,7 +662,7 @@ class SequenceViewer:
         if pl.iren is not None and not pl.off_screen:
             # our own observer (not add_timer_event, which re-renders on every tick even
             # while paused): render only when a frame advances
-            pl.iren.add_observer("TimerEvent", lambda obj, event: self._on_timer())
+            pl.iren.add_observer("TimerEvent", lambda obj, event: self.on_timer())
             pl.iren.create_timer(max(1, int(round(1000 / self.fps))), repeating=True)
         pl.subplot(0, 0)
 
@@ -670,7 +672,8 @@ class SequenceViewer:
             if bool(rep.GetState()) != self.playing:
                 rep.SetState(int(self.playing))
 
-    def _on_timer(self):
+    def on_timer(self):
+        """The playback timer's callback: while playing, one :meth:`tick` and a render."""
         if self.playing:
             self.tick()
             self._render()
@@ -1202,9 +1205,8 @@ def _shell_mode(mode, seqs) -> str:
         raise ShellsplineError(f"shell_energy must be 'auto', 'midpoint', 'step' or 'none', got "
                                f"{mode!r}")
     if mode == "auto":
-        # one Newton solve per frame: ~0.5–1 s per frame at 5k vertices on one core
         work = max(s.V.shape[1] * max(s.K - 1, 0) for s in seqs)
-        mode = "midpoint" if work <= 60_000 else "step"
+        mode = "midpoint" if work <= AUTO_MIDPOINT_WORK else "step"
     return mode
 
 

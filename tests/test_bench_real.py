@@ -33,9 +33,9 @@ def test_procrustes_residual_matches_scipy(bench):
     Y = rng.normal(size=(4, 30, 3))
     R = Rotation.random(4, random_state=2)
     X = np.stack([R[t].apply(Y[t]) + rng.normal(size=3) for t in range(4)])
-    np.testing.assert_allclose(bench._procrustes_residual(X, Y), 0, atol=1e-12)
+    np.testing.assert_allclose(bench.procrustes_residual(X, Y), 0, atol=1e-12)
     Xn = X + 0.05 * rng.normal(size=X.shape)
-    res = bench._procrustes_residual(Xn, Y)
+    res = bench.procrustes_residual(Xn, Y)
     for t in range(4):
         a, b = Xn[t] - Xn[t].mean(0), Y[t] - Y[t].mean(0)
         rot, _ = Rotation.align_vectors(b, a)
@@ -48,11 +48,11 @@ def test_error_split_into_shape_and_rigid(bench):
     truth = rng.normal(size=(7, 40, 3))
     inner = np.array([1, 2, 4, 5])
     moved = truth + np.array([0.3, 0, 0])  # a rigid misplacement only
-    e = bench._errors(moved, truth, inner, 2.0)
+    e = bench.ground_truth_errors(moved, truth, inner, 2.0)
     assert e["shape"] == pytest.approx(0, abs=1e-12)
     assert e["rigid"] == pytest.approx(e["err"]) == pytest.approx(0.15)
     noisy = moved + 0.1 * rng.normal(size=truth.shape)
-    e = bench._errors(noisy, truth, inner, 2.0)
+    e = bench.ground_truth_errors(noisy, truth, inner, 2.0)
     assert e["err"] ** 2 == pytest.approx(e["shape"] ** 2 + e["rigid"] ** 2)
     assert 0 < e["shape"] < e["err"] and e["max"] >= e["err"]
 

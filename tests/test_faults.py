@@ -194,7 +194,7 @@ def test_pool_watchdog_alone_stops_orphaned_workers(tmp_path, how):
         import os, sys, threading, time
         import shellspline.parallel as par
         if {how == "no_prctl"}:
-            par._set_pdeathsig = lambda sig: False  # as on a platform without prctl
+            par.set_pdeathsig = lambda sig: False  # as on a platform without prctl
 
         def work(i):
             # one write per line: two workers' print() calls (text, then newline) interleave

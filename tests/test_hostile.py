@@ -156,14 +156,14 @@ def test_check_output_dir_creates_nothing(tmp_path):
 
 
 def test_full_disk_while_writing_names_the_file_in_out(ell, tmp_path, capsys, monkeypatch):
-    real = ssio.sequences._write_obj_frame
+    real = ssio.sequences.write_obj_frame
 
     def full_disk(path, V, faces_block):
         if Path(path).name == "frame_0003.obj":
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         return real(path, V, faces_block)
 
-    monkeypatch.setattr(ssio.sequences, "_write_obj_frame", full_disk)
+    monkeypatch.setattr(ssio.sequences, "write_obj_frame", full_disk)
     out = tmp_path / "out"
     rc, err = _run(capsys, "interpolate", *_poses(ell), "-o", out, "-q", "--method", "linear")
     line = _assert_one_line_error(err, out / "frame_0003.obj")

@@ -415,7 +415,7 @@ def test_obj_output_is_plain_and_one_based(tmp_path):
 
 def test_frame_name_width_grows(tmp_path, monkeypatch):
     written = []
-    monkeypatch.setattr(sio.sequences, "_write_ply_frame", lambda p, *a: written.append(p.name))
+    monkeypatch.setattr(sio.sequences, "write_ply_frame", lambda p, *a: written.append(p.name))
     V = np.zeros((12345, 3, 3))
     sio.write_sequence(tmp_path / "w", V, [[0, 1, 2]], fmt="ply")
     assert written[0] == "frame_00000.ply" and written[-1] == "frame_12344.ply"
@@ -424,7 +424,7 @@ def test_frame_name_width_grows(tmp_path, monkeypatch):
 def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
     Vs, F = awkward_poses(5)
     calls = []
-    real = sio.sequences._write_obj_frame
+    real = sio.sequences.write_obj_frame
 
     def flaky(path, V, block):
         calls.append(path)
@@ -432,7 +432,7 @@ def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
             raise RuntimeError("disk on fire")
         real(path, V, block)
 
-    monkeypatch.setattr(sio.sequences, "_write_obj_frame", flaky)
+    monkeypatch.setattr(sio.sequences, "write_obj_frame", flaky)
     with pytest.raises(RuntimeError, match="disk on fire"):
         sio.write_sequence(tmp_path / "out", Vs, F)
     assert list(tmp_path.iterdir()) == []  # no out_dir, no temporary directory

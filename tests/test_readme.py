@@ -83,9 +83,7 @@ def test_python_block_runs(line, body, workspace, tmp_path, monkeypatch):
     # the energy plots' "auto" Discrete Shells energy takes one Newton solve per frame (40 s
     # for the two plots here on a loaded 2-core VM); the cheap W[s_k, s_k+1] keeps CI fast and
     # runs the same plotting code
-    mode = ss.viz._shell_mode
-    monkeypatch.setattr(ss.viz, "_shell_mode",
-                        lambda m, seqs: mode("step" if m == "auto" else m, seqs))
+    monkeypatch.setattr(ss.viz, "AUTO_MIDPOINT_WORK", -1)
     code = compile(body, f"README.md:{line}", "exec")
     exec(code, {"__name__": "__readme__"})
     if "ss.preview(" in body:

@@ -22,7 +22,8 @@ from .keyframes import check_same_polygons
 from .meshes import check_indices, read_polygons
 
 __all__ = ["write_sequence", "check_output_dir", "read_sequence", "jsonable", "GLB_NAME",
-           "SEQUENCE_FORMATS", "ANIMATION_NAMES", "MESH_NAME"]
+           "SEQUENCE_FORMATS", "ANIMATION_NAMES", "MESH_NAME", "write_obj_frame",
+           "write_ply_frame"]
 
 FRAME_RE = re.compile(r"^frame_(\d+)\.(obj|ply)$")
 GLB_NAME = "animation.glb"
@@ -326,9 +327,9 @@ def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
     if workers <= 1:
         for k, p in enumerate(paths):
             if fmt == "obj":
-                _write_obj_frame(p, V[k], block)
+                write_obj_frame(p, V[k], block)
             else:
-                _write_ply_frame(p, V[k], block, m)
+                write_ply_frame(p, V[k], block, m)
         return
     from ..parallel import process_pool
 
@@ -348,9 +349,9 @@ def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
 def _write_frames_chunk(paths, Vc, block, fmt, m) -> None:
     for p, X in zip(paths, Vc):
         if fmt == "obj":
-            _write_obj_frame(p, X, block)
+            write_obj_frame(p, X, block)
         else:
-            _write_ply_frame(p, X, block, m)
+            write_ply_frame(p, X, block, m)
 
 
 def _obj_faces_block(F: np.ndarray) -> bytes:
@@ -382,8 +383,17 @@ def _ply_polygons_bytes(offsets: np.ndarray, indices: np.ndarray) -> bytes:
     return out.tobytes()
 
 
-def _write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes) -> None:
-    """One OBJ frame; ``%.17g`` round-trips every float64 exactly."""
+def write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes) -> None:
+    """Write one OBJ frame (a plain write into :func:`write_sequence`'s temporary directory).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+    V : (n,3) float array
+        The pose; ``%.17g`` round-trips every float64 exactly.
+    faces_block : bytes
+        The ``f`` lines, formatted once for all frames.
+    """
     verts = ("v %.17g %.17g %.17g\n" * V.shape[0]) % tuple(V.ravel().tolist())
     with open(path, "wb") as fh:
         fh.write(verts.encode("ascii"))
@@ -397,7 +407,9 @@ def _ply_faces_bytes(F: np.ndarray) -> bytes:
     return rec.tobytes()
 
 
-def _write_ply_frame(path: Path, V: np.ndarray, faces_bytes: bytes, m: int) -> None:
+def write_ply_frame(path: Path, V: np.ndarray, faces_bytes: bytes, m: int) -> None:
+    """Write one binary little-endian PLY frame (double coordinates; a plain write, as
+    :func:`write_obj_frame`): ``V (n,3)``, the ``m`` faces' records ``faces_bytes``."""
     header = ("ply\nformat binary_little_endian 1.0\ncomment written by shellspline\n"
               f"element vertex {V.shape[0]}\nproperty double x\nproperty double y\n"
               f"property double z\nelement face {m}\n"
