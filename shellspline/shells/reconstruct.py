@@ -38,10 +38,12 @@ import scipy.sparse as sp
 
 from ..errors import ShellsplineError
 from ..mesh.rigid import rigid_modes
+from ..mesh.topology import Topology
+from ..numerics.krylov import pcg
 from ..numerics.linalg import SparseCholesky, available_backends, nested_dissection
+from ..numerics.linesearch import backtracking
 from ..numerics.result import SolverResult
 from .descriptors import face_areas, lta_descriptors, lta_jacobian, wrap_angle
-from ..mesh.topology import Topology
 
 __all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement"]
 
@@ -368,7 +370,7 @@ class GaussNewton:
     def _pcg(self, J, w, b, delta, precond):
         """Solve (JᵀWJ + δI) x = b on the free DOFs by CG preconditioned with ``precond``
         (from :meth:`_preconditioner`; without pins its range excludes the current rigid
-        motions, so CG runs on their complement)."""
+        motions, so CG runs on their complement). Returns ``(x, iterations, converged)``."""
         free = self._free
         JT = J.T  # one transposed view per solve, not one per CG iteration
 
@@ -377,31 +379,9 @@ class GaussNewton:
             out[~free] = 0.0
             return out
 
-        x = np.zeros_like(b)
-        r = b.copy()
-        bn = np.sqrt(_dot(b, b))
-        if bn == 0.0:
-            return x, 0, True
-        zv = precond(r)
-        p = zv.copy()
-        rz = _dot(r, zv)
-        for it in range(1, self.cg_max_iter + 1):
-            Ap = matvec(p)
-            pAp = _dot(p, Ap)
-            if pAp <= 0:
-                return x, it, False
-            a = rz / pAp
-            x += a * p
-            r -= a * Ap
-            if np.sqrt(_dot(r, r)) <= self.cg_tol * bn:
-                return x, it, True
-            zv = precond(r)
-            rz_new = _dot(r, zv)
-            p = zv + (rz_new / rz) * p
-            rz = rz_new
-        return x, self.cg_max_iter, False
+        res = pcg(matvec, b, precond=precond, rtol=self.cg_tol, max_iter=self.cg_max_iter)
+        return res.x, res.iterations, res.status == "converged"
 
-    # -- main entry ---------------------------------------------------------------------
     def solve(self, z_target, weights, V_init) -> ReconstructionResult:
         """Reconstruct one frame.
 
@@ -483,24 +463,18 @@ class GaussNewton:
                 res.status = "converged"
                 res.message = "Gauss–Newton decrement below dtol"
                 break
-            alpha, accepted = 1.0, False
-            for _ in range(40):
-                xn = x + alpha * p
-                Vn = xn.reshape(-1, 3)
-                an = face_areas(Vn, T)
-                if np.all(an > a_floor):
-                    zn = lta_descriptors(Vn, T)
-                    fn, rn, wn = self.merit(zn, z_target, w)
-                    if fn <= f + 2e-4 * alpha * slope:      # Armijo; f'(0) = 2 g·p
-                        accepted = True
-                        break
-                    # minimiser of the quadratic through f, f'(0) = 2 g·p and fn, kept in
-                    # [0.1, 0.5] alpha (large-residual frames overshoot by a steady factor)
-                    curv = fn - f - 2.0 * alpha * slope
-                    q = -slope * alpha * alpha / curv if curv > 0 else 0.5 * alpha
-                    alpha = min(max(q, 0.1 * alpha), 0.5 * alpha)
-                    continue
-                alpha *= 0.5
+            def trial(alpha):  # the merit at x + alpha p; inf where a triangle collapses
+                Vn = (x + alpha * p).reshape(-1, 3)
+                if not np.all(face_areas(Vn, T) > a_floor):
+                    return np.inf, None
+                return self.merit(lta_descriptors(Vn, T), z_target, w)[0], None
+
+            # Armijo on f with f'(0) = 2 g·p; the quadratic-interpolation backtracking is kept
+            # in [0.1, 0.5] alpha (large-residual frames overshoot by a steady factor)
+            ls = backtracking(trial, f, 2.0 * slope, c1=1e-4, shrink=0.5, max_steps=40,
+                              interpolate=True)
+            accepted, alpha, fn = ls.accepted, ls.alpha, ls.value
+            xn = x + alpha * p
             if not accepted:
                 if not fresh:  # retry once with a preconditioner refreshed at this iterate
                     self._stale = True
