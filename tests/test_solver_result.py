@@ -229,3 +229,29 @@ def test_backtracking_armijo_and_infeasible_trials():
     # an ascent direction: nothing accepted within max_steps
     r = backtracking(lambda a: (0.09 + a, None), 0.09, -0.6, max_steps=5)
     assert not r.accepted and r.evaluations == 5
+
+
+def test_curve_solvers_return_solver_results():
+    """The interpolating splines on groups and the closing of curves report like every other
+    solver: a direct construction is 'converged' with iterations == 0, a Newton construction
+    has its C² residual history, the closing its energy ½ gap² per iteration."""
+    from shellspline.curves import cubic_spline, quadratic_spline
+    from shellspline.curves.closing import close
+    from shellspline.curves.srv import ProductCurve
+    from shellspline.groups import so3
+
+    X = so3.exp([[0, 0, 0], [0.3, 0, 0], [0.3, 0.4, 0], [0, 0.4, 0.2]])
+    newton = cubic_spline("so3", [0, 1, 2.5, 3], X).solve
+    marching = quadratic_spline("so3", [0, 1, 2.5, 3], X).solve
+    for r in (newton, marching):
+        assert isinstance(r, SolverResult) and r.status == "converged" and r.success
+    assert newton.iterations >= 1 and newton.grad_norms.size == len(newton.residuals) >= 2
+    assert marching.iterations == 0 and marching.grad_norms.size == 0
+    assert "direct" in marching.message
+
+    t = np.linspace(0, 1, 30)
+    R = so3.exp(np.outer(np.sin(2 * np.pi * t) + 0.3 * t, [0.2, 0.5, 0.1]))[:, None]
+    res = close(ProductCurve(R, np.c_[np.cos(2 * np.pi * t), t], t))
+    assert isinstance(res, SolverResult)
+    np.testing.assert_allclose(res.energies, 0.5 * res.seam_gap ** 2)
+    assert res.iterations == len(res.seam_gap) - 1 and res.status == "converged"

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import ShellsplineError
 from ..groups import so3
+from ..numerics.result import SolverResult
 from .srv import ProductCurve, normalized_times, srv, srv_inverse
 
 __all__ = ["CloseResult", "close", "seam_gap"]
@@ -45,9 +46,10 @@ __all__ = ["CloseResult", "close", "seam_gap"]
 _KAPPA_C1 = 0.01
 
 
-@dataclass
-class CloseResult:
-    """Result of :func:`close`.
+@dataclass(kw_only=True)
+class CloseResult(SolverResult):
+    """Result of :func:`close` (a :class:`~shellspline.numerics.result.SolverResult`: its
+    ``energies`` are the closing energy ½ seam_gap² before each iteration and after the last).
 
     Attributes
     ----------
@@ -68,13 +70,10 @@ class CloseResult:
     message : str
     """
 
-    curve: ProductCurve
-    seam_gap: np.ndarray
-    velocity_jump: np.ndarray
-    change: float
-    iterations: int
-    status: str
-    message: str
+    curve: ProductCurve = None
+    seam_gap: np.ndarray = None
+    velocity_jump: np.ndarray = None
+    change: float = float("nan")
 
 
 def _jl_matrix(w):
@@ -352,5 +351,6 @@ def close(curve: ProductCurve, *, iterations: int = 10, c1: bool = False,
     D = q - q0
     change = float(np.sqrt(np.sum(h * np.einsum("ij,ij->i", D, D))))
     out = ProductCurve(c.R, c.X, curve.t)
-    return CloseResult(curve=out, seam_gap=np.array(gaps), velocity_jump=np.array(jumps),
-                       change=change, iterations=it, status=status, message=msg)
+    gaps = np.array(gaps)
+    return CloseResult(curve=out, seam_gap=gaps, velocity_jump=np.array(jumps), change=change,
+                       iterations=it, status=status, message=msg, energies=0.5 * gaps ** 2)

@@ -16,12 +16,13 @@ vector is ``Ad_g`` of it.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ShellsplineError
 from ..groups.lie import group
+from ..numerics.result import SolverResult
 from .bezier import de_casteljau
 
 __all__ = ["PiecewiseBezier", "SplineSolve", "cubic_spline", "quadratic_spline",
@@ -36,29 +37,31 @@ _ACC_STEP = 3e-5
 _CHUNK = 4096
 
 
-@dataclass
-class SplineSolve:
-    """Record of an interpolating-spline construction.
+@dataclass(kw_only=True)
+class SplineSolve(SolverResult):
+    """Record of an interpolating-spline construction (a
+    :class:`~shellspline.numerics.result.SolverResult`).
 
     Attributes
     ----------
     status : str
-        ``"converged"``, ``"limit"`` (Newton iteration limit) or ``"direct"`` (no iteration:
-        marching, Hermite, geodesic).
+        ``"converged"`` (the C² conditions hold to the tolerance, or a direct construction:
+        marching, Hermite, geodesic — ``iterations == 0`` and the message says which) or
+        ``"limit"`` (Newton iteration limit: the curve is C¹ but not C²).
     iterations : int
-    residuals : list of float
-        Max-norm of the C² residual (angular/linear acceleration jumps) per iteration.
+    grad_norms : (it+1,) float64 array
+        Max-norm of the C² residual (angular/linear acceleration jumps) per iteration (empty
+        for a direct construction); also readable as :attr:`residuals`.
     message : str
     """
 
-    status: str = "direct"
-    iterations: int = 0
-    residuals: list = field(default_factory=list)
-    message: str = ""
+    status: str = "converged"
+    message: str = "direct construction (no iteration)"
 
     @property
-    def success(self) -> bool:
-        return self.status in ("converged", "direct")
+    def residuals(self) -> list:
+        """The C² residual history (:attr:`grad_norms`) as a list."""
+        return self.grad_norms.tolist()
 
 
 class PiecewiseBezier:
@@ -469,8 +472,9 @@ def _newton(system, Om, tol, max_iter, periodic):
         Om, r = cand, rc
         res.append(float(np.abs(r).max()))
     if res[-1] <= tol * scale:
-        return Om, SplineSolve("converged", it, res, f"C² residual {res[-1]:.2e} (chord "
-                                                     f"iteration, {it} steps)")
+        return Om, SplineSolve(status="converged", iterations=it, grad_norms=res,
+                                 message=f"C² residual {res[-1]:.2e} (chord iteration, "
+                                         f"{it} steps)")
     Om, rec = _newton_fd(F, Om, r, res, scale, tol, max_iter - it, periodic)
     rec.message += f" (chord iteration, {it} steps, then Newton, {rec.iterations} steps)"
     rec.iterations += it
@@ -526,9 +530,11 @@ def _newton_fd(F, Om, r, res, scale, tol, max_iter, periodic):
     else:
         done = max_iter
     if res[-1] <= tol * scale:
-        return Om, SplineSolve("converged", done, res, f"C² residual {res[-1]:.2e}")
-    return Om, SplineSolve("limit", done, res, f"C² residual {res[-1]:.2e} at the iteration "
-                                               "limit: the curve is C¹ but not C²")
+        return Om, SplineSolve(status="converged", iterations=done, grad_norms=res,
+                                 message=f"C² residual {res[-1]:.2e}")
+    return Om, SplineSolve(status="limit", iterations=done, grad_norms=res,
+                             message=f"C² residual {res[-1]:.2e} at the iteration limit: "
+                                     "the curve is C¹ but not C²")
 
 
 def _solve_blocks(blocks, rhs, periodic, solve_banded):
@@ -700,7 +706,7 @@ def _march_cubic(G, t, X, ax, h, ends, start_acc):
         w = 3 * V2 / h[i]
         alpha = 6 / h[i] ** 2 * G.jac_right_inv(-V2, V2 - V1)
     return PiecewiseBezier(G, t, np.stack(ctrl, axis=ax), SplineSolve(
-        "direct", 0, [], "marching construction (seed algorithm 7.4.1)"))
+        message="marching construction (seed algorithm 7.4.1): direct, no iteration"))
 
 
 def quadratic_spline(G, t, X, start_velocity=None):
@@ -745,4 +751,4 @@ def quadratic_spline(G, t, X, start_velocity=None):
         ctrl.append(np.stack([xi, c, x1], axis=ax))
         w = 2 * V1 / h[i]
     return PiecewiseBezier(G, t, np.stack(ctrl, axis=ax), SplineSolve(
-        "direct", 0, [], "marching construction (seed section 7.4.1)"))
+        message="marching construction (seed section 7.4.1): direct, no iteration"))
