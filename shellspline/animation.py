@@ -37,8 +37,8 @@ __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_gr
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
            "loop_range", "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
-           "mesh_close", "close_euclidean", "mesh_align", "mesh_distance", "mesh_blend",
-           "reparametrize_vertices"]
+           "mesh_close", "close_euclidean", "MESH_C1_MAX_DIMS", "mesh_align", "mesh_distance",
+           "mesh_blend", "reparametrize_vertices"]
 
 # Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
 # a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
@@ -1394,7 +1394,11 @@ def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
         Frames (N >= 3).
     F : (m,3) array_like
     iterations, c1 :
-        As in :func:`shellspline.curves.closing.close`.
+        As in :func:`shellspline.curves.closing.close`. Without ``c1`` the closing is
+        :func:`close_euclidean`; ``c1`` needs the generic closing, at most
+        ``MESH_C1_MAX_DIMS`` descriptors (about 125 vertices).
+    method : {None, "gauss-newton", "gradient"}
+        The closing method (``"gradient"``: seed 000's flow, by the generic closing).
     **options
         Gauss–Newton options.
 
@@ -1412,24 +1416,31 @@ def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
         raise ShellsplineError(f"mesh_close: need at least 3 frames, got {Vs.shape[0]}")
     mc = mesh_curve(Vs, F)
     X = mc.Z * mc.sqrt_w
-    n, D = X.shape[0] - 1, X.shape[1]
-    if n * D * D * 8 <= _DENSE_CLOSING_BYTES:
+    D = X.shape[1]
+    gauss_newton = method in (None, "gauss-newton")
+    if gauss_newton and not c1:  # the same Gauss-Newton closing, O(frames x D)
+        Xc, history = close_euclidean(X, iterations=iterations)
+    else:
+        if gauss_newton and D > MESH_C1_MAX_DIMS:
+            raise ShellsplineError(
+                f"mesh_close: c1 closing of {D} descriptors (about {D // 8} vertices) is too "
+                f"slow (its constraint system is {2 * D} x {2 * D}); at most "
+                f"{MESH_C1_MAX_DIMS} descriptors: decimate the mesh or close without c1")
         kw = {} if method is None else {"method": method}
         res = close_curve(mc.product_curve(), iterations=iterations, c1=c1, **kw)
         Xc, history = res.curve.X, np.asarray(res.seam_gap)
-    elif c1:
-        raise ShellsplineError(f"mesh_close: c1 closing of {D} descriptors over {n + 1} frames "
-                               f"needs {n * D * D * 8 / 2**30:.1f} GiB; close without c1")
-    else:
-        Xc, history = close_euclidean(X, iterations=iterations)
     Z = Xc / mc.sqrt_w
     out, results = reconstruct_frames(Z, mc, Vs, **options)
     return out, _mesh_report(out, Z, mc, results, history=history)
 
 
-# curves.closing.close builds a dense (frames, D, D) Jacobian; above this size a mesh
-# curve (D ~ 8 x vertices) is closed by close_euclidean, O(frames x D) memory.
-_DENSE_CLOSING_BYTES = 256 * 2**20
+# curves.closing.close solves its Gauss-Newton step in the constraint space: a (D,D) Schur
+# complement (2D with c1) assembled column by column, O(frames D^2 + D^3) per iteration.
+# On a body skinned to the real walk (34 frames): D = 984 / 1,984 / 3,984 / 7,984 took
+# 1.7 / 8.6 / 39 / 494 s (c1: 14 / 60 / 233 s; 1.5 GB at D = 7,984) against 0.005 / 0.2 /
+# 0.26 / 0.07 s for close_euclidean (the same steps in the frame space, equal to 1e-15).
+# So mesh curves are closed by close_euclidean; c1 (which it does not do) only up to:
+MESH_C1_MAX_DIMS = 1000
 
 
 def close_euclidean(X, *, iterations: int = 10, tol: float = 1e-12):
@@ -1439,9 +1450,11 @@ def close_euclidean(X, *, iterations: int = 10, tol: float = 1e-12):
     Each step minimises ``sum_i h_i |dq_i|^2`` subject to the linearised closure
     ``g + sum_i h_i J_i dq_i = 0``, ``J_i = |q_i| I + q_i q_i^T / |q_i|``: ``dq_i = -J_i y``
     with ``(a I + 3 B B^T) y = g``, ``a = sum h_i |q_i|^2``, ``B = Q^T diag(sqrt h)``,
-    solved by the Woodbury identity in ``O(N m)`` memory (the generic
-    :func:`shellspline.curves.closing.close` forms the dense ``(N, m, m)`` Jacobian, too
-    large for mesh descriptor curves). Start point kept; backtracking on ``|g|``.
+    solved by the Woodbury identity in the frame space: ``O(N m)`` memory and ``O(N^2 m +
+    N^3)`` time per step. :func:`shellspline.curves.closing.close` takes the same steps (to
+    1e-15) through an ``(m, m)`` system in the constraint space, ``O(N m^2 + m^3)``: right
+    for skeletons (m ~ 100), 7,000x slower for a 1,000-vertex mesh (m ~ 8,000; see
+    ``MESH_C1_MAX_DIMS``). Start point kept; backtracking on ``|g|``.
 
     Returns
     -------

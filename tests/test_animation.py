@@ -427,6 +427,26 @@ def test_mesh_close_makes_a_loop(skinned_walk):
     gap = lambda V: np.abs(rigid_placement(V[-1], V[0]) - V[0]).max()  # noqa: E731
     assert gap(out) < 1e-3 * gap(Vs)
     assert np.abs(out - Vs).max() < 0.05 * np.ptp(Vs[0], axis=0).max()
+    # the closing is close_euclidean's: the generic closing takes the same steps
+    mc = A.mesh_curve(Vs, F)
+    assert np.array_equal(rep.history, A.close_euclidean(mc.Z * mc.sqrt_w)[1])
+    assert mc.Z.shape[1] > A.MESH_C1_MAX_DIMS
+    with pytest.raises(ShellsplineError, match="c1 closing of .* descriptors"):
+        A.mesh_close(Vs, F, c1=True)
+
+
+def test_mesh_c1_close_of_a_small_mesh():
+    from shellspline.curves.closing import close
+    from data_synth.skinned import skinned_sequence
+
+    Vs, F, _ = skinned_sequence(shared_data("motion", "dataset-1_walk_normal_001.bvh"),
+                                start=10, stop=30, n_vertices=100)
+    mc = A.mesh_curve(Vs, F)
+    assert mc.Z.shape[1] <= A.MESH_C1_MAX_DIMS
+    out, rep = A.mesh_close(Vs, F, c1=True)
+    ref = close(mc.product_curve(), c1=True)
+    assert np.array_equal(rep.history, ref.seam_gap)
+    assert rep.history[-1] <= 1e-9 * rep.history[0] and rep.descriptor_error < 1e-2
 
 
 def test_mesh_blend_and_align(skinned_walk):
