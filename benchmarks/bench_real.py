@@ -110,13 +110,10 @@ def defects(V, T, frames) -> dict:
 def _rigidly_onto(X, Y):
     """Every frame of X (T,n,3) moved by its best rotation + translation onto Y (T,n,3)
     (Kabsch)."""
+    from shellspline.mesh.rigid import best_rotations
+
     Xm, Ym = X.mean(axis=1, keepdims=True), Y.mean(axis=1, keepdims=True)
-    H = np.einsum("tni,tnj->tij", X - Xm, Y - Ym)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", U, Vt)))
-    D = np.broadcast_to(np.eye(3), H.shape).copy()
-    D[:, 2, 2] = d
-    R = np.einsum("tij,tjk,tkl->tli", U, D, Vt)  # maps X onto Y: y = R x
+    R = best_rotations(X - Xm, Y - Ym)  # maps X onto Y: y = R x
     return np.einsum("tij,tnj->tni", R, X - Xm) + Ym
 
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shells.descriptors import edge_lengths
+from .mesh.geometry import dot, face_normals, norms
 from .mesh.topology import Topology
+from .shells.descriptors import edge_lengths
 
 __all__ = ["length_scale", "half_axes", "keyframe_kinks", "edge_strain", "speed", "lta_energies", "sequence_defects",
            "shell_energies"]
@@ -44,10 +45,8 @@ def length_scale(V, F) -> float:
     >>> length_scale(np.array([[0., 0, 0], [2, 0, 0], [0, 2, 0], [2, 2, 0]]), [[0, 1, 3], [0, 3, 2]])
     2.0
     """
-    from .shells.descriptors import face_normals
-
     N = face_normals(np.asarray(V, dtype=np.float64), np.asarray(F))
-    D = float(np.sqrt(0.5 * np.sqrt(np.einsum("mi,mi->m", N, N)).sum()))
+    D = float(np.sqrt(0.5 * norms(N).sum()))
     return D if np.isfinite(D) and D > 0 else 1.0
 
 
@@ -289,8 +288,8 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     >>> d["flipped_faces"], d["collapsed_faces"], d["folded_edges"], round(d["pop"], 6)
     (0, 0, 0, 1.0)
     """
-    from .shells.descriptors import FOLD_BAND, dihedral_angles, face_normals
-    from .timeline import keyframe_bracket, keyframe_gap
+    from .shells.descriptors import FOLD_BAND, dihedral_angles
+    from .timeline import keyframe_gap
 
     V = np.asarray(V, dtype=np.float64)
     frames = np.asarray(frames, dtype=np.int64)
@@ -298,7 +297,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     periodic = str(bc).lower() == "periodic"
     F = T.F
     Nkey = face_normals(V[frames], F)                                   # (J, m, 3)
-    akey = 0.5 * np.sqrt(np.einsum("jmi,jmi->jm", Nkey, Nkey)).min(axis=0)
+    akey = 0.5 * norms(Nkey).min(axis=0)
     Tkey = dihedral_angles(V[frames], T)                                # (J, i)
     flipped = np.zeros(K + 1, dtype=np.int64)
     collapsed = np.zeros(K + 1, dtype=np.int64)
@@ -308,7 +307,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     is_key[frames] = True
     is_key[K] |= periodic
     g0, g1 = keyframe_gap(frames, K, periodic)                          # per step
-    key_flip = np.einsum("jmi,jmi->jm", Nkey[g0], Nkey[g1]) < 0 if K else None
+    key_flip = dot(Nkey[g0], Nkey[g1]) < 0 if K else None
     # a crossing the keyframes hold themselves: one end near ±π, the short way through it
     Ta, Tb = Tkey[g0], Tkey[g1]
     band = np.pi - FOLD_BAND
@@ -318,7 +317,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
         Vc = V[i:i + chunk]
         N = face_normals(Vc, F)
         Th = dihedral_angles(Vc, T)
-        a = 0.5 * np.sqrt(np.einsum("kmi,kmi->km", N, N))
+        a = 0.5 * norms(N)
         collapsed[i:i + len(Vc)] = (a < COLLAPSE_RATIO * akey).sum(axis=1)
         if prevN is not None:
             N, Th, Vc = (np.concatenate([p[None], c]) for p, c in
@@ -328,7 +327,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
             s0 = i
         if len(Vc) > 1:
             ks = np.arange(s0, s0 + len(Vc) - 1)                      # steps ks -> ks+1
-            flip = np.einsum("kmi,kmi->km", N[1:], N[:-1]) < 0
+            flip = dot(N[1:], N[:-1]) < 0
             flipped[ks + 1] = (flip & ~key_flip[ks]).sum(axis=1)
             through = np.abs(Th[1:] - Th[:-1]) > np.pi                  # short path via ±π
             # a step from or to a keyframe that holds the edge within FOLD_BAND of ±π: the

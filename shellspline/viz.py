@@ -37,6 +37,7 @@ import numpy as np
 
 from .errors import ShellsplineError
 from .io.atomic import temporary_sibling, write_atomically
+from .mesh.geometry import vertex_normals
 
 __all__ = ["SequenceViewer", "load_source", "preview", "render_frames", "render_animation",
            "render_strip", "plot", "plot_figure", "plot_half_axes", "half_axes_figure",
@@ -292,8 +293,6 @@ def _pyvista(what: str, off_screen: bool):
 
 
 def _polydata(pv, V: np.ndarray, F: np.ndarray):
-    from .io.gltf import vertex_normals
-
     faces = np.hstack([np.full((F.shape[0], 1), 3, dtype=np.int64), F]).ravel()
     mesh = pv.PolyData(np.array(V, dtype=np.float64), faces)
     mesh.point_data["Normals"] = vertex_normals(V, F)

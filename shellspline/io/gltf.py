@@ -25,43 +25,16 @@ import struct
 import numpy as np
 
 from ..errors import ShellsplineError
+from ..mesh.geometry import vertex_normals
 from .atomic import write_bytes_atomic
 
-__all__ = ["glb_bytes", "write_glb", "read_glb", "vertex_normals"]
+__all__ = ["glb_bytes", "write_glb", "read_glb", "vertex_normals"]  # vertex_normals: mesh.geometry's
 
 _GLB_MAGIC = 0x46546C67  # b"glTF"
 _CHUNK_JSON = 0x4E4F534A  # b"JSON"
 _CHUNK_BIN = 0x004E4942  # b"BIN\0"
 _FLOAT, _UINT = 5126, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
-
-
-def vertex_normals(V, F) -> np.ndarray:
-    """Area-weighted unit vertex normals of one or several poses.
-
-    Parameters
-    ----------
-    V : (..., n, 3) float array
-    F : (m, 3) int array
-
-    Returns
-    -------
-    (..., n, 3) float64 array
-        Unit normals (zero for vertices no face uses).
-    """
-    import scipy.sparse as sp
-
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    n, m = V.shape[-2], F.shape[0]
-    a, b, c = V[..., F[:, 0], :], V[..., F[:, 1], :], V[..., F[:, 2], :]
-    fn = np.cross(b - a, c - a)  # twice the area times the unit normal, (..., m, 3)
-    inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))), shape=(n, m))
-    batch = fn.shape[:-2]
-    cols = np.moveaxis(fn, -2, 0).reshape(m, -1)  # (m, batch*3)
-    N = np.moveaxis(np.asarray(inc @ cols).reshape((n,) + batch + (3,)), 0, -2)
-    norm = np.linalg.norm(N, axis=-1, keepdims=True)
-    return np.divide(N, norm, out=np.zeros_like(N), where=norm > 0)
 
 
 def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals: bool = True,

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MeshError, one_line, tol
+from ..mesh.geometry import cross
 from ..mesh.source_mesh import SourceMesh, solve_mesh
 from ..mesh.topology import Topology, topology
 from .meshes import check_indices, polygon_offsets, read_polygons
@@ -341,7 +342,7 @@ def _check_degenerate(V: np.ndarray, F: np.ndarray, name: str, source=None,
     """Raise for faces with area below ``tol.degenerate_area * mean_edge_length**2``."""
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     e1, e2 = b - a, c - a
-    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    area = 0.5 * np.linalg.norm(cross(e1, e2), axis=1)
     mean_len = (np.linalg.norm(e1, axis=1).sum() + np.linalg.norm(e2, axis=1).sum()
                 + np.linalg.norm(c - b, axis=1).sum()) / (3 * F.shape[0])
     bad = area <= tol.degenerate_area * mean_len ** 2

@@ -35,7 +35,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import ShellsplineError
+from ..errors import ShellsplineError, tol
+from .geometry import cross, dot, norms, normalized, vertex_face_incidence
 from .pinned import pinned_mask
 from .topology import Topology, topology
 
@@ -162,7 +163,7 @@ def _canonical_poses(Vs, F, name_V="Vs", name_F="F"):
 def _plane_quadrics(a, b, c, d, w):
     """(k,10) quadric coefficients of the planes ``a x + b y + c z + d = 0`` (unit normals)
     with weights ``w``; all arguments (k,)."""
-    out = np.empty((a.shape[0], 10))
+    out = np.zeros((a.shape[0], 10))
     for i, (p, q) in enumerate(((a, a), (a, b), (a, c), (a, d), (b, b), (b, c), (b, d),
                                 (c, c), (c, d), (d, d))):
         np.multiply(p * q, w, out=out[:, i])
@@ -178,20 +179,19 @@ def _setup_pose(x, F, bnd_edges, bnd_faces, boundary_weight, inc, incb):
     boundary keeps its shape.
     """
     p0 = x[F[:, 0]]
-    N = _cross(x[F[:, 1]] - p0, x[F[:, 2]] - p0)
-    nn = np.sqrt(_dot(N, N))
-    unit = N / np.maximum(nn, 1e-300)[:, None]
+    N = cross(x[F[:, 1]] - p0, x[F[:, 2]] - p0)
+    nn = norms(N)
+    unit = N / np.maximum(nn, tol.zero)[:, None]
     u0, u1, u2 = unit[:, 0], unit[:, 1], unit[:, 2]
     d = -(u0 * p0[:, 0] + u1 * p0[:, 1] + u2 * p0[:, 2])
     Q = inc @ _plane_quadrics(u0, u1, u2, d, 0.5 * nn)
     if incb is not None:
         a = x[bnd_edges[:, 0]]
         e = x[bnd_edges[:, 1]] - a
-        pn = _cross(e, unit[bnd_faces])
-        pn /= np.maximum(np.sqrt(_dot(pn, pn)), 1e-300)[:, None]
-        db = -_dot(pn, a)
+        pn = normalized(cross(e, unit[bnd_faces]))
+        db = -dot(pn, a)
         Q += incb @ _plane_quadrics(pn[:, 0], pn[:, 1], pn[:, 2], db,
-                                    boundary_weight * _dot(e, e))
+                                    boundary_weight * dot(e, e))
     return Q, inc @ N, 0.5 * float(nn.mean())
 
 
@@ -200,7 +200,7 @@ def _length_quadrics(x, w):
     out = np.zeros(x.shape[:-1] + (10,))
     out[..., 0] = out[..., 4] = out[..., 7] = w
     out[..., 3], out[..., 6], out[..., 8] = -w * x[..., 0], -w * x[..., 1], -w * x[..., 2]
-    out[..., 9] = w * _dot(x, x)
+    out[..., 9] = w * dot(x, x)
     return out
 
 
@@ -208,7 +208,7 @@ def _point_moments(x):
     """(..., 10) coefficients of ``x̂ x̂ᵀ`` (``x̂ = (x, 1)``) such that the quadric error of
     coefficient rows ``q`` at ``x`` is ``(q * m).sum(-1)``."""
     X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
-    out = np.empty(x.shape[:-1] + (10,))
+    out = np.zeros(x.shape[:-1] + (10,))
     out[..., 0], out[..., 1], out[..., 2], out[..., 3] = X * X, 2 * X * Y, 2 * X * Z, 2 * X
     out[..., 4], out[..., 5], out[..., 6] = Y * Y, 2 * Y * Z, 2 * Y
     out[..., 7], out[..., 8], out[..., 9] = Z * Z, 2 * Z, 1.0
@@ -332,7 +332,7 @@ def _select_collapses(g: _Graph, ckey, on_boundary, iu, iv, cost, budget, face_o
     gmin = np.minimum.reduceat(work, gstart)
     # the first halfedge of each group attaining its minimum
     im = np.flatnonzero(work == gmin[gid])[::-1]
-    first_min = np.empty(gstart.shape[0], dtype=np.int64)
+    first_min = np.full(gstart.shape[0], -1, dtype=np.int64)  # every group gets its own
     first_min[gid[im]] = im
     order = np.argsort(gmin, kind="stable")
     lim = int(math.ceil(_SLACK * budget))
@@ -395,7 +395,7 @@ def _sweeps(g, ckey, on_boundary, iu, iv, work, gstart, gmin, first_min, comp, b
             wv = work[h]
             m = np.minimum.reduceat(wv, np.r_[0, np.cumsum(hi - lo)][:-1])
             isn = np.flatnonzero(wv == m[who])[::-1]
-            nxt = np.empty(bad_w.shape[0], dtype=np.int64)
+            nxt = np.full(bad_w.shape[0], -1, dtype=np.int64)
             nxt[who[isn]] = h[isn]
             fin = np.isfinite(m)
             active[bad_w[~fin]] = False
@@ -446,17 +446,6 @@ def _link_ok(g: _Graph, ckey, us, vs, on_boundary):
     return common == np.where(on_boundary, 1, 2)
 
 
-def _cross(a, b):
-    """Cross product over the last axis (cheaper than ``np.cross`` on small arrays)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
-def _dot(a, b):
-    return np.einsum("...i,...i->...", a, b)
-
-
 def _face_checks(X, gid, vnormals, hs, us, vs, min_cos, min_quality):
     """Validity of the collapses ``us -> vs`` w.r.t. the faces around ``u``, in every pose.
 
@@ -482,15 +471,15 @@ def _face_checks(X, gid, vnormals, hs, us, vs, min_cos, min_quality):
     P = X[np.concatenate([gid[us[owner]], gv, ga, gb])].reshape(4, k, J, 3)    # u, v, a, b
     # edge vectors a-u, b-u (old face), a-v, b-v (new face), b-a (shared), all poses at once
     D = P[[2, 3, 2, 3, 3]] - P[[0, 0, 1, 1, 2]]                                # (5,k,J,3)
-    L = np.einsum("sxji,sxji->sxj", D, D)
-    N = _cross(D[[0, 2]], D[[1, 3]])                   # old and new face normal
-    nn = np.sqrt(np.einsum("sxji,sxji->sxj", N, N))
-    ok = np.einsum("xji,xji->xj", N[0], N[1]) > min_cos * nn[0] * nn[1]
+    L = dot(D, D)
+    N = cross(D[[0, 2]], D[[1, 3]])                    # old and new face normal
+    nn = norms(N)
+    ok = dot(N[0], N[1]) > min_cos * nn[0] * nn[1]
     vn = vnormals[np.concatenate([gv, ga, gb])].reshape(3, k, J, 3)
     ok &= (np.einsum("sxji,xji->sxj", vn, N[1]) > min_cos * nn[1]).all(axis=0)
     c = 2.0 * math.sqrt(3.0)
-    q0 = c * nn[0] / np.maximum(L[0] + L[1] + L[4], 1e-300)
-    q1 = c * nn[1] / np.maximum(L[2] + L[3] + L[4], 1e-300)
+    q0 = c * nn[0] / np.maximum(L[0] + L[1] + L[4], tol.zero)
+    q1 = c * nn[1] / np.maximum(L[2] + L[3] + L[4], tol.zero)
     ok &= (q1 >= min_quality) | (q1 >= q0)
     ok = ok.all(axis=1)
     bad = np.zeros(us.shape[0], dtype=bool)
@@ -699,22 +688,20 @@ def _fine_quadrics(X, T, boundary_weight):
     J, n, _ = X.shape
     bnd_e = T.edge_faces[:, 1] < 0
     E_b, F_b = T.E[bnd_e], T.edge_faces[bnd_e, 0]
-    m = T.F.shape[0]
-    inc = sp.csr_matrix((np.ones(3 * m), (T.F.T.ravel(), np.tile(np.arange(m), 3))),
-                        shape=(n, m))
+    inc = vertex_face_incidence(T.F, n)
     incb = None
     if E_b.shape[0] and boundary_weight > 0:
         nb = E_b.shape[0]
         incb = sp.csr_matrix((np.ones(2 * nb), (E_b.T.ravel(), np.tile(np.arange(nb), 2))),
                              shape=(n, nb))
-    Q = np.empty((n, J, 10))                          # accumulated quadrics
-    vnormals = np.empty((n, J, 3))                    # fine vertex normals
+    Q = np.zeros((n, J, 10))                          # accumulated quadrics
+    vnormals = np.zeros((n, J, 3))                    # fine vertex normals
     area = 0.0
     for j in range(J):
         Q[:, j], vnormals[:, j], a_j = _setup_pose(X[j], T.F, E_b, F_b, boundary_weight, inc,
                                                     incb)
         area += a_j / J
-    vnormals /= np.maximum(np.sqrt(_dot(vnormals, vnormals)), 1e-300)[..., None]
+    vnormals = normalized(vnormals)
     return Q, vnormals, area
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rigid_modes"]
+__all__ = ["rigid_modes", "best_rotations"]
 
 
 def rigid_modes(V, free, pinned_dofs):
@@ -40,3 +40,34 @@ def rigid_modes(V, free, pinned_dofs):
         B = B @ C
     Q, _ = np.linalg.qr(B[free])
     return Q
+
+
+def best_rotations(X, Y) -> np.ndarray:
+    """Rotations ``R`` (det +1) that best map centred points ``X`` onto centred points ``Y``
+    (Kabsch): ``R`` minimises ``Σ_i |R x_i − y_i|²``, batched over leading axes.
+
+    Parameters
+    ----------
+    X, Y : (..., n, 3) float arrays
+        Point sets with their centroids removed (broadcast against each other).
+
+    Returns
+    -------
+    R : (..., 3, 3) float64 array
+        ``y_i ≈ R x_i``; a reflection is never returned (the last singular direction is
+        flipped instead).
+
+    Examples
+    --------
+    >>> X = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 2.0, 0], [0, -2.0, 0]])
+    >>> Rz = np.array([[0.0, -1, 0], [1.0, 0, 0], [0, 0, 1.0]])
+    >>> bool(np.allclose(best_rotations(X, X @ Rz.T), Rz))
+    True
+    """
+    H = np.einsum("...ni,...nk->...ik", X, Y)                 # cross-covariances
+    U, _, Wt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("...ki,...lk->...il", Wt, U)))
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = D[..., 1, 1] = 1.0
+    D[..., 2, 2] = np.where(d == 0, 1.0, d)
+    return np.einsum("...ki,...kl,...ml->...im", Wt, D, U)

@@ -49,7 +49,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import MeshError
+from ..errors import MeshError, tol
+from .geometry import cross, normalized
 
 __all__ = ["SourceMesh", "solve_mesh", "triangulate_polygons", "WELD_TOLERANCE"]
 
@@ -228,10 +229,9 @@ def _face_frames(V: np.ndarray, tri: np.ndarray):
     """Origin ``a`` and orthonormal frame ``[e1 e2 n]`` (as columns) of triangles per pose."""
     a, b, c = V[:, tri[:, 0]], V[:, tri[:, 1]], V[:, tri[:, 2]]
     e1 = b - a
-    n = np.cross(e1, c - a)
-    e1 /= np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-300)
-    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
-    e2 = np.cross(n, e1)
+    n = normalized(cross(e1, c - a))
+    e1 = normalized(e1)
+    e2 = cross(n, e1)
     return a, np.stack([e1, e2, n], axis=-1)
 
 
@@ -315,18 +315,17 @@ def _newell_normals(Vs: np.ndarray, C: np.ndarray) -> np.ndarray:
     """Newell normals (J,p,3) of polygons ``C`` (p,s) in every pose (unnormalised)."""
     P0 = Vs[:, C]                        # (J,p,s,3)
     P1 = np.roll(P0, -1, axis=2)
-    return np.cross(P0, P1).sum(axis=2) * 0.5
+    return cross(P0, P1).sum(axis=2) * 0.5
 
 
 def _best_candidate(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarray:
     """Per polygon, the candidate triangulation (c of cand (p,c,t,3)) with the best worst
     signed quality over all poses; returns (p,t,3)."""
-    N = _newell_normals(Vs, C)                                   # (J,p,3)
-    N /= np.maximum(np.linalg.norm(N, axis=-1, keepdims=True), 1e-300)
+    N = normalized(_newell_normals(Vs, C))                       # (J,p,3)
     A, B, Cc = (Vs[:, cand[..., i]] for i in range(3))           # (J,p,c,t,3)
-    area2 = np.einsum("jpctx,jpx->jpct", np.cross(B - A, Cc - A), N)
+    area2 = np.einsum("jpctx,jpx->jpct", cross(B - A, Cc - A), N)
     l2 = (((B - A) ** 2).sum(-1) + ((Cc - B) ** 2).sum(-1) + ((A - Cc) ** 2).sum(-1))
-    q = 0.5 * _SQRT3x4 * area2 / np.maximum(l2, 1e-300)
+    q = 0.5 * _SQRT3x4 * area2 / np.maximum(l2, tol.zero)
     score = q.min(axis=(0, 3))                                    # (p,c)
     best = np.argmax(score, axis=1)                               # first on ties
     return cand[np.arange(cand.shape[0]), best]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ShellsplineError
+from ..mesh.rigid import best_rotations
 from ..shells.reconstruct import rigid_placement
 from ..timeline import linear_blend
 from .options import RIGID_TRACKS
@@ -89,13 +90,7 @@ def _screw_track(Vkey, frames, K, bc, subset=None):
     Vs = Vkey if subset is None else Vkey[:, subset]         # the vertices that carry the pose
     c = Vs.mean(axis=1)                                      # (J,3)
     X0 = Vs[0] - c[0]
-    H = np.einsum("ni,jnk->jik", X0, Vs - c[:, None])        # (J,3,3) cross-covariances
-    U, _, Wt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("jki,jlk->jil", Wt, U)))
-    D = np.zeros((J, 3, 3))
-    D[:, 0, 0] = D[:, 1, 1] = 1.0
-    D[:, 2, 2] = np.where(d == 0, 1.0, d)
-    R = np.einsum("jki,jkl,jml->jim", Wt, D, U)              # Vkey[j] - c[j] ≈ R_j X0
+    R = best_rotations(X0, Vs - c[:, None])                  # Vkey[j] - c[j] ≈ R_j X0
     G = np.zeros((J, 4, 4))
     G[:, :3, :3], G[:, :3, 3], G[:, 3, 3] = R, c, 1.0
     t = np.asarray(frames, dtype=np.float64)

@@ -13,8 +13,10 @@ import time
 
 import numpy as np
 
+from ..errors import tol
+from ..mesh.geometry import face_normals, norms
 from ..metrics import sequence_defects
-from ..shells.descriptors import face_normals, lta_descriptors, lta_weights, unwrap_angles
+from ..shells.descriptors import lta_descriptors, lta_weights, unwrap_angles
 from ..shells.lta_spline import lta_energy_per_frame
 from ..mesh.topology import Topology
 from ..version import __version__
@@ -38,11 +40,8 @@ def sequence_quality(V, T: Topology, frames) -> dict:
     def normals(Vs):
         return face_normals(Vs, F)
 
-    def norms(N):
-        return np.sqrt(np.einsum("kmi,kmi->km", N, N))
-
     a_ref = (0.5 * norms(normals(V[np.asarray(frames)]))).mean(axis=0)
-    a_ref = np.maximum(a_ref, 1e-300)
+    a_ref = np.maximum(a_ref, tol.zero)
     rmin, rmax, n_degen, n_flip, prev = np.inf, 0.0, 0, 0, None
     for i in range(0, V.shape[0], 8):  # a few frames at a time: bounded memory
         N = normals(V[i:i + 8])
@@ -123,7 +122,7 @@ def fixpoint_change(V, Vnew, Z, Znew, T, Vkey) -> dict:
     diag = float(np.linalg.norm(Vkey.reshape(-1, 3).max(0) - Vkey.reshape(-1, 3).min(0)))
     dv = float(np.abs(Vnew - V).max())
     sL, sT, sA = T.descriptor_slices()
-    out = {"max_vertex_change": dv, "rel_vertex_change": dv / max(diag, 1e-300)}
+    out = {"max_vertex_change": dv, "rel_vertex_change": dv / max(diag, tol.zero)}
     for name, sl, rel in (("lengths", sL, True), ("angles", sT, False), ("areas", sA, True)):
         d = np.abs(Znew[:, sl] - Z[:, sl])
         if d.size == 0:

@@ -26,11 +26,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import ShellsplineError
+from ..errors import ShellsplineError, tol
 from ..numerics.linalg import SparseCholesky
 from ..mesh.decimate import Decimation
+from ..mesh.geometry import cross, dot, normalized, norms, vertex_face_incidence
 from ..mesh.pinned import pinned_mask
-from .descriptors import cross
 from ..mesh.topology import Topology, topology
 from ..timeline import linear_time_weights as timeline_linear_time_weights
 
@@ -294,23 +294,20 @@ class Prolongation:
         n, nb, _ = St.shape
         F = self.F
         if getattr(self, "_inc", None) is None:
-            m = F.shape[0]
-            self._inc = sp.csr_matrix((np.ones(3 * m), (F.T.ravel(), np.tile(np.arange(m), 3))),
-                                      shape=(n, m))
+            self._inc = vertex_face_incidence(F, n)
         p0 = St[F[:, 0]]
         N = cross(St[F[:, 1]] - p0, St[F[:, 2]] - p0)                 # (m,B,3)
         nrm = (self._inc @ N.reshape(F.shape[0], 3 * nb)).reshape(n, nb, 3)
-        nrm /= np.maximum(np.sqrt(np.einsum("nbi,nbi->nb", nrm, nrm)), 1e-300)[..., None]
+        nrm = normalized(nrm)
         e = St[self._ref_nbr] - St
-        t = e - np.einsum("nbi,nbi->nb", e, nrm)[..., None] * nrm
-        tl = np.sqrt(np.einsum("nbi,nbi->nb", t, t))[..., None]
-        el = np.sqrt(np.einsum("nbi,nbi->nb", e, e))[..., None]
-        bad = ~(tl > 1e-12 * np.maximum(el, 1e-300))
-        t /= np.maximum(tl, 1e-300)
+        t = e - dot(e, nrm)[..., None] * nrm
+        tl, el = norms(t)[..., None], norms(e)[..., None]
+        bad = ~(tl > 1e-12 * np.maximum(el, tol.zero))
+        t /= np.maximum(tl, tol.zero)
         if bad.any():
             # fallback for a reference edge along the normal: any direction orthogonal to n
             alt = cross(nrm, np.where(np.abs(nrm[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
-            alt /= np.maximum(np.linalg.norm(alt, axis=-1, keepdims=True), 1e-300)
+            alt = normalized(alt)
             t = np.where(bad, alt, t)
         return t, cross(nrm, t), nrm
 
