@@ -322,6 +322,16 @@ def test_blend_across_frame_rates_and_layouts():
     assert abs((m.n_frames - 1) * m.frame_time - 1.25) <= m.frame_time
     with pytest.raises(ShellsplineError, match="align must be"):
         A.blend(a, b, 0.5, align="dtw")
+    # the same walk at 120 and 30 Hz blends into itself (at 120 Hz): world joints within
+    # 0.5 % of the body height (chords of the 30 Hz clip against arcs)
+    lo = synth.motion(fps=30.0, seconds=1.0, channels=3, order="mixed", up="z")
+    m, _ = A.blend(a, lo, 0.5)
+    assert m.n_frames == a.n_frames
+    err = np.abs(forward_kinematics(m)[0] - forward_kinematics(a)[0]).max()
+    assert err <= 0.005 * A.body_height(a)
+    # s = 1 without alignment is the second clip (resampled to the grid and back)
+    m1, _ = A.blend(lo, a, 1.0, align="none")
+    assert np.abs(forward_kinematics(m1)[0] - forward_kinematics(a)[0]).max() <= 1e-9
 
 
 # ----------------------------------------------------------------------------------------
