@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import ShellsplineError
+from ..pipeline.options import AUTO_COARSE_ABOVE, AUTO_COARSE_VERTICES, AUTO_NONLINEAR_ABOVE
 from ..version import __version__
 
 __all__ = ["main"]
@@ -165,8 +166,9 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--coarse", default="auto",
                    help="multiresolution: decimate all keyframes to N vertices (or a fraction "
                         "0<γ<1), solve there and prolong by detail transfer; 'none' = full "
-                        "resolution; 'auto' (default) = 1000 vertices for meshes above 20k "
-                        "(above 2000 with --method nonlinear)")
+                        f"resolution; 'auto' (default) = {AUTO_COARSE_VERTICES} vertices for "
+                        f"meshes above {AUTO_COARSE_ABOVE} (above {AUTO_NONLINEAR_ABOVE} with "
+                        "--method nonlinear)")
     q.add_argument("--fine", action="store_true",
                    help="after --coarse, run the spline and Gauss–Newton at full resolution "
                         "initialised from the prolonged result")

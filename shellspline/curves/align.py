@@ -32,6 +32,7 @@ from math import gcd
 import numpy as np
 
 from ..errors import ShellsplineError
+from ..errors import tol as tolerances  # here `tol` names the solvers' stopping argument
 from .srv import ProductCurve, normalized_times, srv
 
 __all__ = ["AlignResult", "align", "align_srv", "warp_energy", "warp_energy_grad",
@@ -427,7 +428,7 @@ def _lbfgs(fun, x, max_iter, gtol, memory=8):
     for it in range(1, max_iter + 1):
         if np.max(np.abs(g)) <= gtol:
             return x, f, it - 1, True, "gradient below tolerance"
-        if len(hist) > 10 and hist[-11] - f <= _FTOL * max(abs(f), 1e-300):
+        if len(hist) > 10 and hist[-11] - f <= _FTOL * max(abs(f), tolerances.zero):
             return x, f, it - 1, True, (f"relative energy decrease over 10 iterations below "
                                         f"{_FTOL:g}")
         q = g.copy()
@@ -782,7 +783,7 @@ def project_closed(Q, t=None, *, tol=1e-12, max_iter=50) -> np.ndarray:
     for _ in range(max_iter):
         nq = np.sqrt(np.einsum("ij,ij->i", Q, Q))
         Gv = (dt * nq) @ Q
-        if np.linalg.norm(Gv) <= tol * max(length, 1e-300):
+        if np.linalg.norm(Gv) <= tol * max(length, tolerances.zero):
             return Q
         safe = np.where(nq > 0, nq, 1.0)
         # U[k, i, :] = (q_i q + |q|^2 e_i) / |q| on interval k

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ShellsplineError
+from ..errors import tol as tolerances  # here `tol` names the solvers' stopping argument
 from ..groups import so3
 from ..numerics.result import SolverResult
 from .srv import ProductCurve, normalized_times, srv, srv_inverse
@@ -329,7 +330,7 @@ def close(curve: ProductCurve, *, iterations: int = 10, c1: bool = False,
         else:
             grad = -winv_jt(res[:, None])[:, :, 0]               # -W^{-1} J^T res
             g2 = -float(res @ op.J(grad[:, :, None])[:, 0])      # |grad|_W^2
-            dq = grad * (0.5 * float(res @ res) / max(g2, 1e-300))
+            dq = grad * (0.5 * float(res @ res) / max(g2, tolerances.zero))
         merit = float(res @ res)
         step, accepted = 1.0, False
         for _ in range(30):

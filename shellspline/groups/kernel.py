@@ -4,9 +4,9 @@ A kernel stores elements as ``(k, ...)`` arrays whose first axis holds the compo
 quaternions for rotations: ``k = 4`` for SO(3), ``7`` for SE(3) and SO(3) x R^3, ``4 d + 3``
 for SO(3)^d x R^3) and tangent vectors as ``(dim, ...)``. Every operation is a short sequence
 of elementwise numpy operations on contiguous rows; batched 3x3 / 4x4 matrix products on many
-small matrices are much slower (a cubic SO(3) spline through 1,000 keyframes at 100,000
-times: 0.9-1.5 s with matrices, 0.10-0.11 s with this kernel, measured in one process). The curve evaluators use it when the group has
-one (``G.kernel() is not None``); results equal the matrix formulas to rounding.
+small matrices are about ten times slower (measured: benchmarks/README.md, ``bench_curves.py``).
+The curve evaluators use it when the group has one (``G.kernel() is not None``); results equal
+the matrix formulas to rounding.
 
 Quaternion logarithms take the representative with non-negative scalar part, so ``log`` of a
 relative rotation returns the angle in ``[0, pi]`` (the geodesic), as :func:`so3.log` does.
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import tol
 from . import so3
 
 __all__ = ["SO3Kernel", "SE3Kernel", "SO3xR3Kernel", "SO3dR3Kernel"]
@@ -190,7 +191,7 @@ class SE3Kernel(_Kernel):
         sp = _slerp_prepare(qa, b[:4])
         v = _qmul(sp[1], _qconj(qa))[:3]  # world-frame relative rotation, scalar part >= 0
         n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        ax = v / np.where(n > 1e-300, n, 1.0)
+        ax = v / np.where(n > tol.zero, n, 1.0)
         d = b[4:] - a[4:]
         dpar = (ax[0] * d[0] + ax[1] * d[1] + ax[2] * d[2]) * ax
         return sp, a[4:], dpar, d - dpar, _cross(ax, d)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import tol
+
 __all__ = ["hat", "vee", "exp", "log", "angle", "jac_right", "jac_right_inv",
            "quat_from_matrix", "matrix_from_quat", "quat_continuous"]
 
@@ -166,7 +168,7 @@ def log(R):
         sgn = np.einsum("ni,ni->n", a, vb)
         # exactly pi (no skew part left): largest-magnitude component positive
         m = np.take_along_axis(a, np.argmax(np.abs(a), axis=-1)[:, None], axis=-1)[:, 0]
-        sgn = np.where(np.abs(sgn) > 1e-300, sgn, m)
+        sgn = np.where(np.abs(sgn) > tol.zero, sgn, m)
         a = np.where(sgn[:, None] < 0, -a, a)
         w[big] = tb[:, None] * a
     return w

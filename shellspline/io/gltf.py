@@ -28,7 +28,7 @@ from ..errors import ShellsplineError
 from ..mesh.geometry import vertex_normals
 from .atomic import write_bytes_atomic
 
-__all__ = ["glb_bytes", "write_glb", "read_glb", "vertex_normals"]  # vertex_normals: mesh.geometry's
+__all__ = ["glb_bytes", "write_glb", "read_glb", "vertex_normals"]  # the last: mesh.geometry's
 
 _GLB_MAGIC = 0x46546C67  # b"glTF"
 _CHUNK_JSON = 0x4E4F534A  # b"JSON"
@@ -183,7 +183,7 @@ def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals
 
 def write_glb(path, V, F, *, fps: float = 24.0, interpolation: str = "LINEAR",
               normals: bool = True) -> None:
-    """Write :func:`glb_bytes` to ``path`` atomically (:func:`shellspline.io.atomic.write_bytes_atomic`).
+    """Write :func:`glb_bytes` to ``path`` atomically (:mod:`shellspline.io.atomic`).
 
     Parameters
     ----------

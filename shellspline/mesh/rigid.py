@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import tol
+
 __all__ = ["rigid_modes", "best_rotations"]
 
 
@@ -31,7 +33,7 @@ def rigid_modes(V, free, pinned_dofs):
         if len(Bp) < 6:  # one pin: pad with zero rows so that Vh is (6,6) (same row space)
             Bp = np.vstack([Bp, np.zeros((6 - len(Bp), 6))])
         _, s, Vh = np.linalg.svd(Bp, full_matrices=False)
-        rank = int(np.sum(s > 1e-10 * max(s[0], 1e-300)))
+        rank = int(np.sum(s > 1e-10 * max(s[0], tol.zero)))
         C = Vh[rank:].T
         if C.shape[1] == 0:
             return np.zeros((len(free), 0))

@@ -119,8 +119,9 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Multiresolution (paper §8): decimate all keyframes simultaneously to this many
         vertices (int) or this fraction of them (float in (0,1)), run the LΘA spline and the
         reconstruction on the coarse meshes and prolong the result by detail transfer.
-        ``"auto"`` (default) decimates to 1000 vertices above 20 000 vertices (above 2000 with
-        ``method="nonlinear"``, :data:`AUTO_NONLINEAR_ABOVE`); ``"none"`` runs at full
+        ``"auto"`` (default) decimates to 1000 vertices above 20 000 vertices
+        (:data:`~shellspline.pipeline.options.AUTO_COARSE_VERTICES`, ``AUTO_COARSE_ABOVE``;
+        above 2000 with ``method="nonlinear"``, ``AUTO_NONLINEAR_ABOVE``); ``"none"`` runs at full
         resolution. Applies to ``method="lta"`` and ``"nonlinear"`` (the nonlinear spline then
         runs on the coarse meshes, started from their LΘA spline, and is prolonged).
     fine : bool

@@ -11,10 +11,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ShellsplineError
+from ..errors import ShellsplineError, tol
 from ..io.keyframes import Keyframes
 from ..metrics import length_scale
 from ..mesh.topology import Topology
+from ..shells.reconstruct import LARGE_MESH
 from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
 
 __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_problem", "notices",
@@ -26,8 +27,10 @@ METHODS = ("lta", "linear", "geodesic", "nonlinear")
 REFERENCES = ("constant", "keyframe", "geodesic")
 #: Where in-between frames are placed rigidly (:func:`shellspline.pipeline.placement_track`).
 RIGID_TRACKS = ("fit", "spline", "linear")
-#: ``coarse="auto"`` decimates meshes above this many vertices to :data:`AUTO_COARSE_VERTICES`.
-AUTO_COARSE_ABOVE = 20_000
+#: ``coarse="auto"`` decimates meshes above this many vertices to :data:`AUTO_COARSE_VERTICES`:
+#: the library's one "large mesh" size (:data:`shellspline.shells.reconstruct.LARGE_MESH`;
+#: timings with and without multiresolution in benchmarks/README.md, ``bench_multires.py``).
+AUTO_COARSE_ABOVE = LARGE_MESH
 AUTO_COARSE_VERTICES = 1000
 #: ``coarse="auto"`` with ``method="nonlinear"`` decimates above this many vertices (to
 #: :data:`AUTO_COARSE_VERTICES`): the nonlinear spline takes ~4 min at 1000 vertices (cactus,
@@ -209,7 +212,7 @@ def _rigid_subset(subset, V0, method):
     subset = np.unique(subset)
     X = V0[subset] - V0[subset].mean(axis=0)
     sv = np.linalg.svd(X, compute_uv=False) if len(subset) >= 3 else np.zeros(2)
-    if len(subset) < 3 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
+    if len(subset) < 3 or sv[1] <= 1e-9 * max(sv[0], tol.zero):
         raise ShellsplineError(f"`rigid_subset` must hold at least 3 vertices not on one line "
                                f"(a rigid pose needs them), got {len(subset)} vertices"
                                + (" on a line" if len(subset) >= 3 else ""))
@@ -246,7 +249,7 @@ def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]
                    "vertices, 2 workers: 7.1 min, 6.8 GiB)" +
                    ("" if opts.fine else "; here frames start from the keyframe blend, "
                     "not from a prolonged coarse result; the multiresolution path "
-                    "(--coarse, default above 20 000 vertices) takes seconds"))
+                    f"(--coarse, default above {AUTO_COARSE_ABOVE} vertices) takes seconds"))
     return out
 
 

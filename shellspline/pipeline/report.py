@@ -18,6 +18,7 @@ from ..mesh.geometry import face_normals, norms
 from ..metrics import sequence_defects
 from ..shells.descriptors import lta_descriptors, lta_weights, unwrap_angles
 from ..shells.lta_spline import lta_energy_per_frame
+from ..shells.reconstruct import LARGE_MESH
 from ..mesh.topology import Topology
 from ..version import __version__
 
@@ -97,12 +98,12 @@ def sequence_energies(V, Z, T: Topology, bc: str, W, chunk: int | None = None) -
     """Per-frame LΘA energies (paper Figs. 11–12) of the output and, when given, of the spline
     targets ``Z``, plus the reconstruction misfit of every frame; ``W`` is (d,) or (K+1,d).
     Descriptors are computed a few frames at a time to bound memory on large meshes (one
-    frame at a time above 20 000 vertices, where stacked frames fall out of cache: measured
-    1.7x slower per frame at 150k)."""
+    frame at a time above :data:`~shellspline.shells.reconstruct.LARGE_MESH` vertices, where
+    stacked frames fall out of cache: measured 1.7x slower per frame at 150k)."""
     sT = T.descriptor_slices()[1]
     K1 = V.shape[0]
     if chunk is None:
-        chunk = 1 if V.shape[1] > 20_000 else 8
+        chunk = 1 if V.shape[1] > LARGE_MESH else 8
     Zout = np.concatenate([lta_descriptors(V[i:i + chunk], T) for i in range(0, K1, chunk)])
     Zout[:, sT] = unwrap_angles(Zout[:, sT])
     out = {"lta_output_energy_per_frame": lta_energy_per_frame(Zout, bc=bc, weights=W).tolist()}

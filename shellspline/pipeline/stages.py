@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import tol
 from ..mesh.topology import topology
 from ..shells.descriptors import lta_weights
 from ..shells.lta_spline import lta_spline
@@ -275,7 +276,7 @@ def nonlinear_solve(Vkey, T, pinned, Vinit, prob, opts, prog, stage_prefix=""):
         # the bar fills with the gradient reduction on a log scale, 1000 = gtol reached
         g0 = first.setdefault("g", g)
         red = g / g0 if g0 > 0 else 0.0
-        frac = np.log(1.0 / max(red, 1e-300)) / np.log(1.0 / gtol) if 0 < gtol < 1 else 0.0
+        frac = np.log(1.0 / max(red, tol.zero)) / np.log(1.0 / gtol) if 0 < gtol < 1 else 0.0
         prog.advance(stage, int(1000 * min(max(frac, 0.0), 1.0)), 1000,
                      text=f"it {it:3d}  F {e:.7g}  |g|/|g0| {red:.1e}")
 
