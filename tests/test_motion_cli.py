@@ -53,6 +53,18 @@ def test_align_writes_the_warp(capsys, tmp_path):
     code, _, _ = run(capsys, "align", tmp_path / "slow.bvh", walk(), "-o", out, "--overwrite",
                      "--features", feats)
     assert code == 0
+    at = lambda r, x: np.interp(x, r[:, 0], r[:, 1])  # noqa: E731
+    # these pairs contradict the true warp (1.0 s -> 0.40 s, 3.0 s -> 2.03 s): the default
+    # weight leaves the warp there, a large one forces the features (seed 003's trade-off)
+    soft = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert abs(at(soft, 1.0) - 0.4) <= 0.05
+    code, _, _ = run(capsys, "align", tmp_path / "slow.bvh", walk(), "-o", out, "--overwrite",
+                     "--features", feats, "--feature-weight", "1e4", "-q")
+    hard = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert code in (0, 1) and abs(at(hard, 1.0) - 1.2) <= 0.02 and abs(at(hard, 3.0) - 3.1) <= 0.02
+    for bad in (["--feature-weight", "-1", "--features", feats], ["--feature-weight", "10"]):
+        code, _, err = run(capsys, "align", walk(), walk(), "-o", out, "--overwrite", *bad)
+        assert code == 2 and "--feature-weight" in err
 
 
 def test_blend_writes_a_bvh_that_reads_back(capsys, tmp_path):

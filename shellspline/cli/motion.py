@@ -67,6 +67,13 @@ def add_parsers(sub) -> None:
                        help=f"time alignment by dynamic programming or none (default {default})")
         q.add_argument("--features", metavar="F", default="none",
                        help="feature points: contacts, none, or a CSV of time pairs (seconds)")
+        weight(q)
+
+    def weight(q):
+        q.add_argument("--feature-weight", type=float, default=None, metavar="LAM",
+                       help="weight of the feature term lam * sum (phi(a_i) - b_i)^2 in "
+                            "normalised times (default 100: pulls to about a frame on the "
+                            "real walks; larger forces features that contradict the motion)")
 
     q = ms.add_parser("distance", help="print the SRV distance of two clips",
                       description="Print the SRV distance of two clips of one skeleton (the "
@@ -81,6 +88,7 @@ def add_parsers(sub) -> None:
     common(q, out="warp CSV file")
     q.add_argument("--features", metavar="F", default="none",
                    help="feature points: contacts, none, or a CSV of time pairs (seconds)")
+    weight(q)
     q.set_defaults(func=_align)
 
     q = ms.add_parser("blend", help="blend two clips into a new BVH",
@@ -193,6 +201,18 @@ def _write_mesh(args, Vs, kf, report):
     write_sequence(args.out, Vs, kf.F, report, overwrite=args.overwrite, source=kf.source)
 
 
+def _feature_kw(args) -> dict:
+    """``{"lam": w}`` from ``--feature-weight`` (validated), or ``{}``."""
+    w = getattr(args, "feature_weight", None)
+    if w is None:
+        return {}
+    if not (np.isfinite(w) and w > 0):
+        raise ShellsplineError(f"--feature-weight must be a positive number, got {w!r}")
+    if args.features in (None, "none"):
+        raise ShellsplineError("--feature-weight needs --features")
+    return {"lam": float(w)}
+
+
 def _read_features(spec):
     if spec in (None, "none", "contacts"):
         return None if spec in (None, "none") else "contacts"
@@ -240,6 +260,7 @@ def _distance(args) -> int:
     from ..animation import distance
 
     _check_outputs(args)
+    fkw = _feature_kw(args)
     say = _say(args)
     a, b = _read_pair(args)
     if _is_mesh(a):
@@ -251,7 +272,8 @@ def _distance(args) -> int:
         print(f"{d:.9g}")
         say(f"  distance    SRV of the LΘA curves, align {args.align}: {d:.6g}")
         return EXIT_OK
-    d = distance(a, b, align=args.align, features=_read_features(args.features), up=args.up)
+    d = distance(a, b, align=args.align, features=_read_features(args.features), up=args.up,
+                 **fkw)
     print(f"{d:.9g}")
     say(f"  distance    SRV, align {args.align}, features {args.features}: {d:.6g}")
     if args.render or args.plot:
@@ -264,6 +286,7 @@ def _align(args) -> int:
     from ..io.posefiles import write_text_atomic
 
     _check_outputs(args, args.out)
+    fkw = _feature_kw(args)
     say = _say(args)
     a, b = _read_pair(args)
     if _is_mesh(a):
@@ -284,7 +307,7 @@ def _align(args) -> int:
             plot_motion(args.plot, warp=(r.t, r.phi))
             say(f"  plot        {args.plot}")
         return EXIT_OK
-    rep = align(a, b, features=_read_features(args.features), up=args.up)
+    rep = align(a, b, features=_read_features(args.features), up=args.up, **fkw)
     lines = ["time_a,time_b"] + [f"{x!r},{y!r}" for x, y in rep.seconds.tolist()]
     write_text_atomic(args.out, "\n".join(lines) + "\n")
     nf = 0 if rep.features is None else rep.features.shape[0]
@@ -314,12 +337,13 @@ def _blend(args) -> int:
     from ..io.bvh import write_bvh
 
     _check_outputs(args, args.out)
+    fkw = _feature_kw(args)
     say = _say(args)
     a, b = _read_pair(args)
     if _is_mesh(a):
         return _blend_meshes(args, a, b, say)
     m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args.features),
-                   up=args.up, plant=args.plant)
+                   up=args.up, plant=args.plant, **fkw)
     write_bvh(m, args.out)
     sk = foot_skate(m, up=args.up)
     say(f"  blend       s = {args.s:g}, align {args.align}: {m.n_frames} frames at "
