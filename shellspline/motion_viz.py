@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .animation import FootContacts, translation_root, body_height, foot_contacts
+from .animation import FootContacts, body_height, foot_contacts
 from .errors import ShellsplineError
 from .io.bvh import Motion, forward_kinematics
 
@@ -45,12 +45,26 @@ def _atomic(path, write) -> Path:
     return path
 
 
+def _body_mask(motion: Motion) -> np.ndarray:
+    """The joints of the body ``(J,)`` bool: all but the roots (a root may be a ground
+    marker that stays put while the hips travel, or that only carries a foot-planting
+    correction), unless that leaves fewer than 2."""
+    body = motion.parents >= 0
+    return body if body.sum() >= 2 else np.ones(motion.n_joints, dtype=bool)
+
+
+def _centre(motion: Motion, S: np.ndarray) -> np.ndarray:
+    """Along-travel coordinate ``(T,)`` of the body's centroid in side-view coordinates."""
+    return S[:, _body_mask(motion), 0].mean(axis=1)
+
+
 def _view(motion: Motion, P: np.ndarray, ax_up: int, sign: float):
-    """Side-view coordinates ``(T,J,2)``: along the travel direction and up."""
+    """Side-view coordinates ``(T,J,2)``: along the travel direction (of the body's
+    centroid, whichever joint's channels carry it) and up."""
     hor = [a for a in range(3) if a != ax_up]
-    r = translation_root(motion)
     H = P[:, :, hor]
-    travel = H[:, r] - H[0, r]
+    C = H[:, _body_mask(motion)].mean(axis=1)
+    travel = C - C[0]
     if np.abs(travel).max() > 1e-9:
         _, _, vt = np.linalg.svd(travel - travel.mean(axis=0), full_matrices=False)
         d = vt[0] if vt[0] @ (travel[-1] - travel[0]) >= 0 else -vt[0]
@@ -133,7 +147,7 @@ def render_strip(motions, path, *, frames: int = 8, contacts=None, up=None,
     for k, (m, c, S, ground) in enumerate(items):
         sel = np.linspace(0, m.n_frames - 1, n).round().astype(int)
         for i, f in enumerate(sel):
-            dx = i * 0.75 * H - S[f, translation_root(m), 0]
+            dx = i * 0.75 * H - _centre(m, S)[f]
             _draw(ax, m, S, f, c, dx, BONE_COLORS[k % 2], ground, bones[k])
     ax.axhline(0.0, color="0.5", lw=1.0, zorder=0)
     ax.set_aspect("equal")
@@ -174,11 +188,11 @@ def render_gif(motions, path, *, fps: float | None = None, step: int | None = No
         step = max(1, int(round(m0.fps / (fps or min(m0.fps, 30.0)))))
     fps = fps or m0.fps / step
     images = []
-    r0 = translation_root(m0)
+    centre = _centre(m0, items[0][2])
     for f in range(0, m0.n_frames, step):
         fig = Figure(figsize=(size, size))
         ax = fig.add_subplot(111)
-        cx = items[0][2][f, r0, 0]
+        cx = centre[f]
         for k, (m, c, S, ground) in enumerate(items):
             if f < m.n_frames:
                 _draw(ax, m, S, f, c, 0.0, BONE_COLORS[k % 2], ground, bones[k])

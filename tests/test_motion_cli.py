@@ -9,7 +9,7 @@ import pytest
 import data_synth.motion as synth
 from shellspline import animation as A
 from shellspline.cli.main import main
-from shellspline.io.bvh import read_bvh, write_bvh
+from shellspline.io.bvh import forward_kinematics, read_bvh, write_bvh
 
 from conftest import shared_data
 
@@ -201,3 +201,20 @@ def test_held_out_layouts_through_the_cli(tmp_path, capsys):
     assert loop.names[0] == "mixamorig:Hips"
     c = A.motion_curve(loop)
     assert np.abs(c.R[-1] - c.R[0]).max() <= 1e-6
+
+
+def test_side_view_follows_the_body_not_the_root_marker():
+    """After closing, the Bandai walks' root (a ground marker) carries the foot-planting
+    shift while the hips carry the travel: the side view and the strip/GIF camera follow
+    the body's centroid (the view was along the marker's small drift before)."""
+    from shellspline import motion_viz as V
+
+    out, _ = A.close(read_bvh(walk("dataset-1_walk_tired_001.bvh")), trim=True)
+    assert np.ptp(out.values[:, out.channel_columns(0)[:3]], axis=0).max() > 0  # marker moves
+    P = forward_kinematics(out)[0]
+    S = V._view(out, P, 1, 1.0)
+    hips = P[:, 1, [0, 2]]
+    travel = np.linalg.norm(hips[-1] - hips[0])
+    assert travel > 300
+    c = V._centre(out, S)
+    assert c[-1] - c[0] >= 0.99 * travel  # the view is along the travel, forward
