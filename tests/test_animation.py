@@ -598,3 +598,17 @@ def test_short_and_single_frame_clips():
     assert A.loop_range(three) == (0, 2)  # too short to trim: the whole clip
     out, rep = A.close(three, trim=True)
     assert rep.frames == (0, 2) and out.n_frames == 3 and rep.success
+
+
+def test_root_only_and_tpose_first_clips():
+    statue = synth.motion(root_only=True, fps=30.0, seconds=1.3)
+    fc = A.foot_contacts(statue)
+    assert not fc.contact.any()  # the feet slide with the root: never planted
+    out, rep = A.close(statue)  # nothing but travel: already a loop, kept as root motion
+    assert rep.success and np.abs(out.values - statue.values).max() <= 1e-9
+    assert A.distance(statue, statue) <= 1e-12
+    # a rest-pose first frame (as many exports start) is cut off by the trimmed closing
+    tp = synth.motion(skeleton="cmu", tpose_first=True, fps=30.0, seconds=2.3)
+    start, stop = A.loop_range(tp)
+    assert start >= 1 and stop - start >= 0.5 * (tp.n_frames - 1)
+    assert A.up_axis(tp) == (1, 1.0)
