@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import tol
+from ..mesh.geometry import cross
 
 __all__ = ["hat", "vee", "exp", "log", "angle", "jac_right", "jac_right_inv",
            "quat_from_matrix", "matrix_from_quat", "quat_continuous"]
@@ -50,15 +51,6 @@ def vee(W):
     W = np.asarray(W, dtype=np.float64)
     return 0.5 * np.stack([W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0],
                            W[..., 1, 0] - W[..., 0, 1]], axis=-1)
-
-
-def cross(a, b):
-    """``cross(a, b)`` over the last axis (broadcasting), faster than ``np.cross``."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
 
 
 def _sq(w):
