@@ -51,7 +51,8 @@ def add_parsers(sub) -> None:
         if out:
             q.add_argument("-o", "--out", required=True, metavar="OUT", help=out)
         q.add_argument("--up", metavar="AXIS", default=None,
-                       help="up axis (x, y, z, -y, ...; default: detected from the data)")
+                       help="up axis (x, y, z, or negative as --up=-y; default: detected "
+                            "from the data)")
         q.add_argument("--render", metavar="STRIP.png|ANIM.gif",
                        help="stick figures: a strip (.png/.svg/.pdf) or an animated .gif "
                             "(needs the viz extra)")
@@ -130,8 +131,8 @@ def _check_outputs(args, *paths):
     """Fail before any work on a bad --up, on an output that exists (without --overwrite),
     whose folder is missing, or whose picture type is unknown."""
     if args.up is not None and args.up.strip().lower().lstrip("+-") not in ("x", "y", "z"):
-        raise ShellsplineError(f"--up must be one of x, y, z (optionally signed, e.g. -z), got "
-                               f"{args.up!r}")
+        raise ShellsplineError(f"--up must be one of x, y, z (optionally signed, e.g. --up=-z), "
+                               f"got {args.up!r}")
     for path in paths:
         if path is None:
             continue
