@@ -282,8 +282,8 @@ def test_columns_are_independent(bc, monkeypatch):
         np.testing.assert_allclose(lta_spline(Zk[:, c], frames, K, bc=bc), Z0[:, c],
                                    rtol=1e-13, atol=1e-13)
     # several small chunks of columns give the same result as one chunk
-    monkeypatch.setattr(lta, "_CHUNK_ELEMS", 3 * 13 * 3)
-    assert len(lta._chunks(LTASpline(frames, K, bc, W)._st, d)) > 3
+    monkeypatch.setattr(lta, "CHUNK_ELEMS", 3 * 13 * 3)
+    assert len(LTASpline(frames, K, bc, W).chunks(d)) > 3
     np.testing.assert_array_equal(lta_spline(Zk, frames, K, bc=bc, weights=W), Z)
 
 

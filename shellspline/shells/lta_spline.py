@@ -35,7 +35,7 @@ _WEIGHT_FLOOR = 1e-12
 _PIVOT_FLOOR = 1e-15
 #: Number of float64 entries of one chunk's band matrix ``(p+1, n, chunk)``; bounds the
 #: working memory of the batched path.
-_CHUNK_ELEMS = 1 << 20
+CHUNK_ELEMS = 1 << 20
 
 # The nine ordered slot pairs (x, y) of a three-point residual r = g0 z_{k-1} + g1 z_k + g2 z_{k+1},
 # and which of the six distinct products cw g_x g_y each one is (see ``_term_values``).
@@ -285,7 +285,7 @@ def _warn_fallback(which: str, stacklevel: int = 4) -> None:
 
 
 def _chunks(st: _Structure, d: int):
-    size = max(1, _CHUNK_ELEMS // max(1, (st.p + 1) * max(st.n, 1)))
+    size = max(1, CHUNK_ELEMS // max(1, (st.p + 1) * max(st.n, 1)))
     return [(a, min(d, a + size)) for a in range(0, d, size)]
 
 
@@ -395,7 +395,13 @@ class LTASpline:
         else:
             self._P = self._interpolation_matrix(self._W)
 
+    def chunks(self, d: int) -> list:
+        """Column ranges ``[(a, b), ...]`` in which ``d`` descriptor columns are factored and
+        solved (each chunk's band matrix holds at most :data:`CHUNK_ELEMS` numbers)."""
+        return list(_chunks(self._st, int(d)))
+
     # -- construction helpers ----------------------------------------------------------
+
     def _setup(self, frames, K, bc, weights) -> None:
         self.bc = canonical_bc(bc)
         self.K = checked_K(K)

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import ShellsplineError
+from ..errors import ShellsplineError, tol
 from ..mesh.rigid import rigid_modes
 from ..mesh.topology import Topology
 from ..numerics.krylov import pcg
@@ -422,7 +422,7 @@ class GaussNewton:
         # round-off level of the energy (relative to the targets' own energy) and of the
         # gradient: a frame this close is exact (e.g. identical keyframes)
         f_tiny = 1e-20 * float(w @ (z_target * z_target))
-        g_tiny = 1e-12 * np.sqrt(max(f, 0.0) * float(w.sum())) + 1e-300
+        g_tiny = 1e-12 * np.sqrt(max(f, 0.0) * float(w.sum())) + tol.zero
         if g0 <= g_tiny or f <= f_tiny:
             res.status = "converged"
             res.message = "initial guess is stationary"
@@ -624,13 +624,13 @@ def _vertex_rotations(Xa, Xb, E, incidence=None, F=None):
             fn = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
             vn = np.stack([sum(np.bincount(F[:, c], fn[:, d], minlength=n) for c in range(3))
                            for d in range(3)], axis=1)
-            return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+            return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), tol.zero)
 
         na, nb = normals(Xa), normals(Xb)
         sc = np.trace(C, axis1=1, axis2=2)[:, None, None] / 2.0
         S = S + sc * (nb[:, :, None] * na[:, None, :])
         C = C + sc * (na[:, :, None] * na[:, None, :])
-    scale = np.maximum(np.trace(C, axis1=1, axis2=2), 1e-300)[:, None, None]
+    scale = np.maximum(np.trace(C, axis1=1, axis2=2), tol.zero)[:, None, None]
     # S (C + εI)⁻¹: the ridge keeps a flat one-ring (without F) or a vertex without edges
     # solvable and does not change polar(A) of a rigid motion (C (C + εI)⁻¹ is symmetric)
     ridge = 1e-9 * np.eye(3)
@@ -640,11 +640,6 @@ def _vertex_rotations(Xa, Xb, E, incidence=None, F=None):
     d = np.sign(np.linalg.det(U @ Vt))
     U[:, :, 2] *= np.where(d == 0, 1.0, d)[:, None]
     return U @ Vt
-
-
-def _dot(a, b) -> float:
-    """Dot product without BLAS (no thread-pool start-up on small vectors)."""
-    return float(np.einsum("i,i->", a, b))
 
 
 def _rigid_basis(x):
@@ -719,7 +714,7 @@ def _placement_about_fixed(V, Y, w, fixed):
     P = V[fixed]
     c = P.mean(axis=0)
     sv = np.linalg.svd(P - c, compute_uv=False) if len(P) > 1 else np.zeros(3)
-    scale = max(np.abs(V - c).max(), 1e-300)
+    scale = max(np.abs(V - c).max(), tol.zero)
     out = V.copy()
     if sv[0] <= 1e-9 * scale:  # one point: rotation about it
         H = (V - c).T @ ((Y - c) * w[:, None])
