@@ -29,7 +29,7 @@ __all__ = ["PiecewiseBezier", "SplineSolve", "cubic_spline", "quadratic_spline",
            "hermite_spline", "geodesic_interpolant"]
 
 # Relative step of the acceleration's central difference of the exact velocity: truncation
-# ~h^2 |xi'''| / 6 ~ 1e-9, round-off ~eps / h ~ 1e-12 (tests/test_curves.py checks 1e-7).
+# ~h^2 |xi'''| / 6 ~ 1e-9, round-off ~eps / h ~ 1e-12 (tests/curves/test_curves.py checks 1e-7).
 _ACC_STEP = 3e-5
 # Times evaluated per block by the kernel path: 4096 measured ~1.9x faster than one block of
 # 100,000 (fresh large temporaries) and ~1.1x faster than 1024 (call overhead); see

@@ -12,7 +12,7 @@ import shellspline as ss
 from shellspline.cli.main import main
 from conftest import shared_data
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

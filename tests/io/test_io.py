@@ -13,7 +13,7 @@ import trimesh
 from shellspline import io as sio
 from shellspline.errors import MeshError, ShellsplineError
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
 # ----------------------------------------------------------------------------------------

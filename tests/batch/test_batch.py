@@ -23,7 +23,7 @@ from shellspline.batch.manifest import input_digest, manifest_matches, sequence_
 from shellspline.batch.sequence import publish, run_sequence
 from shellspline.cli.main import main
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PIPELINES = REPO / "pipelines"
 
 

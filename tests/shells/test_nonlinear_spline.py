@@ -18,7 +18,7 @@ from shellspline.mesh.topology import topology
 
 
 def _kink(V, f):
-    """Relative second difference at frame f (as in tests/test_pipeline.py)."""
+    """Relative second difference at frame f (as in tests/pipeline/test_pipeline.py)."""
     return np.linalg.norm(V[f + 1] - 2 * V[f] + V[f - 1]) / np.linalg.norm(V[f + 1] - V[f - 1])
 
 

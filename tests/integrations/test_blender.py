@@ -266,7 +266,7 @@ import json, sys
 import bpy  # first: it puts addon_utils on the path
 import addon_utils
 import numpy as np
-sys.path.insert(0, sys.argv[2])
+sys.path[:0] = [sys.argv[2], sys.argv[2].rsplit("/", 1)[0]]  # this file, conftest.py
 from test_blender import _evaluated, _scene_with_keyed_strip
 
 ob, Vkeys, F = _scene_with_keyed_strip(bpy)  # first: factory settings drop user add-ons
@@ -294,7 +294,7 @@ def test_addon_installed_from_the_zip_runs_the_external_cli(addon, tmp_path):
     script = tmp_path / "run.py"
     script.write_text(_INSTALL_AND_RUN)
     env = dict(os.environ, HOME=str(tmp_path))  # Blender's user scripts go to $HOME/.config
-    proc = subprocess.run([sys.executable, str(script), str(zp), str(Path(__file__).parent),
+    proc = subprocess.run([sys.executable, str(script), str(zp), str(Path(__file__).resolve().parent),
                            str(tmp_path / "cache.pc2")], capture_output=True, text=True,
                           env=env, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
