@@ -17,7 +17,9 @@ On top of it:
 * operations (:func:`distance`, :func:`align`, :func:`blend`, :func:`close`) built on the
   square-root-velocity machinery of :mod:`shellspline.curves` (seed 000), with foot contacts
   as feature points (seed 003), and a root-translation correction that keeps planted feet
-  from sliding (:func:`plant_feet`).
+  from sliding (:func:`plant_feet`);
+* the same operations on mesh animations (LΘA descriptor curves, ``mesh_*``) and on rigid
+  pose tracks (camera / rigid-body trajectories as curves in SO(3) x R^3, ``track_*``).
 
 Layer: above :mod:`shellspline.io` (imports ``io.bvh``, ``curves``, ``groups``, ``errors``).
 """
@@ -38,7 +40,8 @@ __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_gr
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
            "loop_range", "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
            "mesh_close", "close_euclidean", "MESH_C1_MAX_DIMS", "mesh_align", "mesh_distance",
-           "mesh_blend", "reparametrize_vertices"]
+           "mesh_blend", "reparametrize_vertices", "track_length", "track_curve",
+           "TrackReport", "track_close", "track_align", "track_distance", "track_blend"]
 
 # Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
 # a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
@@ -1606,3 +1609,279 @@ def mesh_distance(Vs0, Vs1, F, *, align: str = "dp", **kw) -> float:
         phi = np.clip(align_curves(x, y, **kw).phi, 0.0, 1.0)
         return srv_distance(x, reparametrize(y, phi, x.t))
     return 0.5 * (aligned(p0, p1) + aligned(p1, p0))
+
+
+# ----------------------------------------------------------------------------------------
+# Rigid pose tracks: curves in SO(3) x R^3 (d = 1, m = 3)
+# ----------------------------------------------------------------------------------------
+def _as_track(track, name, at_least=2):
+    from .io.posefiles import PoseTrack
+
+    if not isinstance(track, PoseTrack):
+        raise ShellsplineError(f"{name}: expected a PoseTrack (io.posefiles.read_poses), got "
+                               f"{type(track).__name__}")
+    n = track.t.shape[0]
+    if n < at_least:
+        raise ShellsplineError(f"{name}: a pose track needs at least {at_least} poses, got {n}")
+    return track
+
+
+def track_length(*tracks) -> float:
+    """The default position scale of pose tracks: their RMS distance from their mean position.
+
+    Parameters
+    ----------
+    *tracks : PoseTrack
+        One or more tracks; with several, the root mean square over them of each track's
+        RMS (symmetric in the tracks, so distances are too).
+
+    Returns
+    -------
+    float
+        File units of position that weigh like one radian of rotation in the SRV metric
+        (1.0 for tracks that do not move).
+
+    Notes
+    -----
+    The metric of ``SO(3) x R^3`` adds rotations in radians to positions in file units:
+    dividing the positions by this length makes results independent of the unit (metres or
+    millimetres) and of the origin, and makes a sweep across the track's typical extent
+    weigh like a turn of about one radian.
+    """
+    ms = []
+    for k, tr in enumerate(tracks):
+        p = _as_track(tr, f"track {k}", 1).T[:, :3, 3]
+        ms.append(float(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1))))
+    L = float(np.sqrt(np.mean(ms)))
+    scale = max(1.0, max(float(np.abs(tr.T[:, :3, 3]).max()) for tr in tracks))
+    return L if L > 1e-12 * scale else 1.0
+
+
+def _length(length, *tracks) -> float:
+    if length is None:
+        return track_length(*tracks)
+    if not (np.isfinite(length) and length > 0):
+        raise ShellsplineError(f"length must be a positive number (file units per radian), "
+                               f"got {length!r}")
+    return float(length)
+
+
+def track_curve(track, length: float = 1.0):
+    """A pose track as a :class:`~shellspline.curves.srv.ProductCurve` in ``SO(3) x R^3``.
+
+    Parameters
+    ----------
+    track : PoseTrack
+    length : float
+        Position scale: ``X = position / length``.
+
+    Returns
+    -------
+    ProductCurve
+        ``R (N,1,3,3)`` the rotations body -> world, ``X (N,3)`` the scaled positions,
+        ``t`` the file's times (KITTI: the pose index).
+    """
+    from .curves.srv import ProductCurve
+
+    track = _as_track(track, "track")
+    return ProductCurve(R=track.T[:, None, :3, :3], X=track.T[:, :3, 3] / float(length),
+                        t=track.t)
+
+
+def _track_like(curve, length, like):
+    from .groups import se3
+    from .io.posefiles import PoseTrack
+
+    T = se3.from_rt(curve.R[:, 0], curve.X * length)
+    return PoseTrack(np.asarray(curve.t, dtype=np.float64).copy(), T, like.format,
+                     like.origin_ns)
+
+
+def _uniform(curve, n=None):
+    """The curve on ``n`` (default ``N``) evenly spaced times over its own span, counted
+    from its start (``0 .. t[-1] - t[0]``: evenly spaced to rounding also for Unix-epoch
+    timestamps, whose spacing ``linspace`` cannot keep uniform to 1e-6)."""
+    from .curves.srv import reparametrize
+
+    n = curve.n_frames if n is None else int(n)
+    u = np.linspace(0.0, curve.t[-1] - curve.t[0], n)
+    return reparametrize(curve, np.clip(curve.t[0] + u, curve.t[0], curve.t[-1]), u)
+
+
+@dataclass(frozen=True, eq=False)
+class TrackReport:
+    """What an operation on pose tracks did.
+
+    Attributes
+    ----------
+    length : float
+        The position scale used (file units per radian).
+    result : object
+        The :class:`~shellspline.curves.closing.CloseResult` (closing) or
+        :class:`~shellspline.curves.align.AlignResult` (blending with ``align="dp"``), or
+        None.
+    rotation_gap : (2,) float64 numpy array or None
+        Closing: the seam's rotation (radians) before and after.
+    position_gap : (2,) float64 numpy array or None
+        Closing: the seam's position jump (file units) before and after.
+    """
+
+    length: float
+    result: object = None
+    rotation_gap: np.ndarray | None = None
+    position_gap: np.ndarray | None = None
+
+
+def _track_gaps(track):
+    R, p = track.T[:, :3, :3], track.T[:, :3, 3]
+    return (float(so3.angle(R[-1] @ R[0].T)), float(np.linalg.norm(p[-1] - p[0])))
+
+
+def track_close(track, *, iterations: int = 10, c1: bool = False, length=None,
+                method: str = "gauss-newton"):
+    """Make a pose track loop: close its curve in ``SO(3) x R^3`` with the least SRV change.
+
+    Parameters
+    ----------
+    track : PoseTrack
+        At least 3 poses.
+    iterations, c1, method :
+        As in :func:`shellspline.curves.closing.close`.
+    length : float, optional
+        Position scale (default :func:`track_length`).
+
+    Returns
+    -------
+    PoseTrack
+        The same times, format and first pose; the last pose equals the first (to the
+        closing tolerance).
+    TrackReport
+        With the ``CloseResult`` (``seam_gap`` per iteration, in the scaled metric) and the
+        rotation / position gaps before and after.
+    """
+    from .curves.closing import close as close_curve
+
+    track = _as_track(track, "track", 3)
+    L = _length(length, track)
+    res = close_curve(track_curve(track, L), iterations=iterations, c1=c1, method=method)
+    out = _track_like(res.curve, L, track)
+    g0, g1 = _track_gaps(track), _track_gaps(out)
+    return out, TrackReport(L, res, np.array([g0[0], g1[0]]), np.array([g0[1], g1[1]]))
+
+
+def _track_pair(a, b, length):
+    a, b = _as_track(a, "a"), _as_track(b, "b")
+    L = _length(length, a, b)
+    return a, b, L, track_curve(a, L), track_curve(b, L)
+
+
+def _features_pairs(features, kw):
+    if features is None:
+        return None
+    P = np.asarray(features, dtype=np.float64).reshape(-1, 2)
+    kw.setdefault("lam", FEATURE_WEIGHT)
+    return (P[:, 0], P[:, 1])
+
+
+def track_align(a, b, *, length=None, features=None, **kw):
+    """The warp ``phi`` with ``b(phi(t))`` matching ``a(t)``: :func:`shellspline.curves.align.
+    align` on the tracks' curves, each resampled to evenly spaced times over its own span
+    (the DP lattice needs them; camera clocks jitter).
+
+    Parameters
+    ----------
+    a, b : PoseTrack
+        At least 2 poses each; any counts and formats.
+    length : float, optional
+        Position scale (default :func:`track_length` of both).
+    features : (k,2) array_like, optional
+        Pairs ``(time in a, time in b)`` in the files' times (weight ``lam``, default
+        ``FEATURE_WEIGHT``).
+    **kw
+        Options of :func:`shellspline.curves.align.align`.
+
+    Returns
+    -------
+    AlignResult
+        ``t``: ``N_a`` evenly spaced times over ``a``'s span; ``phi``: times of ``b``.
+    """
+    from .curves.align import align as align_curves
+
+    a, b, L, ca, cb = _track_pair(a, b, length)
+    feats = _features_pairs(features, kw)
+    if feats is not None:
+        feats = (feats[0] - ca.t[0], feats[1] - cb.t[0])
+    r = align_curves(_uniform(ca), _uniform(cb), features=feats, **kw)
+    r.t = r.t + ca.t[0]
+    r.phi = r.phi + cb.t[0]
+    r.shift = r.shift + float(cb.t[0])
+    return r
+
+
+def track_distance(a, b, *, align: str = "dp", length=None, **kw) -> float:
+    """SRV distance of two pose tracks (normalised time; positions divided by ``length``,
+    default :func:`track_length` of both).
+
+    Both tracks are resampled to ``max(N_a, N_b)`` evenly spaced times over their own spans;
+    ``align="none"`` compares them on that grid, ``"dp"`` is the mean of the aligned
+    distances both ways. Both are symmetric in ``a`` and ``b``.
+    """
+    from .curves.align import align as align_curves
+    from .curves.srv import reparametrize, srv_distance
+
+    if align not in ("dp", "none"):
+        raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
+    a, b, L, ca, cb = _track_pair(a, b, length)
+    n = max(ca.n_frames, cb.n_frames)
+    ua, ub = _uniform(ca, n), _uniform(cb, n)
+    if align == "none":
+        return srv_distance(ua, ub.with_times(ua.t))
+
+    def aligned(x, y):
+        phi = np.clip(align_curves(x, y, **kw).phi, y.t[0], y.t[-1])
+        return srv_distance(x, reparametrize(y, phi, x.t))
+    return 0.5 * (aligned(ua, ub) + aligned(ub, ua))
+
+
+def track_blend(a, b, s: float = 0.5, *, align: str = "dp", length=None, features=None,
+                **kw):
+    """Blend two pose tracks along the SRV geodesic in ``SO(3) x R^3``.
+
+    Parameters
+    ----------
+    a, b : PoseTrack
+    s : float
+        Weight of ``b`` (0: ``a``; 1: ``b`` on ``a``'s times, warped by the alignment).
+    align : {"dp", "none"}
+        Align ``b`` to ``a`` in time first (:func:`track_align`), or map their spans
+        affinely.
+    length : float, optional
+        Position scale (default :func:`track_length` of both).
+    features : (k,2) array_like, optional
+        Feature time pairs for the alignment.
+    **kw
+        Options of :func:`shellspline.curves.align.align`.
+
+    Returns
+    -------
+    PoseTrack
+        On ``a``'s times, in ``a``'s format; starts at the geodesic blend of the start poses.
+    TrackReport
+        With the ``AlignResult`` (``align="dp"``) or None.
+    """
+    from .curves.srv import blend as blend_curves
+
+    if align not in ("dp", "none"):
+        raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
+    if not np.isfinite(s):
+        raise ShellsplineError(f"s must be a finite number, got {s!r}")
+    a, b, L, ca, cb = _track_pair(a, b, length)
+    warp, rep = None, None
+    if align == "dp":
+        rep = track_align(a, b, length=L, features=features, **kw)
+        # the warp lives on a's evenly spaced times: carry it to a's own times
+        warp = np.clip(np.interp(ca.t, rep.t, rep.phi), cb.t[0], cb.t[-1])
+    elif features is not None:
+        raise ShellsplineError("features need align='dp'")
+    out = blend_curves(ca, cb, float(s), warp=warp)
+    return _track_like(out, L, a), TrackReport(L, rep)

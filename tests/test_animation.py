@@ -616,3 +616,160 @@ def test_root_only_and_tpose_first_clips():
     start, stop = A.loop_range(tp)
     assert start >= 1 and stop - start >= 0.5 * (tp.n_frames - 1)
     assert A.up_axis(tp) == (1, 1.0)
+
+
+# ----------------------------------------------------------------------------------------
+# Rigid pose tracks: curves in SO(3) x R^3
+# ----------------------------------------------------------------------------------------
+def camera(lo=500, hi=900):
+    """A window of the real TUM camera trajectory (100 Hz, jittered clock)."""
+    from shellspline.io.posefiles import PoseTrack, read_poses
+
+    tr = read_poses(shared_data("camera", "freiburg1_xyz-groundtruth.txt"))
+    return PoseTrack(tr.t[lo:hi].copy(), tr.T[lo:hi].copy(), tr.format)
+
+
+def moved(track, R=np.eye(3), x=np.zeros(3), scale=1.0, t=None):
+    """``track`` with its rotations right-multiplied by ``R``, positions ``scale * p + x``."""
+    from shellspline.io.posefiles import PoseTrack
+
+    T = track.T.copy()
+    T[:, :3, :3] = T[:, :3, :3] @ R
+    T[:, :3, 3] = scale * T[:, :3, 3] + x
+    return PoseTrack(track.t.copy() if t is None else t, T, track.format)
+
+
+def test_track_curve_srv_against_scipy():
+    """The track's SRV: rotation vectors of R_{i+1} R_i^T (scipy) and position steps / length,
+    over dt, divided by the square root of their joint norm."""
+    from shellspline.curves.srv import srv
+
+    a = camera(500, 560)
+    L = A.track_length(a)
+    p = a.T[:, :3, 3]
+    assert np.isclose(L, np.sqrt(np.mean(np.sum((p - p.mean(0)) ** 2, axis=1))), rtol=1e-12)
+    R = a.T[:, :3, :3]
+    w = Rotation.from_matrix(R[1:] @ np.swapaxes(R[:-1], 1, 2)).as_rotvec()
+    eta = np.c_[w, np.diff(p, axis=0) / L] / np.diff(a.t)[:, None]
+    q = eta / np.sqrt(np.linalg.norm(eta, axis=1))[:, None]
+    assert np.allclose(srv(A.track_curve(a, L)), q, rtol=1e-9, atol=1e-12)
+
+
+def test_track_close_reduces_the_seam_gap_of_a_real_camera_track():
+    a = camera()
+    out, rep = A.track_close(a)
+    g = rep.result.seam_gap
+    assert g[-1] <= g[0] / 100 and rep.result.status == "converged"
+    assert rep.rotation_gap[1] <= rep.rotation_gap[0] / 100
+    assert rep.position_gap[1] <= rep.position_gap[0] / 100
+    assert rep.rotation_gap[0] > 0.1 and rep.position_gap[0] > 0.1  # a real gap to close
+    # the seam measured independently of the closing code
+    assert np.abs(out.T[-1] - out.T[0]).max() <= 1e-9
+    assert np.array_equal(out.t, a.t) and np.allclose(out.T[0], a.T[0], atol=1e-14)
+    assert out.format == "tum" and rep.length == A.track_length(a)
+    # C1: the velocity jump at the seam goes too
+    out1, rep1 = A.track_close(a, c1=True)
+    v = rep1.result.velocity_jump
+    assert v[-1] <= v[0] / 100 and np.abs(out1.T[-1] - out1.T[0]).max() <= 1e-9
+
+
+@pytest.mark.parametrize("fmt", ["tum", "kitti", "euroc", "csv", "json"])
+def test_closed_track_reads_back_in_every_format(fmt, tmp_path):
+    from shellspline.io.posefiles import PoseTrack, read_poses, write_poses
+
+    a = camera(500, 700)
+    if fmt == "kitti":
+        a = PoseTrack(np.arange(a.t.size, dtype=np.float64), a.T, "kitti")
+    elif fmt == "euroc":
+        a = PoseTrack(a.t - a.t[0], a.T, "euroc", origin_ns=1403636579758555392)
+    else:
+        a = PoseTrack(a.t, a.T, fmt)
+    out, _ = A.track_close(a)
+    assert out.format == fmt and out.origin_ns == a.origin_ns
+    path = tmp_path / f"loop.{'json' if fmt == 'json' else 'txt'}"
+    write_poses(path, out.t, out.T, out.format, origin_ns=out.origin_ns)
+    back = read_poses(path)
+    assert back.format == fmt and back.origin_ns == a.origin_ns
+    assert np.allclose(back.t, a.t, rtol=0, atol=1e-9)
+    assert np.allclose(back.T, out.T, atol=1e-9)
+
+
+def test_track_distance_zero_symmetric_and_invariant():
+    a, b = camera(500, 900), camera(1000, 1300)
+    assert A.track_distance(a, a, align="none") == 0.0
+    assert A.track_distance(a, a) <= 1e-9
+    for how in ("none", "dp"):
+        dab, dba = A.track_distance(a, b, align=how), A.track_distance(b, a, align=how)
+        assert dab > 0.1 and np.isclose(dab, dba, rtol=1e-9)
+    assert A.track_distance(a, b) < A.track_distance(a, b, align="none")
+    # the default position scale makes the distance independent of the unit (mm) and of a
+    # common right translation (SO(3) x R^3: body frame turned, origin moved; Lemma 3.6)
+    g = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
+    x = np.array([2.0, -1.0, 0.5])
+    d = A.track_distance(a, b, align="none")
+    assert np.isclose(A.track_distance(moved(a, scale=1000.0), moved(b, scale=1000.0),
+                                       align="none"), d, rtol=1e-9)
+    assert np.isclose(A.track_distance(moved(a, g, x), moved(b, g, x), align="none"), d,
+                      rtol=1e-9)
+    # a given scale is used as given: positions weigh 1/length
+    assert A.track_distance(a, b, align="none", length=1e3) < d
+    with pytest.raises(ShellsplineError, match="length must be a positive"):
+        A.track_distance(a, b, length=0.0)
+
+
+def test_track_blend_of_a_track_with_itself_and_ends():
+    a, b = camera(500, 900), camera(1000, 1400)
+    for how in ("none", "dp"):
+        out, rep = A.track_blend(a, a, 0.3, align=how)
+        assert np.abs(out.T - a.T).max() <= 1e-9 and np.array_equal(out.t, a.t)
+        assert (rep.result is None) == (how == "none")
+    # b on a's times (same spacing): s = 0 is a, s = 1 (no alignment) is b, exactly
+    b = moved(b, t=a.t.copy())
+    assert np.abs(A.track_blend(a, b, 0.0, align="none")[0].T - a.T).max() <= 1e-9
+    assert np.abs(A.track_blend(a, b, 1.0, align="none")[0].T - b.T).max() <= 1e-9
+    mid, _ = A.track_blend(a, b, 0.5, align="none")
+    # the start is the geodesic midpoint of the start poses
+    assert np.allclose(mid.T[0, :3, 3], 0.5 * (a.T[0, :3, 3] + b.T[0, :3, 3]), atol=1e-12)
+    R0 = a.T[0, :3, :3] @ so3.exp(0.5 * so3.log(a.T[0, :3, :3].T @ b.T[0, :3, :3]))
+    assert np.allclose(mid.T[0, :3, :3], R0, atol=1e-12)
+
+
+def test_track_align_recovers_a_known_warp():
+    """b(t) = a(phi0(t)) with phi0 = u^1.5 on a's own (jittered) times: aligned back."""
+    from shellspline.curves.srv import reparametrize
+    from shellspline.groups import se3
+    from shellspline.io.posefiles import PoseTrack
+
+    a = camera(500, 900)
+    L = A.track_length(a)
+    c = A.track_curve(a, L)
+    span = a.t[-1] - a.t[0]
+    u = (a.t - a.t[0]) / span
+    cw = reparametrize(c, a.t[0] + u ** 1.5 * span, a.t)
+    b = PoseTrack(a.t.copy(), se3.from_rt(cw.R[:, 0], cw.X * L), "tum")
+    r = A.track_align(b, a)  # a(phi(t)) = b(t): phi = t^1.5
+    un, pn = (r.t - a.t[0]) / span, (r.phi - a.t[0]) / span
+    assert np.abs(pn - un ** 1.5).max() <= 0.005
+    assert r.distance < 0.2 * np.sqrt(r.energy_identity)
+    # feature pairs in the files' times pull the warp (weight lam)
+    tf = a.t[0] + 0.5 * span
+    r2 = A.track_align(b, a, features=[[tf, a.t[0] + 0.8 * span]], lam=1e5)
+    assert abs(np.interp(tf, r2.t, r2.phi) - (a.t[0] + 0.8 * span)) <= 0.01 * span
+
+
+def test_track_errors_are_one_line():
+    from shellspline.io.posefiles import PoseTrack
+
+    a = camera(500, 600)
+    one = PoseTrack(a.t[:1], a.T[:1], "tum")
+    with pytest.raises(ShellsplineError, match="at least 2 poses, got 1"):
+        A.track_distance(one, a)
+    with pytest.raises(ShellsplineError, match="at least 3 poses, got 2"):
+        A.track_close(PoseTrack(a.t[:2], a.T[:2], "tum"))
+    with pytest.raises(ShellsplineError, match="expected a PoseTrack"):
+        A.track_blend(a, a.T)
+    with pytest.raises(ShellsplineError, match="align must be"):
+        A.track_blend(a, a, align="dtw")
+    # a track that does not move: positions are not scaled (length 1)
+    still = PoseTrack(a.t, np.broadcast_to(a.T[0], a.T.shape).copy(), "tum")
+    assert A.track_length(still) == 1.0

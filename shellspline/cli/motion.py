@@ -1,8 +1,10 @@
 """``shellspline motion``: distances, time alignment, blending and loop closing of BVH clips.
 
 Subcommands ``distance``, ``align``, ``blend`` and ``close`` (see :mod:`shellspline.animation`)
-on BVH clips, or on mesh sequences (a folder of OBJ/PLY/OFF frames of one mesh, in name order:
-LΘA descriptor curves, frames reconstructed by Gauss–Newton, a sequence folder written);
+on BVH clips, on mesh sequences (a folder of OBJ/PLY/OFF frames of one mesh, in name order:
+LΘA descriptor curves, frames reconstructed by Gauss–Newton, a sequence folder written), or
+on rigid pose tracks (any file :func:`shellspline.io.posefiles.read_poses` reads: curves in
+SO(3) x R^3, written back in the input's format);
 pictures with ``--render STRIP.png|ANIM.gif`` (stick figures) and ``--plot PNG`` (feet, warp,
 seam gap). Outputs are written atomically and never replace an existing file without
 ``--overwrite``. Errors are one line, exit status 2.
@@ -25,10 +27,15 @@ _EPILOG = """examples:
   shellspline motion blend walk.bvh walk_happy.bvh --s 0.5 -o blend.bvh --render blend.gif
   shellspline motion close walk.bvh -o loop.bvh --iterations 10 --c1 --plot loop.png
   shellspline motion close frames/ -o loop/          # a mesh sequence (folder of frames)
+  shellspline motion close camera.txt -o loop.txt --c1   # a pose track (TUM, KITTI, EuRoC...)
 
 features: 'contacts' pairs the foot touch-downs detected in both clips (feet and up axis found
 from the data; --up overrides the axis); a CSV file gives pairs 'time_a,time_b' in seconds,
-one per line ('#' comments); 'none' (default) aligns on the motion alone."""
+one per line ('#' comments); 'none' (default) aligns on the motion alone.
+
+pose tracks: a file that is not a .bvh is read as poses (format detected as by 'shellspline
+path'); positions are divided by --position-scale (default: the tracks' RMS distance from
+their mean position) so that they weigh like radians of rotation."""
 
 
 def add_parsers(sub) -> None:
@@ -43,11 +50,14 @@ def add_parsers(sub) -> None:
 
     def common(q, two=True, out=None):
         if two:
-            q.add_argument("a", metavar="A", help="first BVH clip (or mesh sequence folder)")
+            q.add_argument("a", metavar="A", help="first BVH clip (or mesh sequence folder, "
+                                                  "or pose file)")
             q.add_argument("b", metavar="B", help="second BVH clip of the same skeleton (or "
-                                                  "a mesh sequence folder of the same mesh)")
+                                                  "a mesh sequence folder of the same mesh, "
+                                                  "or a pose file)")
         else:
-            q.add_argument("a", metavar="IN", help="BVH clip (or mesh sequence folder)")
+            q.add_argument("a", metavar="IN", help="BVH clip (or mesh sequence folder, or "
+                                                   "pose file)")
         if out:
             q.add_argument("-o", "--out", required=True, metavar="OUT", help=out)
         q.add_argument("--up", metavar="AXIS", default=None,
@@ -59,6 +69,9 @@ def add_parsers(sub) -> None:
         q.add_argument("--plot", metavar="PNG",
                        help="plot foot heights and contacts, the warp, the seam gap per "
                             "iteration (needs the viz extra)")
+        q.add_argument("--position-scale", type=float, default=None, metavar="L",
+                       help="pose tracks: file units of position that weigh like one radian "
+                            "(default: the RMS distance from the mean position)")
         q.add_argument("--overwrite", action="store_true",
                        help="replace output files that exist")
         q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
@@ -156,9 +169,11 @@ def _check_outputs(args, *paths):
 
 
 def _read(path):
-    """A BVH clip (a file) or a mesh sequence (a folder of mesh frames, name order)."""
+    """A BVH clip (a ``.bvh`` file or one that starts with ``HIERARCHY``), a mesh sequence (a
+    folder of mesh frames, name order) or a pose track (any other file)."""
     from ..io import MESH_EXTENSIONS, read_keyframes
     from ..io.bvh import read_bvh
+    from ..io.posefiles import read_poses
 
     p = Path(path)
     if p.is_dir():
@@ -169,24 +184,66 @@ def _read(path):
         return read_keyframes(frames)
     if not p.is_file():
         raise ShellsplineError(f"{path}: no such file or folder")
+    if p.suffix.lower() != ".bvh":
+        with open(p, "rb") as f:
+            head = f.read(64).lstrip()
+        if not head.upper().startswith(b"HIERARCHY"):
+            return read_poses(p)
     return read_bvh(p)
 
 
-def _is_mesh(x) -> bool:
+def _kind(x) -> str:
+    """``"bvh"``, ``"mesh"`` or ``"poses"``."""
     from ..io.bvh import Motion
+    from ..io.posefiles import PoseTrack
 
-    return not isinstance(x, Motion)
+    return "bvh" if isinstance(x, Motion) else "poses" if isinstance(x, PoseTrack) else "mesh"
+
+
+def _is_mesh(x) -> bool:
+    return _kind(x) == "mesh"
+
+
+def _is_track(x) -> bool:
+    return _kind(x) == "poses"
+
+
+def _track_options(args, a):
+    """Reject the options that only BVH clips have, for pose tracks; ``--position-scale`` for
+    anything else. Returns the ``length`` keyword."""
+    L = args.position_scale
+    if not _is_track(a):
+        if L is not None:
+            raise ShellsplineError("--position-scale: pose tracks only")
+        return None
+    if L is not None and not (np.isfinite(L) and L > 0):
+        raise ShellsplineError(f"--position-scale must be a positive number, got {L!r}")
+    bvh_only = [("--up", args.up is not None), ("--render", bool(args.render)),
+                ("--features contacts", getattr(args, "features", None) == "contacts"),
+                ("--plant", getattr(args, "plant", False)),
+                ("--trim", getattr(args, "trim", False)),
+                ("--no-plant", getattr(args, "no_plant", False)),
+                ("--root-motion close", getattr(args, "root_motion", "keep") != "keep")]
+    bad = [name for name, given in bvh_only if given]
+    if bad:
+        raise ShellsplineError(f"{', '.join(bad)}: BVH clips only, not pose tracks")
+    return L
 
 
 def _read_pair(args):
     a, b = _read(args.a), _read(args.b)
+    if _kind(a) != _kind(b):
+        what = {"bvh": "a BVH clip", "mesh": "a mesh sequence folder", "poses": "a pose file"}
+        raise ShellsplineError(f"{args.a} and {args.b}: give two BVH files, two mesh "
+                               f"sequence folders or two pose files (got {what[_kind(a)]} and "
+                               f"{what[_kind(b)]})")
     for path, x in ((args.a, a), (args.b, b)):
-        if not _is_mesh(x) and x.n_frames < 2:
+        if _is_track(x) and x.t.size < 2:
+            raise ShellsplineError(f"{path}: {x.t.size} pose; distance, align and blend need "
+                                   "at least 2")
+        if _kind(x) == "bvh" and x.n_frames < 2:
             raise ShellsplineError(f"{path}: {x.n_frames} frame; distance, align and blend "
                                    "need at least 2")
-    if _is_mesh(a) != _is_mesh(b):
-        raise ShellsplineError(f"{args.a} and {args.b}: give two BVH files or two mesh "
-                               "sequence folders")
     if _is_mesh(a):
         if args.render:
             raise ShellsplineError("--render draws skeletons: BVH clips only")
@@ -264,6 +321,18 @@ def _distance(args) -> int:
     fkw = _feature_kw(args)
     say = _say(args)
     a, b = _read_pair(args)
+    length = _track_options(args, a)
+    if _is_track(a):
+        from ..animation import track_distance, track_length
+
+        if args.features not in (None, "none"):
+            raise ShellsplineError("--features: BVH clips only for distance")
+        L = track_length(a, b) if length is None else length
+        d = track_distance(a, b, align=args.align, length=L)
+        print(f"{d:.9g}")
+        say(f"  distance    SRV in SO(3) x R^3, align {args.align}, position scale {L:.6g} "
+            f"units/rad: {d:.6g}")
+        return EXIT_OK
     if _is_mesh(a):
         from ..animation import mesh_distance
 
@@ -290,6 +359,9 @@ def _align(args) -> int:
     fkw = _feature_kw(args)
     say = _say(args)
     a, b = _read_pair(args)
+    length = _track_options(args, a)
+    if _is_track(a):
+        return _align_tracks(args, a, b, length, fkw, say)
     if _is_mesh(a):
         from ..animation import mesh_align
 
@@ -325,6 +397,26 @@ def _align(args) -> int:
     return _status(rep.result, say)
 
 
+def _align_tracks(args, a, b, length, fkw, say) -> int:
+    from ..animation import track_align
+    from ..io.posefiles import write_text_atomic
+
+    feats = _read_features(args.features)
+    r = track_align(a, b, length=length, features=feats, **fkw)
+    lines = ["time_a,time_b"] + [f"{x!r},{y!r}" for x, y in zip(r.t.tolist(), r.phi.tolist())]
+    write_text_atomic(args.out, "\n".join(lines) + "\n")
+    say(f"  align       {r.t.size} poses (evenly resampled): energy {r.energy_identity:.4g} "
+        f"-> {r.energy:.4g}, SRV distance {r.distance:.4g} ({r.status}: {r.message})")
+    say(f"  wrote       {args.out}")
+    if args.plot:
+        from ..motion_viz import plot_motion
+
+        span_a, span_b = r.t[-1] - r.t[0], b.t[-1] - b.t[0]
+        plot_motion(args.plot, warp=((r.t - r.t[0]) / span_a, (r.phi - b.t[0]) / span_b))
+        say(f"  plot        {args.plot}")
+    return _status(r, say)
+
+
 def _status(result, say) -> int:
     ok = getattr(result, "success", True)
     if not ok:
@@ -341,6 +433,9 @@ def _blend(args) -> int:
     fkw = _feature_kw(args)
     say = _say(args)
     a, b = _read_pair(args)
+    length = _track_options(args, a)
+    if _is_track(a):
+        return _blend_tracks(args, a, b, length, fkw, say)
     if _is_mesh(a):
         return _blend_meshes(args, a, b, say)
     m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args.features),
@@ -357,6 +452,33 @@ def _blend(args) -> int:
     if args.render or args.plot:
         _pictures(args, m, say, warp=None if rep is None else (rep.t, rep.phi))
     return EXIT_OK if rep is None else _status(rep.result, say)
+
+
+def _blend_tracks(args, a, b, length, fkw, say) -> int:
+    from ..animation import track_blend
+    from ..io.posefiles import write_poses
+
+    if not np.isfinite(args.s):
+        raise ShellsplineError(f"--s must be a finite number, got {args.s!r}")
+    feats = _read_features(args.features)
+    if feats is not None and args.align != "dp":
+        raise ShellsplineError("--features needs --align dp")
+    out, rep = track_blend(a, b, args.s, align=args.align, length=length, features=feats,
+                           **fkw)
+    write_poses(args.out, out.t, out.T, out.format, origin_ns=out.origin_ns)
+    r = rep.result
+    say(f"  blend       s = {args.s:g}, align {args.align}: {out.t.size} poses ({out.format}), "
+        f"position scale {rep.length:.6g} units/rad" + ("" if r is None else
+                                                        f"; SRV distance {r.distance:.4g} "
+                                                        "after alignment"))
+    say(f"  wrote       {args.out}")
+    if args.plot and r is not None:
+        from ..motion_viz import plot_motion
+
+        span_a, span_b = r.t[-1] - r.t[0], b.t[-1] - b.t[0]
+        plot_motion(args.plot, warp=((r.t - r.t[0]) / span_a, (r.phi - b.t[0]) / span_b))
+        say(f"  plot        {args.plot}")
+    return EXIT_OK if r is None else _status(r, say)
 
 
 def _blend_meshes(args, a, b, say) -> int:
@@ -402,6 +524,31 @@ def _close_meshes(args, kf, say) -> int:
     return EXIT_OK if rep.converged == rep.frames else EXIT_WARN
 
 
+def _close_track(args, track, length, say) -> int:
+    from ..animation import track_close
+    from ..io.posefiles import write_poses
+
+    if track.t.size < 3:
+        raise ShellsplineError(f"{args.a}: {track.t.size} poses; closing needs at least 3")
+    out, rep = track_close(track, iterations=args.iterations, c1=args.c1, length=length)
+    write_poses(args.out, out.t, out.T, out.format, origin_ns=out.origin_ns)
+    res = rep.result
+    say(f"  seam gap    {np.degrees(rep.rotation_gap[0]):.3g} -> "
+        f"{np.degrees(rep.rotation_gap[1]):.3g} deg, {rep.position_gap[0]:.3g} -> "
+        f"{rep.position_gap[1]:.3g} units (position scale {rep.length:.6g} units/rad) in "
+        f"{res.iterations} iterations ({res.status})")
+    if args.c1:
+        say(f"  velocity    jump at the seam {res.velocity_jump[0]:.3g} -> "
+            f"{res.velocity_jump[-1]:.3g}")
+    say(f"  wrote       {args.out} ({out.format})")
+    if args.plot:
+        from ..motion_viz import plot_motion
+
+        plot_motion(args.plot, seam_history=res.seam_gap)
+        say(f"  plot        {args.plot}")
+    return _status(res, say)
+
+
 def _close(args) -> int:
     from ..animation import close
     from ..io.bvh import write_bvh
@@ -411,6 +558,9 @@ def _close(args) -> int:
     _check_outputs(args, args.out)
     say = _say(args)
     m = _read(args.a)
+    length = _track_options(args, m)
+    if _is_track(m):
+        return _close_track(args, m, length, say)
     if _is_mesh(m):
         return _close_meshes(args, m, say)
     out, rep = close(m, iterations=args.iterations, c1=args.c1, root_motion=args.root_motion,

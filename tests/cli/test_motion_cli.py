@@ -176,7 +176,7 @@ def test_mesh_sequence_folders(capsys, tmp_path):
                      "-q")
     assert code == 0 and np.abs(read_sequence(tmp_path / "mid")[0] - Vs).max() <= 1e-8
     code, _, err = run(capsys, "blend", tmp_path / "a", walk(), "-o", tmp_path / "x")
-    assert code == 2 and "two BVH files or two mesh" in err
+    assert code == 2 and "two BVH files, two mesh sequence folders or two pose" in err
 
 
 def test_held_out_layouts_through_the_cli(tmp_path, capsys):
@@ -218,3 +218,94 @@ def test_side_view_follows_the_body_not_the_root_marker():
     assert travel > 300
     c = V._centre(out, S)
     assert c[-1] - c[0] >= 0.99 * travel  # the view is along the travel, forward
+
+
+# ----------------------------------------------------------------------------------------
+# rigid pose tracks
+# ----------------------------------------------------------------------------------------
+def camera_window(tmp_path, lo, hi, name, fmt="tum"):
+    """A window of the real TUM camera trajectory written to ``tmp_path / name``."""
+    from shellspline.io.posefiles import read_poses, write_poses
+
+    tr = read_poses(shared_data("camera", "freiburg1_xyz-groundtruth.txt"))
+    t = np.arange(hi - lo, dtype=np.float64) if fmt == "kitti" else tr.t[lo:hi]
+    write_poses(tmp_path / name, t, tr.T[lo:hi], fmt)
+    return tmp_path / name
+
+
+def test_close_a_camera_track(capsys, tmp_path):
+    from shellspline.io.posefiles import read_poses
+
+    a = camera_window(tmp_path, 500, 900, "cam.txt")
+    out = tmp_path / "loop.txt"
+    code, _, err = run(capsys, "close", a, "-o", out, "--c1")
+    assert code == 0 and "seam gap" in err and "velocity" in err
+    track, loop = read_poses(a), read_poses(out)
+    assert loop.format == "tum" and np.array_equal(loop.t, track.t)
+    gap = lambda T: np.abs(T[-1] - T[0]).max()  # noqa: E731
+    assert gap(loop.T) <= gap(track.T) / 100
+    code, _, err = run(capsys, "close", a, "-o", out)
+    assert code == 2 and "exists" in err and len(err.strip().splitlines()) == 1
+    # an explicit position scale (file units per radian) is used and reported
+    code, _, err = run(capsys, "close", a, "-o", out, "--overwrite", "--position-scale", "0.5")
+    assert code == 0 and "position scale 0.5 units/rad" in err
+
+
+def test_distance_align_blend_of_camera_tracks(capsys, tmp_path):
+    from shellspline.io.posefiles import read_poses
+
+    a = camera_window(tmp_path, 500, 900, "a.txt")
+    b = camera_window(tmp_path, 1000, 1300, "b.txt")
+    code, out, _ = run(capsys, "distance", a, a, "--align", "none", "-q")
+    assert code == 0 and float(out) == 0.0
+    code, out, _ = run(capsys, "distance", a, b, "-q")
+    d = float(out)
+    assert code == 0 and np.isclose(d, A.track_distance(read_poses(a), read_poses(b)),
+                                    rtol=1e-8)
+    code, out, _ = run(capsys, "distance", b, a, "-q")
+    assert np.isclose(float(out), d, rtol=1e-8)
+    warp = tmp_path / "warp.csv"
+    code, _, err = run(capsys, "align", a, b, "-o", warp)
+    assert code == 0 and "align" in err
+    rows = np.loadtxt(warp, delimiter=",", skiprows=1)
+    ta, tb = read_poses(a).t, read_poses(b).t
+    assert rows.shape == (400, 2) and np.all(np.diff(rows[:, 1]) >= 0)
+    assert np.allclose(rows[[0, -1]], [[ta[0], tb[0]], [ta[-1], tb[-1]]], atol=1e-6)
+    # blend: written in A's format (KITTI here) on A's times
+    k = camera_window(tmp_path, 500, 900, "a.kitti", fmt="kitti")
+    code, _, err = run(capsys, "blend", k, b, "--s", "0.5", "-o", tmp_path / "mid.txt")
+    assert code in (0, 1) and "blend" in err, err
+    mid = read_poses(tmp_path / "mid.txt")
+    assert mid.format == "kitti" and mid.t.size == 400
+    code, _, _ = run(capsys, "blend", a, a, "--s", "0.7", "--align", "none",
+                     "-o", tmp_path / "same.txt")
+    assert code == 0
+    assert np.abs(read_poses(tmp_path / "same.txt").T - read_poses(a).T).max() <= 1e-9
+
+
+def test_camera_track_errors_exit_2(capsys, tmp_path):
+    a = camera_window(tmp_path, 500, 600, "a.txt")
+    lines = a.read_text().splitlines()
+    one = tmp_path / "one.txt"
+    one.write_text("\n".join(lines[:2]) + "\n")
+    unsorted = tmp_path / "unsorted.txt"
+    unsorted.write_text("\n".join([lines[0], lines[3], lines[2]] + lines[4:]) + "\n")
+    feats = tmp_path / "f.csv"
+    feats.write_text("time_a,time_b\n1305031104.0,1305031104.1\n")
+    cases = [
+        (("distance", one, a), "one.txt: 1 pose"),
+        (("close", one, "-o", tmp_path / "x.txt"), "at least 3"),
+        (("distance", unsorted, a), "times must increase strictly"),
+        (("distance", a, walk()), "two pose files (got a pose file and a BVH clip)"),
+        (("close", a, "-o", tmp_path / "x.txt", "--trim"), "--trim: BVH clips only"),
+        (("distance", a, a, "--features", "contacts"), "BVH clips only"),
+        (("distance", a, a, "--position-scale", "0"), "--position-scale must be a positive"),
+        (("distance", walk(), walk(), "--position-scale", "2"), "pose tracks only"),
+        (("blend", a, a, "--align", "none", "--features", feats, "-o", tmp_path / "x.txt"),
+         "--features needs --align dp"),
+    ]
+    for argv, msg in cases:
+        code, _, err = run(capsys, *argv)
+        assert code == 2 and msg in err, (argv, err)
+        assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.txt").exists()
