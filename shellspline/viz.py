@@ -348,8 +348,9 @@ def scene_up_axis(source) -> str:
 
     1. the keyframe files named in ``report.json`` (``mesh.names``, as ``interpolate``
        records them), by :func:`shellspline.io.usd.conventional_up_axis`: ``.obj`` y-up
-       (Blender's OBJ export by default, Maya, the deformation-transfer animals), ``.glb`` /
-       ``.gltf`` y-up (the glTF specification), ``.usd*`` the stage's ``upAxis``, ``.ply`` /
+       (Blender's OBJ export by default, Maya, the deformation-transfer animals), ``.glb``
+       the axis its node's rotation says (:func:`shellspline.io.gltf.glb_up_axis`; y-up, the
+       glTF specification's, without one), ``.gltf`` y-up, ``.usd*`` the stage's ``upAxis``, ``.ply`` /
        ``.off`` z-up (scanners and CAD write them);
     2. the output's own files: ``animation.usdc`` (its metadata), ``animation.glb`` or a
        ``.glb`` file (y), the frame files or ``mesh.obj`` (by extension);
@@ -1154,7 +1155,8 @@ def export_glb(source, path, *, fps: float = 24.0, frames=None,
     seq = load_source(source)
     checked_output(path, (".glb",), [seq], "GLB")
     V = seq.V if frames is None else seq.V[checked_frames(frames, seq.K)]
-    data = glb_bytes(V, seq.F, fps=fps, interpolation=interpolation)
+    data = glb_bytes(V, seq.F, fps=fps, interpolation=interpolation,
+                     up_axis=scene_up_axis(seq))
     return _write_atomically(path, lambda tmp: tmp.write_bytes(data), [seq], (".glb",), "GLB")
 
 

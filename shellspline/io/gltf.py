@@ -28,7 +28,8 @@ from ..errors import ShellsplineError
 from ..mesh.geometry import vertex_normals
 from .atomic import write_bytes_atomic
 
-__all__ = ["glb_bytes", "write_glb", "read_glb", "vertex_normals"]  # the last: mesh.geometry's
+__all__ = ["glb_bytes", "write_glb", "read_glb", "glb_up_axis", "UP_ROTATIONS",
+           "vertex_normals"]  # the last: mesh.geometry's
 
 _GLB_MAGIC = 0x46546C67  # b"glTF"
 _CHUNK_JSON = 0x4E4F534A  # b"JSON"
@@ -37,8 +38,53 @@ _FLOAT, _UINT = 5126, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 
+UP_ROTATIONS = {"y": None,
+                "z": [-0.7071067811865476, 0.0, 0.0, 0.7071067811865476],
+                "x": [0.0, 0.0, 0.7071067811865476, 0.7071067811865476]}
+"""Node rotation (glTF quaternion ``[x, y, z, w]``) that turns data whose up axis is the key
+onto glTF's y-up: −90° about x for z-up (``(x, y, z) → (x, z, −y)``), +90° about z for x-up."""
+
+
+def _up_node(up_axis) -> dict:
+    if up_axis not in UP_ROTATIONS:
+        raise ShellsplineError(f"up_axis must be one of 'y', 'z', 'x', got {up_axis!r}")
+    q = UP_ROTATIONS[up_axis]
+    return {} if q is None else {"rotation": q}
+
+
+def glb_up_axis(path) -> str:
+    """The up axis of the vertex data of a GLB file: ``"z"`` or ``"x"`` when its first node
+    carries the matching rotation of :data:`UP_ROTATIONS` (as :func:`glb_bytes` writes for
+    such data), else ``"y"`` (glTF's convention; also for a file that cannot be read).
+
+    Examples
+    --------
+    >>> import os, tempfile, numpy as np
+    >>> V = np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]])
+    >>> p = os.path.join(tempfile.mkdtemp(), "z.glb")
+    >>> write_glb(p, V, [[0, 1, 2]], up_axis="z")
+    >>> glb_up_axis(p), glb_up_axis(os.path.join(tempfile.mkdtemp(), "missing.glb"))
+    ('z', 'y')
+    """
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(20)
+            magic, version, _ = struct.unpack_from("<III", head, 0)
+            jlen, jtype = struct.unpack_from("<II", head, 12)
+            if magic != _GLB_MAGIC or jtype != _CHUNK_JSON:
+                return "y"
+            doc = json.loads(fh.read(jlen))
+        rot = (doc.get("nodes") or [{}])[0].get("rotation")
+    except (OSError, ValueError, struct.error, AttributeError, IndexError):
+        return "y"
+    for axis, q in UP_ROTATIONS.items():
+        if q is not None and rot is not None and np.allclose(rot, q, atol=1e-7):
+            return axis
+    return "y"
+
+
 def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals: bool = True,
-              name: str = "shellspline") -> bytes:
+              name: str = "shellspline", up_axis: str = "y") -> bytes:
     """The bytes of a GLB file that animates the poses ``V`` by morph targets.
 
     Parameters
@@ -57,6 +103,12 @@ def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals
         cancel) gets ``(0, 0, 1)``: glTF requires unit normals.
     name : str
         Name of the mesh, node and animation.
+    up_axis : {"y", "z", "x"}
+        The up axis of ``V``'s coordinates. glTF is y-up (specification §3.4); for z- or x-up
+        data the node gets the rotation (:data:`UP_ROTATIONS`) that turns the data's up onto
+        glTF's +y, so viewers show the scene standing. The vertex data stay in the input's
+        coordinates (:func:`read_glb` gives them back unchanged; :func:`glb_up_axis` reads the
+        axis back from the node).
 
     Returns
     -------
@@ -147,7 +199,7 @@ def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals
         "asset": {"version": "2.0", "generator": "shellspline"},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": name}],
+        "nodes": [dict({"mesh": 0, "name": name}, **_up_node(up_axis))],
         "meshes": [mesh],
         "materials": [{"name": "shell", "doubleSided": True,
                        "pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.55, 0.3, 1.0],
@@ -182,13 +234,13 @@ def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals
 
 
 def write_glb(path, V, F, *, fps: float = 24.0, interpolation: str = "LINEAR",
-              normals: bool = True) -> None:
+              normals: bool = True, up_axis: str = "y") -> None:
     """Write :func:`glb_bytes` to ``path`` atomically (:mod:`shellspline.io.atomic`).
 
     Parameters
     ----------
     path : str or path-like
-    V, F, fps, interpolation, normals
+    V, F, fps, interpolation, normals, up_axis
         As for :func:`glb_bytes`.
 
     Examples
@@ -203,7 +255,7 @@ def write_glb(path, V, F, *, fps: float = 24.0, interpolation: str = "LINEAR",
     ((3, 42, 3), (80, 3), 12.0, True)
     """
     write_bytes_atomic(path, glb_bytes(V, F, fps=fps, interpolation=interpolation,
-                                       normals=normals))
+                                       normals=normals, up_axis=up_axis))
 
 
 def read_glb(path) -> tuple[np.ndarray, np.ndarray, float]:

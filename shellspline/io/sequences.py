@@ -90,7 +90,8 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
         ``(K+1,n_source,3)`` in the input's vertex indexing (:meth:`SourceMesh.expand`), and
         OBJ and PLY frames get the input's polygons, GLB its triangles; ``F`` is not used.
     up_axis : {"y", "z"}
-        The USD stage's up axis (``fmt="usd"`` only).
+        The up axis of ``V``'s coordinates: the USD stage's ``upAxis`` (``fmt="usd"``) and the
+        GLB node's rotation onto glTF's y-up (``fmt="glb"``; the vertex data are unchanged).
 
     Returns
     -------
@@ -150,7 +151,7 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     if fmt == "glb":
         from .gltf import glb_bytes
 
-        glb = glb_bytes(V, F, fps=fps)  # validates fps before anything is created
+        glb = glb_bytes(V, F, fps=fps, up_axis=up_axis)  # validated before anything is made
     elif fmt in ("mdd", "pc2"):
         from .pointcache import mdd_bytes, pc2_bytes
 

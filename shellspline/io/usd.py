@@ -50,7 +50,8 @@ def conventional_up_axis(path) -> str:
     """The up axis (``"x"``, ``"y"`` or ``"z"``) a file's format implies.
 
     ``.usd``/``.usda``/``.usdc``: the stage's ``upAxis`` metadata (``"y"``, USD's default,
-    when it is absent, the file cannot be opened or ``pxr`` is not installed); other
+    when it is absent, the file cannot be opened or ``pxr`` is not installed); an existing
+    ``.glb``: :func:`shellspline.io.gltf.glb_up_axis` (its node's rotation); other
     extensions:
     :data:`UP_AXIS_CONVENTIONS`, ``"z"`` for anything else.
 
@@ -70,6 +71,10 @@ def conventional_up_axis(path) -> str:
         except Exception:  # pxr raises Tf.ErrorException on a damaged file: USD's default
             stage = None
         return str(UsdGeom.GetStageUpAxis(stage)).lower() if stage else "y"
+    if ext == ".glb" and Path(path).is_file():  # z/x-up data carry a node rotation
+        from .gltf import glb_up_axis
+
+        return glb_up_axis(path)
     return UP_AXIS_CONVENTIONS.get(ext, "z")
 
 

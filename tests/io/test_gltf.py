@@ -6,6 +6,7 @@ import struct
 
 import numpy as np
 import pytest
+import trimesh
 
 import shellspline as ss
 from shellspline.errors import ShellsplineError
@@ -236,3 +237,54 @@ def test_glb_normals_are_unit_where_vertex_normals_vanish():
         np.testing.assert_allclose(np.linalg.norm(N, axis=1), 1.0, atol=1e-6)
     np.testing.assert_array_equal(N0[4], [0, 0, 1])
     np.testing.assert_allclose(N0[:4], vertex_normals(V, F)[:4], atol=1e-7)
+
+
+@pytest.mark.parametrize("up", ["z", "x"])
+def test_z_and_x_up_data_stand_in_gltf_viewers(tmp_path, up):
+    """glTF is y-up: data whose up axis is z (PLY scans, CAD) or x get a node rotation that
+    turns their up onto +y, checked with trimesh's scene graph (an independent reader that
+    applies node transforms); the vertex data, read back by pygltflib and by read_glb, stay in
+    the input's coordinates, and glb_up_axis reads the axis back."""
+    from shellspline.io.gltf import glb_up_axis
+    from shellspline.io.usd import conventional_up_axis
+
+    V, F = _sequence(3)
+    a = "xyz".index(up)
+    V = V * np.where(np.arange(3) == a, 3.0, 1.0)  # long along its up axis, like a standing body
+    p = tmp_path / f"{up}.glb"
+    write_glb(p, V, F, up_axis=up)
+    assert glb_up_axis(p) == up and conventional_up_axis(p) == up
+    write_glb(tmp_path / "y.glb", V, F)  # the same data, y-up: no rotation, as before
+    np.testing.assert_array_equal(read_glb(p)[0], read_glb(tmp_path / "y.glb")[0])
+    g = pygltflib.GLTF2().load(str(p))
+    pos = g.meshes[0].primitives[0].attributes.POSITION
+    np.testing.assert_allclose(_accessor_array(g, g.binary_blob(), pos), V[0], rtol=1e-6)
+    scene = trimesh.load(p, force="scene", process=False)
+    world = scene.to_geometry().vertices                     # the base mesh, node applied
+    ext = world.max(axis=0) - world.min(axis=0)
+    assert np.argmax(ext) == 1                                # the long (up) axis is glTF's y
+    top_in, top_out = np.argmax(V[0][:, a]), np.argmax(world[:, 1])
+    np.testing.assert_allclose(world[top_out, 1], V[0][top_in, a], rtol=1e-6)  # up, not down
+    q = glb_up_axis(tmp_path / "none.glb")
+    assert q == "y"
+    assert glb_up_axis(tmp_path / "y.glb") == "y"
+    assert pygltflib.GLTF2().load(str(tmp_path / "y.glb")).nodes[0].rotation is None
+    with pytest.raises(ShellsplineError, match="up_axis"):
+        glb_bytes(V, F, up_axis="w")
+
+
+def test_interpolate_glb_output_of_z_up_input_stands(tmp_path):
+    """The CLI writes a GLB of PLY keyframes (z-up by convention) with the z-up rotation."""
+    from shellspline.cli.main import main
+    from shellspline.io.gltf import glb_up_axis
+    from shellspline.io.usd import conventional_up_axis
+
+    V, F = _sequence(2)
+    paths = []
+    for i in (0, 2):
+        paths.append(tmp_path / f"k{i}.ply")
+        trimesh.Trimesh(V[i], F, process=False).export(paths[-1])
+    out = tmp_path / "out"
+    assert main(["interpolate", *map(str, paths), "--frames", "0,4", "-o", str(out),
+                 "--format", "glb", "--method", "linear", "-q"]) == 0
+    assert glb_up_axis(out / "animation.glb") == "z"
