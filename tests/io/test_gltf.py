@@ -277,7 +277,6 @@ def test_interpolate_glb_output_of_z_up_input_stands(tmp_path):
     """The CLI writes a GLB of PLY keyframes (z-up by convention) with the z-up rotation."""
     from shellspline.cli.main import main
     from shellspline.io.gltf import glb_up_axis
-    from shellspline.io.usd import conventional_up_axis
 
     V, F = _sequence(2)
     paths = []
