@@ -1510,6 +1510,17 @@ def close_euclidean(X, *, iterations: int = 10, tol: float = 1e-12):
     return X[0] + np.vstack([np.zeros((1, X.shape[1])), np.cumsum(inc, axis=0)]), np.array(hist)
 
 
+def _mesh_curve_pair(Vs0, Vs1, F):
+    """Two animations of one mesh, validated, and their LΘA curves weighted alike (at the
+    first frame of ``Vs0``): ``(Vs0, Vs1, c0, c1)``."""
+    Vs0, Vs1 = _mesh_frames(Vs0, "Vs0"), _mesh_frames(Vs1, "Vs1")
+    if Vs0.shape[1] != Vs1.shape[1]:
+        raise ShellsplineError(f"Vs0 and Vs1 must be frames of one mesh, got {Vs0.shape[1]} "
+                               f"and {Vs1.shape[1]} vertices")
+    c0 = mesh_curve(Vs0, F)
+    return Vs0, Vs1, c0, mesh_curve(Vs1, F, T=c0.T, reference=Vs0[0])
+
+
 def mesh_align(Vs0, Vs1, F, *, features=None, **kw):
     """The warp ``phi`` (normalised times) with ``Vs1(phi(t))`` matching ``Vs0(t)`` in LΘA
     space: :func:`shellspline.curves.align.align` on the weighted descriptor curves
@@ -1517,9 +1528,7 @@ def mesh_align(Vs0, Vs1, F, *, features=None, **kw):
     times. Returns the :class:`~shellspline.curves.align.AlignResult`."""
     from .curves.align import align as align_curves
 
-    Vs0, Vs1 = _mesh_frames(Vs0, "Vs0"), _mesh_frames(Vs1, "Vs1")
-    c0 = mesh_curve(Vs0, F)
-    c1 = mesh_curve(Vs1, F, T=c0.T, reference=Vs0[0])
+    _, _, c0, c1 = _mesh_curve_pair(Vs0, Vs1, F)
     if features is not None:
         P = np.asarray(features, dtype=np.float64).reshape(-1, 2)
         kw.setdefault("lam", FEATURE_WEIGHT)
@@ -1555,12 +1564,7 @@ def mesh_blend(Vs0, Vs1, F, s: float = 0.5, *, align: str = "dp", features=None,
 
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
-    Vs0, Vs1 = _mesh_frames(Vs0, "Vs0"), _mesh_frames(Vs1, "Vs1")
-    if Vs0.shape[1] != Vs1.shape[1]:
-        raise ShellsplineError(f"Vs0 and Vs1 must be frames of one mesh, got {Vs0.shape[1]} "
-                               f"and {Vs1.shape[1]} vertices")
-    c0 = mesh_curve(Vs0, F)
-    c1 = mesh_curve(Vs1, F, T=c0.T, reference=Vs0[0])
+    Vs0, Vs1, c0, c1 = _mesh_curve_pair(Vs0, Vs1, F)
     p0, p1 = c0.product_curve(), c1.product_curve()
     rep = None
     if align == "dp":
@@ -1595,12 +1599,7 @@ def mesh_distance(Vs0, Vs1, F, *, align: str = "dp", **kw) -> float:
 
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
-    Vs0, Vs1 = _mesh_frames(Vs0, "Vs0"), _mesh_frames(Vs1, "Vs1")
-    if Vs0.shape[1] != Vs1.shape[1]:
-        raise ShellsplineError(f"Vs0 and Vs1 must be frames of one mesh, got {Vs0.shape[1]} "
-                               f"and {Vs1.shape[1]} vertices")
-    c0 = mesh_curve(Vs0, F)
-    c1 = mesh_curve(Vs1, F, T=c0.T, reference=Vs0[0])
+    Vs0, Vs1, c0, c1 = _mesh_curve_pair(Vs0, Vs1, F)
     p0, p1 = c0.product_curve(), c1.product_curve()
     if align == "none":
         return srv_distance(p0, reparametrize(p1, p0.t, p0.t))
