@@ -104,7 +104,7 @@ def _build_parser() -> argparse.ArgumentParser:
                                             "animations.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     sub = p.add_subparsers(dest="command")
-    q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF)",
+    q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF/USD)",
                        description="Interpolate keyframes of one triangle mesh (same "
                                    "connectivity) and write OUT/frame_0000.obj ... plus "
                                    "OUT/report.json.",
@@ -113,7 +113,9 @@ def _build_parser() -> argparse.ArgumentParser:
                               "input or usage, or an I/O error on your paths; 3 internal "
                               f"error (a bug; {DEBUG_ENV}=1 prints the traceback); 130/143 "
                               "interrupted by SIGINT/SIGTERM")
-    q.add_argument("keyframes", nargs="+", help="keyframe mesh files, in time order")
+    q.add_argument("keyframes", nargs="+",
+                   help="keyframe mesh files, in time order, or one USD file whose mesh has "
+                        "time-sampled points (one keyframe per sample)")
     q.add_argument("-o", "--out", required=True, help="output directory (created atomically)")
     g = q.add_mutually_exclusive_group()
     g.add_argument("--frames", help="keyframe frames, e.g. 0,10,20 (or a file of integers)")
@@ -294,7 +296,7 @@ def _interpolate(args) -> int:
     check_output_dir(args.out, n_frames=K_out + 1, n_vertices=kf.n, n_faces=kf.m,
                         fmt=args.format, overwrite=args.overwrite, protect=protect)
     if not args.quiet:
-        print(f"shellspline {__version__}: {len(args.keyframes)} keyframes, "
+        print(f"shellspline {__version__}: {kf.J} keyframes, "
               f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)
         if kf.source is not None:
             print(f"  input: {_source_line(kf.source.summary())}", file=sys.stderr)

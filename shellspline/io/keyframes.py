@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MeshError, one_line, tol
+from ..errors import MeshError, ShellsplineError, one_line, tol
 from ..mesh.geometry import cross
 from ..mesh.source_mesh import SourceMesh, solve_mesh
 from ..mesh.topology import Topology, topology
-from .meshes import check_indices, polygon_offsets, read_polygons
+from .meshes import MESH_EXTENSIONS, check_indices, polygon_offsets, read_polygons
+from .usd import USD_EXTENSIONS
 
 __all__ = ["Keyframes", "read_keyframes", "keyframes_from_arrays", "read_indices", "read_frames"]
 
@@ -127,12 +128,16 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
 
     Parameters
     ----------
-    paths : sequence of str or path-like
-        One mesh file per keyframe (OBJ, PLY or OFF; formats may be mixed), in time order.
-        Every keyframe has the same polygons (triangles, quads, n-gons).
+    paths : sequence of str or path-like, or one USD file
+        One mesh file per keyframe (OBJ, PLY, OFF, or a USD file ``.usd``/``.usda``/``.usdc``
+        holding one mesh with one pose; formats may be mixed), in time order. Every keyframe
+        has the same polygons (triangles, quads, n-gons). A single USD file holding one mesh
+        whose points are time-sampled is a keyframe sequence: one keyframe per time sample
+        (:func:`shellspline.io.usd.read_usd`, world space).
     frames : (J,) int array-like, str or path, optional
         Frame index of each keyframe: non-negative, strictly increasing integers. A string
-        or path is parsed by :func:`read_frames`. ``None`` leaves the choice to the caller.
+        or path is parsed by :func:`read_frames`. ``None`` leaves the choice to the caller,
+        except for a single USD file: its time codes less the first (whole numbers apart).
     pinned : (p,) int array-like, (n,) bool mask, str or path, optional
         Vertices to hold fixed (numbered as in the files); a string or path is read with
         :func:`read_indices`.
@@ -154,7 +159,12 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
         range, a polygon repeating a vertex or that cannot be triangulated, an edge that
         stays non-manifold after fins are set aside, inconsistent orientation, degenerate
         (zero-area) faces, NaN/inf or overflowing coordinates, fewer than two keyframes, bad
-        ``frames`` or ``pinned`` (or a pinned vertex that is set aside).
+        ``frames`` or ``pinned`` (or a pinned vertex that is set aside); for USD: no mesh or
+        more than one, a topology that changes over time, several poses in a file of a list,
+        time samples not whole frames apart.
+    UsdUnavailableError
+        For a USD file when ``pxr`` is not installed (extra ``usd``; a
+        :class:`~shellspline.errors.ShellsplineError` and an ImportError).
 
     Examples
     --------
@@ -173,13 +183,15 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
         paths = [paths]
     paths = list(paths)
     names = [str(p) for p in paths]
+    if len(paths) == 1 and Path(paths[0]).suffix.lower() in USD_EXTENSIONS:
+        return _usd_keyframes(paths[0], frames, pinned)
     if len(paths) < 2:
         got = f" ('{names[0]}')" if names else ""
         raise MeshError(f"need at least 2 keyframes, got {len(paths)}{got}")
     frames = _canonical_frames(frames, len(paths))
     Vs: list[np.ndarray] = []
     for j, p in enumerate(paths):
-        V, offsets, indices, uv = read_polygons(p)
+        V, offsets, indices, uv = _read_pose(p)
         _check_not_empty(V, offsets[:-1], names[j])
         if j == 0:
             off0, idx0, uv0 = offsets, indices, uv
@@ -190,6 +202,62 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
             check_same_polygons(offsets, indices, off0, idx0, names[j], names[0])
         Vs.append(V)
     return _validated(np.stack(Vs), off0, idx0, frames, names, pinned, uv0)
+
+
+def _read_usd(path):
+    """:func:`shellspline.io.usd.read_usd` with its problems as :class:`MeshError` (a missing
+    ``pxr`` stays a :class:`~shellspline.io.usd.UsdUnavailableError`)."""
+    from .usd import UsdUnavailableError, read_usd
+
+    try:
+        return read_usd(path)
+    except UsdUnavailableError:
+        raise
+    except ShellsplineError as exc:
+        raise MeshError(str(exc)) from None
+
+
+def _read_pose(path):
+    """One keyframe file: ``(V (n,3), offsets, indices, uv or None)``; a USD file must hold
+    one pose (its points with at most one time sample)."""
+    ext = Path(path).suffix.lower()
+    if ext not in USD_EXTENSIONS:
+        if ext not in MESH_EXTENSIONS:
+            raise MeshError(f"cannot read '{path}': unknown extension '{Path(path).suffix}' "
+                            f"(supported: {', '.join(MESH_EXTENSIONS + USD_EXTENSIONS)})")
+        return read_polygons(path)
+    V, offsets, indices, info = _read_usd(path)
+    if V.shape[0] != 1:
+        raise MeshError(f"'{path}' holds {V.shape[0]} poses (time samples of "
+                        f"{info['prim']}.points): give it alone to read them as the keyframes, "
+                        "or one pose per file")
+    return V[0], offsets, indices, None
+
+
+def _usd_keyframes(path, frames, pinned) -> Keyframes:
+    """The keyframes of one USD file: every time sample of its mesh's points is one, at frames
+    counted from the first sample's time code unless ``frames`` is given."""
+    V, offsets, indices, info = _read_usd(path)
+    T = V.shape[0]
+    if T < 2:
+        raise MeshError(f"need at least 2 keyframes, got 1 ('{path}': {info['prim']}.points "
+                        f"has {len(info['times'])} time samples)")
+    if frames is None:
+        at = np.asarray(info["times"], dtype=np.float64)
+        rel = at - at[0]
+        frames = np.rint(rel).astype(np.int64)
+        if np.abs(rel - frames).max() > 1e-6:
+            raise MeshError(f"'{path}': the time samples lie at {np.round(at, 3).tolist()[:6]}, "
+                            "not whole frames apart; give the keyframe frames")
+    else:
+        if isinstance(frames, (str, os.PathLike)):
+            frames = read_frames(frames)
+        if np.size(frames) != T:
+            raise MeshError(f"'{path}' holds {T} poses (one keyframe each), but "
+                            f"{np.size(frames)} keyframe frames were given: "
+                            f"{np.ravel(frames).tolist()[:8]}")
+    names = [f"{path} time {t:g}" for t in info["times"]]
+    return _validated(V, offsets, indices, _canonical_frames(frames, T), names, pinned)
 
 
 def keyframes_from_arrays(V, F, frames=None, names=None, pinned=None) -> Keyframes:

@@ -201,7 +201,7 @@ def write_usd(path, V, F=None, *, polygons=None, fps: float = 24.0, up_axis: str
 
 
 def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """Read the first mesh of a USD stage with its time-sampled points.
+    """Read the one mesh of a USD stage with its time-sampled points.
 
     Parameters
     ----------
@@ -211,22 +211,31 @@ def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     -------
     V : (T,n,3) float64 numpy array
         Points at every authored time sample of ``points`` (in time order), or the default
-        value alone (``T = 1``) when there are no samples.
+        value alone (``T = 1``) when there are no samples; in world space (the prim's
+        local-to-world transform at each of these times applied, the identity for the
+        stages :func:`write_usd` writes).
     offsets : (p+1,) int64 numpy array
         Polygon offsets into ``indices``.
     indices : (c,) int64 numpy array
-        Polygon corners.
+        Polygon corners, counter-clockwise about the front side (a ``leftHanded`` mesh, or
+        one under a mirroring transform, has its corners reversed).
     info : dict
-        ``times`` (list of time codes), ``fps`` (``timeCodesPerSecond``), ``up_axis``
-        (``"Y"``/``"Z"``), ``prim`` (the mesh's path).
+        ``times`` (list of time codes; empty when ``points`` has no samples), ``fps``
+        (``timeCodesPerSecond``), ``up_axis`` (``"Y"``/``"Z"``), ``prim`` (the mesh's path).
 
     Raises
     ------
     ShellsplineError
-        If the file cannot be opened, holds no mesh, its mesh has no points or no faces, its
-        faces do not fit its points, or its points change length over time.
+        If the file cannot be opened, holds no mesh or more than one, its mesh has no points
+        or no faces, its faces do not fit its points, or its topology changes over time
+        (points changing in number, time-sampled faces that differ).
     UsdUnavailableError
         If ``pxr`` is not installed (an ImportError).
+
+    Notes
+    -----
+    Only the points' time samples are read: a rigid motion carried by a transform alone
+    (points without samples) is one pose.
     """
     Sdf, Usd, UsdGeom, Vt = _pxr()
     try:
@@ -236,21 +245,38 @@ def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
                                f"{str(exc).strip().splitlines()[-1]}") from None
     if stage is None:
         raise ShellsplineError(f"cannot open USD file '{path}'")
-    prim = next((q for q in stage.Traverse() if q.IsA(UsdGeom.Mesh)), None)
-    if prim is None:
+    prims = [q for q in stage.Traverse() if q.IsA(UsdGeom.Mesh)]
+    if not prims:
         raise ShellsplineError(f"'{path}' holds no Mesh prim")
+    if len(prims) > 1:
+        shown = ", ".join(str(q.GetPath()) for q in prims[:3]) + (", ..." if len(prims) > 3
+                                                                    else "")
+        raise ShellsplineError(f"'{path}' holds {len(prims)} Mesh prims ({shown}); one mesh "
+                               "per file is read")
+    prim = prims[0]
     mesh = UsdGeom.Mesh(prim)
     pts = mesh.GetPointsAttr()
-    times = pts.GetTimeSamples()
-    values = [pts.Get(Usd.TimeCode(t)) for t in times] if times else [pts.Get()]
+    times = list(pts.GetTimeSamples())
+    codes = [Usd.TimeCode(t) for t in times] or [Usd.TimeCode.Default()]
+    values = [pts.Get(c) for c in codes]
     if any(v is None for v in values):
         raise ShellsplineError(f"'{path}': the mesh {prim.GetPath()} has no points")
     frames = [np.asarray(v, dtype=np.float64).reshape(-1, 3) for v in values]
-    if len({f.shape for f in frames}) != 1:
-        raise ShellsplineError(f"'{path}': the points of {prim.GetPath()} change in number "
-                               "over time")
-    counts, indices = (mesh.GetFaceVertexCountsAttr().Get(),
-                       mesh.GetFaceVertexIndicesAttr().Get())
+    sizes = sorted({f.shape[0] for f in frames})
+    if len(sizes) != 1:
+        raise ShellsplineError(f"'{path}': the topology of {prim.GetPath()} changes over time "
+                               f"(its points change in number: {sizes[0]}..{sizes[-1]})")
+    faces = []
+    for attr in (mesh.GetFaceVertexCountsAttr(), mesh.GetFaceVertexIndicesAttr()):
+        samples = attr.GetTimeSamples()
+        first = attr.Get(codes[0])
+        if first is not None and len(samples) > 1 and any(
+                not np.array_equal(np.asarray(attr.Get(t)), np.asarray(first))
+                for t in samples):
+            raise ShellsplineError(f"'{path}': the topology of {prim.GetPath()} changes over "
+                                   f"time ({attr.GetName()} differs between time samples)")
+        faces.append(first)
+    counts, indices = faces
     if counts is None or indices is None or len(counts) == 0:
         raise ShellsplineError(f"'{path}': the mesh {prim.GetPath()} has no faces "
                                "(faceVertexCounts / faceVertexIndices)")
@@ -264,6 +290,15 @@ def read_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
                                f"{indices.size} corner indices in [{indices.min()}, "
                                f"{indices.max()}] for {n} points")
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    info = {"times": list(times), "fps": stage.GetTimeCodesPerSecond(),
+    V = np.stack(frames)
+    xf = UsdGeom.Xformable(prim)
+    M = np.stack([np.array(xf.ComputeLocalToWorldTransform(c)) for c in codes])  # row vectors
+    if not np.array_equal(M, np.broadcast_to(np.eye(4), M.shape)):
+        V = np.einsum("kni,kij->knj", V, M[:, :3, :3]) + M[:, None, 3, :3]
+    mirrored = np.linalg.det(M[0, :3, :3]) < 0
+    if (mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded) != mirrored:
+        poly = np.repeat(np.arange(counts.size), counts)
+        indices = indices[offsets[poly] + offsets[poly + 1] - 1 - np.arange(indices.size)]
+    info = {"times": times, "fps": stage.GetTimeCodesPerSecond(),
             "up_axis": str(UsdGeom.GetStageUpAxis(stage)), "prim": str(prim.GetPath())}
-    return np.stack(frames), offsets, indices, info
+    return V, offsets, indices, info
