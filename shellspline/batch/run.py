@@ -63,7 +63,9 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
     ------
     ShellsplineError
         Before anything runs: the output root is locked by another run, Dask is missing, the
-        scheduler cannot be reached.
+        scheduler cannot be reached, renders/plots need the viz extra, ``formats`` holds
+        ``"usd"`` and ``pxr`` is missing (a
+        :class:`~shellspline.io.usd.UsdUnavailableError`).
     """
     t0 = time.perf_counter()
     ex, scheduler = _checked_options(job, workers, scheduler, executor, write_expected)
@@ -106,6 +108,7 @@ def _checked_options(job, workers, scheduler, executor, write_expected):
         scheduler = job.scheduler
     ex = make_executor(executor or ("dask" if scheduler else job.executor), workers, scheduler)
     _check_viz_available(job)
+    _check_usd_available(job)
     if write_expected and (job.regression is None or job.regression["expected_path"] is None):
         raise ShellsplineError(f"{job.path}: --write-expected needs a [regression] section "
                                "whose 'expected' is a JSON file")
@@ -131,6 +134,22 @@ def _check_viz_available(job: Job) -> None:
     if missing:
         raise ShellsplineError(f"{job.path}: render/plots need {', '.join(missing)}: pip "
                                'install "shellspline[viz]"')
+
+
+def _check_usd_available(job: Job) -> None:
+    """``formats = ["usd"]`` needs the usd extra: fail before anything runs (nothing written),
+    in one line, rather than failing every sequence after its solve."""
+    wanting = [s.name for s in job.sequences if "usd" in s.formats]
+    if not wanting:
+        return
+    from ..io.usd import UsdUnavailableError, require_usd
+
+    try:
+        require_usd()
+    except UsdUnavailableError as exc:
+        more = f" and {len(wanting) - 1} more" if len(wanting) > 1 else ""
+        raise UsdUnavailableError(f"{job.path}: formats \"usd\" (sequence {wanting[0]}{more}) "
+                                  f"needs the usd extra: {exc}") from None
 
 
 def _prepared_root(root: Path) -> Path:

@@ -599,3 +599,18 @@ def test_a_task_that_runs_twice_does_not_rewrite_or_duplicate(tmp_path):
     assert forced["status"] == "done" and forced["reason"] == ""
     assert json.loads((out / "manifest.json").read_text())["run"] == "run-2"
     assert sorted(q.name for q in (tmp_path / "out").iterdir()) == ["t"]
+
+
+def test_missing_usd_extra_fails_the_batch_up_front(tmp_path, capsys, monkeypatch):
+    """``formats = ["usd"]`` without pxr: one line, exit 2, nothing written (not one failure
+    per sequence after its solve)."""
+    monkeypatch.setitem(sys.modules, "pxr", None)  # import pxr (what require_usd does) fails
+    p = _synth_job(tmp_path, ["a", "b"], defaults='formats = ["obj", "usd"]')
+    rc, err = _cli(capsys, p)
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "job.toml" in err and "sequence a and 1 more" in err and "shellspline[usd]" in err
+    assert "internal error" not in err
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(ImportError, match=r"shellspline\[usd\]"):  # the library alike
+        batch.run_batch(ss.load_job(p))
+    assert not (tmp_path / "out").exists()
