@@ -1133,7 +1133,7 @@ def render_strip(source, path, frames=None, columns=None, window_size=(240, 240)
 
 
 def export_glb(source, path, *, fps: float = 24.0, frames=None,
-               interpolation: str = "LINEAR") -> Path:
+               interpolation: str = "LINEAR", up=None) -> Path:
     """Write a source as a GLB morph-target animation (see :mod:`shellspline.io.gltf`).
 
     Parameters
@@ -1145,6 +1145,10 @@ def export_glb(source, path, *, fps: float = 24.0, frames=None,
     frames : (p,) int array-like, optional
         Frames to export (in this order), default all.
     interpolation : {"LINEAR", "STEP"}
+    up : {"x", "y", "z"}, optional
+        The up axis of the source's coordinates (default :func:`scene_up_axis`, as for the
+        renders): the node gets the rotation that turns it onto glTF's +y
+        (:data:`shellspline.io.gltf.UP_ROTATIONS`).
 
     Returns
     -------
@@ -1153,10 +1157,10 @@ def export_glb(source, path, *, fps: float = 24.0, frames=None,
     from .io.gltf import glb_bytes
 
     seq = load_source(source)
+    up_axis = scene_up_axis(seq) if up is None else checked_up(up)
     checked_output(path, (".glb",), [seq], "GLB")
     V = seq.V if frames is None else seq.V[checked_frames(frames, seq.K)]
-    data = glb_bytes(V, seq.F, fps=fps, interpolation=interpolation,
-                     up_axis=scene_up_axis(seq))
+    data = glb_bytes(V, seq.F, fps=fps, interpolation=interpolation, up_axis=up_axis)
     return _write_atomically(path, lambda tmp: tmp.write_bytes(data), [seq], (".glb",), "GLB")
 
 

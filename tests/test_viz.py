@@ -551,3 +551,33 @@ def test_cli_up_option(outdir, tmp_path, capsys):
     with pytest.raises(SystemExit):  # argparse: not one of x, y, z
         main(["render", str(outdir), "--strip", str(tmp_path / "t.png"), "--up", "w"])
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_render_glb_follows_the_up_override(seq, tmp_path):
+    """``render --glb`` gives the GLB the up rotation of ``--up`` (as the rendered views use
+    it), and of the files' convention without it."""
+    from shellspline.cli.main import main
+    from shellspline.io.gltf import UP_ROTATIONS, glb_up_axis, read_glb
+
+    V, F = seq
+    d = ss.write_sequence(tmp_path / "ply", V, F, fmt="ply")  # PLY frames: z-up by convention
+    assert viz.scene_up_axis(d) == "z"
+    for up, want in ((None, "z"), ("y", "y"), ("x", "x"), ("z", "z")):
+        glb = tmp_path / f"up_{up}.glb"
+        assert main(["render", str(d), "--glb", str(glb), "-q"]
+                    + ([] if up is None else ["--up", up])) == 0
+        assert glb_up_axis(glb) == want
+        np.testing.assert_allclose(read_glb(glb)[0], V, atol=1e-6)  # data in the input's axes
+    # the rotation itself: the chosen up axis becomes glTF's +y (independent of glb_up_axis)
+    import json
+    import struct
+
+    raw = (tmp_path / "up_x.glb").read_bytes()
+    (jlen,) = struct.unpack_from("<I", raw, 12)
+    q = json.loads(raw[20:20 + jlen])["nodes"][0]["rotation"]
+    from scipy.spatial.transform import Rotation
+
+    np.testing.assert_allclose(Rotation.from_quat(q).apply([1, 0, 0]), [0, 1, 0], atol=1e-7)
+    assert q == list(UP_ROTATIONS["x"])
+    with pytest.raises(ss.ShellsplineError, match="up must be"):
+        ss.export_glb(d, tmp_path / "bad.glb", up="w")

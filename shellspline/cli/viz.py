@@ -61,7 +61,7 @@ def add_parsers(sub) -> None:
     r.add_argument("--view", default="iso", help="camera direction: iso, front, side, top")
     r.add_argument("--up", choices=["x", "y", "z"],
                    help="the scene's up axis (default from the files: OBJ and glTF y, USD its "
-                        "metadata, PLY/OFF z)")
+                        "metadata, PLY/OFF z); also the up rotation of the --glb")
     r.add_argument("--no-labels", action="store_true", help="no frame numbers in the images")
     c = r.add_argument_group("camera path (GIF, MP4 and strip; replaces --view and --up)")
     c.add_argument("--camera-path", metavar="FILE",
@@ -161,7 +161,7 @@ def _render(args) -> int:
                                annotate=annotate, up=args.up, camera_path=camera)
         _say(args, f"wrote {out}")
     if args.glb:
-        out = viz.export_glb(seq, args.glb, fps=args.fps, frames=frames)
+        out = viz.export_glb(seq, args.glb, fps=args.fps, frames=frames, up=args.up)
         _say(args, f"wrote {out}")
     return 0
 
