@@ -70,9 +70,60 @@ def test_gt_case_small_clip(bench):
         else:  # keyframes bit-exact
             assert at_keys == [0, 0, 0]
         assert m["err"] > 0
+    for name in ("cubic-discrete", "rig"):  # diagnostics: through the keyframes
+        assert max(rec["methods"][name]["err_per_frame"][k] for k in (0, 6, 12)) < 1e-9
+    # the paper's time-discrete spline per vertex is a spline too: near the cubic
+    assert rec["methods"]["cubic-discrete"]["err"] == pytest.approx(
+        rec["methods"]["cubic"]["err"], rel=0.1)
     assert set(rec["where"]) == {"lta"}
     # lta@cubic: the same shapes, moved rigidly: identical shape error
     assert rec["methods"]["lta@cubic"]["shape"] == pytest.approx(rec["methods"]["lta"]["shape"],
                                                                 rel=1e-9)
     # linear blending of a rotating chain is worse than the cubic through 3 keyframes
     assert rec["methods"]["cubic"]["err"] < rec["methods"]["linear"]["err"]
+
+
+def _chain_motion(values):
+    """A 3-joint chain: root (position + Z rotation), two children rotating about X."""
+    from shellspline.io.bvh import Motion
+
+    return Motion(("root", "a", "b"), [-1, 0, 1], [[0, 0, 0], [0, 1, 0], [0, 1.5, 0]],
+                  (("Xposition", "Yposition", "Zposition", "Zrotation"), ("Xrotation",),
+                   ("Xrotation",)), 1 / 30, values)
+
+
+def test_rig_interpolation_exact_on_constant_joint_velocities(bench):
+    # every local rotation at a constant angular velocity about a fixed axis and the root
+    # travelling at constant speed: the natural SO(3) and R^3 splines are exact, so the
+    # interpolated rig is the clip's forward kinematics at every frame (independent oracle:
+    # io.bvh.forward_kinematics of the clip itself)
+    from shellspline.io.bvh import forward_kinematics
+
+    t = np.arange(25.0)[:, None]
+    vals = np.hstack([0.5 * t, 0.1 * t, -0.2 * t + 3, 4.0 * t, 7.0 * t - 30, -5.0 * t + 10])
+    motion = _chain_motion(vals)
+    win = np.arange(3, 22)
+    P, R = bench.rig_interpolation(motion, win, np.arange(0, 19, 6))
+    P0, R0 = forward_kinematics(motion)
+    np.testing.assert_allclose(P, P0[win], atol=1e-9)
+    np.testing.assert_allclose(R, R0[win], atol=1e-9)
+
+
+def test_rig_interpolation_through_keyframes_not_exact_between(bench):
+    from shellspline.io.bvh import forward_kinematics
+
+    t = np.arange(19.0)[:, None]
+    vals = np.hstack([np.sin(t / 3), 0 * t, 0 * t, 40 * np.sin(t / 4), 60 * np.cos(t / 5),
+                      30 * np.sin(t / 2)])
+    motion = _chain_motion(vals)
+    frames = np.arange(0, 19, 6)
+    P, R = bench.rig_interpolation(motion, np.arange(19), frames)
+    P0, R0 = forward_kinematics(motion)
+    np.testing.assert_allclose(P[frames], P0[frames], atol=1e-9)
+    np.testing.assert_allclose(R[frames], R0[frames], atol=1e-9)
+    assert np.abs(P - P0).max() > 1e-3  # a spline, not a copy of the clip
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-9)  # rotations, not blends
+    # a joint turning by half a turn between keyframes: no SO(3) spline, no rig row
+    fast = vals.copy()
+    fast[:, 3] = 30.0 * np.arange(19)
+    assert bench.rig_interpolation(_chain_motion(fast), np.arange(19), frames) is None
