@@ -59,6 +59,10 @@ Run
     PYTHONPATH=. python3 benchmarks/bench_real.py --quick      # smaller windows, coarse horse
     PYTHONPATH=. python3 benchmarks/bench_real.py              # full (~8-15 minutes)
     PYTHONPATH=. python3 benchmarks/bench_real.py --no-horse --clips walk_normal
+    PYTHONPATH=. python3 benchmarks/bench_real.py --no-horse --clips run_normal --start 0
+
+``--start`` moves the window (default: the middle of the clip), so that the keyframes fall on
+other phases of the motion: one window is one sample of where the keyframes happen to land.
 
 The tables go to stdout, everything to ``benchmarks/results/bench_real.json`` (``--json``).
 A benchmark, not a test: nothing is asserted.
@@ -149,8 +153,9 @@ def ground_truth_errors(X, truth, inner, size) -> dict:
 
 
 def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
-            coarse: bool, cold: bool = False) -> dict:
-    """All methods on one clip: the true window, keyframes every ``step`` frames."""
+            coarse: bool, cold: bool = False, start: int | None = None) -> dict:
+    """All methods on one clip: the true window (from frame ``start``, default the middle of
+    the clip), keyframes every ``step`` frames."""
     import shellspline
     from scipy.interpolate import CubicSpline
 
@@ -160,7 +165,11 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
 
     motion = read_bvh(path)
     K = (min(window, motion.n_frames - 1) // 6) * 6
-    start = (motion.n_frames - (K + 1)) // 2
+    if start is None:
+        start = (motion.n_frames - (K + 1)) // 2
+    elif not 0 <= start <= motion.n_frames - (K + 1):
+        raise SystemExit(f"--start {start}: {path.name} has {motion.n_frames} frames, a window "
+                         f"of {K + 1} starts at 0 .. {motion.n_frames - (K + 1)}")
     win = np.arange(start, start + K + 1)
     body, t_body = _timed(skinned_body, motion, n_vertices=n_vertices)
     b = body["bind_frame"]
@@ -402,6 +411,10 @@ def main(argv=None) -> int:
                          "starts from the keyframe blend)")
     ap.add_argument("--clips", nargs="+", metavar="NAME",
                     help="only the BVH clips whose file name contains one of these")
+    ap.add_argument("--start", type=int, default=None, metavar="FRAME",
+                    help="ground truth: first clip frame of the window (default: the window "
+                         "in the middle of the clip); other starts sample other phases of "
+                         "the motion against the keyframes")
     ap.add_argument("--window", type=int, default=None,
                     help="frames per ground-truth window (default 60, --quick 30)")
     ap.add_argument("--vertices", type=int, default=None,
@@ -423,7 +436,8 @@ def main(argv=None) -> int:
         for c in clips:
             print(f"... {c.name}", flush=True)
             result["ground_truth"].append(gt_case(c, window, n_vertices, (3, 6), args.workers,
-                                                  coarse=not args.quick, cold=args.cold))
+                                                  coarse=not args.quick, cold=args.cold,
+                                                  start=args.start))
         if result["ground_truth"]:
             print("\nGround truth (errors in ‰ of the body size; flip/coll/fold: new defects)")
             print(gt_tables(result["ground_truth"]))

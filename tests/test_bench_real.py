@@ -127,3 +127,9 @@ def test_rig_interpolation_through_keyframes_not_exact_between(bench):
     fast = vals.copy()
     fast[:, 3] = 30.0 * np.arange(19)
     assert bench.rig_interpolation(_chain_motion(fast), np.arange(19), frames) is None
+
+
+def test_gt_case_start_out_of_the_clip_refused(bench):
+    path = shared_data("motion", "sinusoidal.bvh")
+    with pytest.raises(SystemExit, match="--start 100000: sinusoidal.bvh has"):
+        bench.gt_case(path, 12, 400, (6,), 1, False, start=100000)
