@@ -83,11 +83,10 @@ def sequence_metrics(V, keyframes_V, frames, report) -> dict:
 def quality_warning(report: dict) -> str:
     """One line listing the quality or convergence problems of an interpolation report
     ("" when there are none)."""
+    from ..pipeline.report import convergence_problems
+
     q = report.get("quality", {})
-    gn = report.get("gauss_newton")
-    parts = []
-    if gn and gn["converged"] != gn["frames"]:
-        parts.append(f"Gauss–Newton converged on {gn['converged']}/{gn['frames']} frames")
+    parts = convergence_problems(report)
     if not q.get("keyframes_exact", True):
         parts.append("keyframes not reproduced exactly")
     for key, what in (("flipped_faces", "flipped faces"), ("collapsed_faces", "collapsed faces"),
@@ -96,9 +95,6 @@ def quality_warning(report: dict) -> str:
             parts.append(f"{q[key]} {what}")
     if q.get("pop", 0.0) > q.get("pop_limit", float("inf")):
         parts.append(f"a pop of {q['pop']:.1f}x the neighbouring steps at frame {q['pop_frame']}")
-    for name in ("geodesic", "nonlinear"):
-        if name in report and not report[name]["success"]:
-            parts.append(f"{name} did not converge")
     return "; ".join(parts)
 
 

@@ -390,6 +390,13 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
                 fr = gn[key]
                 line += f"; {what}: frames {fr[:8]}{' …' if len(fr) > 8 else ''}"
         lines.append(line)
+    from ..pipeline.report import convergence_problems, quality_ok, start_frames_note
+
+    note = start_frames_note(rep)
+    if note:
+        not_done = list(gn.get("iteration_limit", [])) + list(gn.get("stalled", []))
+        lines.append(f"{note} (frames {not_done[:8]}{' …' if len(not_done) > 8 else ''}); "
+                     "they only start the nonlinear stage, whose result is written")
     line = (f"quality: keyframes exact={q['keyframes_exact']}, new flipped faces "
             f"{q['flipped_faces']}, collapsed {q.get('collapsed_faces', 0)}, folded edges "
             f"{q.get('folded_edges', 0)}, degenerate {q['degenerate_faces']}, pop "
@@ -407,10 +414,7 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
                          f"{r['grad_norm_final'] / r['grad_norm_initial']:.1e} in "
                          f"{r['seconds']:.1f} s")
             lines.append(line)
-    from ..pipeline.report import quality_ok
-
-    ok = quality_ok(q) and (not gn or gn["converged"] == gn["frames"]) and \
-        all(rep[name]["success"] for name in ("geodesic", "nonlinear") if name in rep)
+    ok = quality_ok(q) and not convergence_problems(rep)
     if not quiet:
         print("\n".join(lines), file=sys.stderr)
     return EXIT_OK if ok else EXIT_WARN

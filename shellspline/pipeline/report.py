@@ -24,7 +24,7 @@ from ..version import __version__
 
 __all__ = ["start_report", "energies_record", "finish_report", "sequence_quality", "quality_record", "quality_ok",
            "sequence_energies", "gauss_newton_summary", "nonlinear_record", "fixpoint_change",
-           "POP_LIMIT"]
+           "convergence_problems", "start_frames_note", "POP_LIMIT"]
 
 
 def sequence_quality(V, T: Topology, frames) -> dict:
@@ -92,6 +92,62 @@ def quality_ok(quality: dict) -> bool:
                 and not quality.get("collapsed_faces", 0) and not quality.get("folded_edges", 0)
                 and not quality["degenerate_faces"]
                 and quality.get("pop", 0.0) <= quality.get("pop_limit", POP_LIMIT))
+
+
+def convergence_problems(report: dict) -> list[str]:
+    """The solver failures that decide whether an interpolation succeeded (``[]``: none).
+
+    The solver whose result is the output decides: the nonlinear stage for
+    ``method="nonlinear"`` (its Gauss–Newton frames are only its starting path, see
+    :func:`start_frames_note`), else the Gauss–Newton frames and the geodesic solve.
+
+    Parameters
+    ----------
+    report : dict
+        An interpolation report (``report.json``).
+
+    Returns
+    -------
+    list of str
+        One short phrase per failure, e.g. ``"nonlinear did not converge"``.
+
+    Examples
+    --------
+    >>> gn = {"frames": 4, "converged": 3, "stalled": [], "iteration_limit": [2]}
+    >>> convergence_problems({"gauss_newton": gn})
+    ['Gauss–Newton converged on 3/4 frames']
+    >>> convergence_problems({"gauss_newton": gn, "nonlinear": {"success": True}})
+    []
+    """
+    out = []
+    gn = report.get("gauss_newton")
+    if gn and gn["converged"] != gn["frames"] and "nonlinear" not in report:
+        out.append(f"Gauss–Newton converged on {gn['converged']}/{gn['frames']} frames")
+    for name in ("geodesic", "nonlinear"):
+        if name in report and not report[name]["success"]:
+            out.append(f"{name} did not converge")
+    return out
+
+
+def start_frames_note(report: dict) -> str:
+    """For a nonlinear report whose starting frames (the LΘA Gauss–Newton solves) did not all
+    converge, what happened to them, e.g. ``"start frames: 2 at the iteration limit"``; ``""``
+    otherwise (they do not decide success: :func:`convergence_problems`).
+
+    Examples
+    --------
+    >>> start_frames_note({"gauss_newton": {"frames": 4, "converged": 2, "stalled": [3],
+    ...                                     "iteration_limit": [1]}, "nonlinear": {}})
+    'start frames: 1 at the iteration limit, 1 stalled'
+    """
+    gn = report.get("gauss_newton")
+    if "nonlinear" not in report or not gn or gn["converged"] == gn["frames"]:
+        return ""
+    limit, stalled = len(gn.get("iteration_limit", [])), len(gn.get("stalled", []))
+    other = gn["frames"] - gn["converged"] - limit - stalled
+    parts = [f"{limit} at the iteration limit" if limit else "",
+             f"{stalled} stalled" if stalled else "", f"{other} failed" if other > 0 else ""]
+    return "start frames: " + ", ".join(x for x in parts if x)
 
 
 def sequence_energies(V, Z, T: Topology, bc: str, W, chunk: int | None = None) -> dict:
@@ -188,7 +244,9 @@ def finish_report(report: dict, V, frame_records, prob, opts, prog, t_start: flo
         report["gauss_newton"] = gauss_newton_summary(frame_records)
         failed = [r["frame"] for r in frame_records if not r["success"]]
         if failed:
-            prog.message(f"Gauss–Newton did not converge on frames {failed[:10]}"
+            start = "start frames of the nonlinear stage: " if opts.method == "nonlinear" \
+                else ""
+            prog.message(f"{start}Gauss–Newton did not converge on frames {failed[:10]}"
                          f"{' …' if len(failed) > 10 else ''}")
     report["timings"] = dict(prog.timings)
     report["timings"]["total"] = time.perf_counter() - t_start

@@ -175,6 +175,46 @@ def test_nonlinear_progress_lines_and_summary(ell_dir, tmp_path, capsys):
     assert len(summary) == 1 and f"|g|/|g0| {red:.1e}" in summary[0] and red <= 1e-6
 
 
+def test_nonlinear_exit_code_is_decided_by_the_nonlinear_stage(ell_dir, tmp_path, capsys):
+    """--method nonlinear writes the nonlinear result: LΘA start frames at --max-iter do not
+    make it exit 1 when the nonlinear stage converged (they stay in report.json and the
+    summary); a nonlinear stage that stalls still exits 1, and so does LΘA at --max-iter."""
+    from shellspline.batch.sequence import quality_warning
+
+    base = ["interpolate", *_poses(ell_dir), "--K", "4", "--eta", "0.1", "--max-iter", "1"]
+    out = tmp_path / "nl"
+    rc = main([*base, "--method", "nonlinear", "-o", str(out)])
+    err = capsys.readouterr().err
+    rep = json.loads((out / "report.json").read_text())
+    gn, nl = rep["gauss_newton"], rep["nonlinear"]
+    limit = gn["iteration_limit"]
+    assert limit and gn["converged"] < gn["frames"]  # the start frames did hit --max-iter
+    assert nl["success"] and nl["grad_norm_final"] <= 1e-6 * nl["grad_norm_initial"]
+    assert rc == 0, err
+    assert f"start frames: {len(limit)} at the iteration limit (frames {limit})" in err
+    assert quality_warning(rep) == ""  # batch: the same verdict
+    # the nonlinear stage stalls (ftol stop): exit 1 whatever the start frames did
+    rc = main([*base, "--method", "nonlinear", "--ftol", "1e-2", "-o", str(tmp_path / "st"),
+               "-q"])
+    rep = json.loads((tmp_path / "st" / "report.json").read_text())
+    assert not rep["nonlinear"]["success"] and rc == 1
+    assert "nonlinear did not converge" in quality_warning(rep)
+    # the nonlinear stage at its own iteration limit (library: solver_options): a problem
+    from shellspline.pipeline.report import convergence_problems
+
+    kf = ss.read_keyframes(_poses(ell_dir))
+    with pytest.warns(RuntimeWarning, match="maximum number of iterations"):
+        res = ss.interpolate(kf, K=4, method="nonlinear", eta=0.1, gn_options={"max_iter": 1},
+                             solver_options={"max_iter": 1})
+    assert not res.report["nonlinear"]["success"] and res.report["nonlinear"]["nit"] == 1
+    assert convergence_problems(res.report) == ["nonlinear did not converge"]
+    # without the nonlinear stage the Gauss–Newton frames are the output: exit 1
+    rc = main([*base, "-o", str(tmp_path / "lta"), "-q"])
+    rep = json.loads((tmp_path / "lta" / "report.json").read_text())
+    assert rep["gauss_newton"]["iteration_limit"] and rc == 1
+    assert "Gauss–Newton converged on" in quality_warning(rep)
+
+
 def test_progress_bar_on_a_terminal_draws_the_described_state():
     import io
 
