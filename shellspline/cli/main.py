@@ -157,6 +157,11 @@ def _build_parser() -> argparse.ArgumentParser:
                         "walks), along a C² SE(3) spline through the keyframes' rigid poses "
                         "(spline: exact for rigid turns, e.g. a circle), or onto the linear "
                         "blend (linear)")
+    q.add_argument("--fade-angle", type=float, default=0.5, metavar="RAD",
+                   help="an edge whose dihedral angle turns by more than RAD between the "
+                        "keyframes of a gap keeps 1%% of its bending weight there (skin "
+                        "folding at joints: removes jumps between local minima); 0 = the "
+                        "paper's weights (default 0.5)")
     q.add_argument("--rigid-subset", metavar="FILE",
                    help="file of vertex indices (like --pinned) that carry the rigid pose, "
                         "e.g. the torso: each keyframe's pose is their Kabsch fit and the "
@@ -305,7 +310,8 @@ def _interpolate(args) -> int:
                          workers=args.workers, gn_options=gn_options,
                          solver_options=solver_options, coarse=args.coarse, fine=args.fine,
                          fixpoint=args.fixpoint, rigid_track=args.rigid_track,
-                         rigid_subset=rigid_subset, progress=bar)
+                         rigid_subset=rigid_subset, fade_angle=args.fade_angle,
+                         progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     if res.source is not None:  # the input's polygons and numbering, written back

@@ -69,7 +69,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 pinned=None, workers: int = 1, gn_options: dict | None = None,
                 warm_start: bool = True, solver_options: dict | None = None,
                 coarse="auto", fine: bool = False, fixpoint: int = 0,
-                rigid_track: str = "fit", rigid_subset=None,
+                rigid_track: str = "fit", rigid_subset=None, fade_angle: float = 0.5,
                 progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
@@ -140,6 +140,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         onto the per-vertex C² cubic through the keyframes (``"fit"``), along a C² SE(3)
         spline through the keyframes' rigid poses (``"spline"``), or onto the per-vertex
         linear blend (``"linear"``); see :func:`placement_track`.
+    fade_angle : float
+        Radians. In each keyframe gap, an edge whose dihedral angle turns by more than this
+        between the gap's keyframes keeps 1 % of its bending weight in the reconstruction
+        (smoothly from half this turn; :func:`shellspline.pipeline.describe.bending_fade`):
+        skin that folds or unfolds at a joint otherwise makes the frames jump between two
+        local minima (pops, flipped faces). ``0`` keeps the paper's weights everywhere.
     rigid_subset : (s,) int array, optional
         Vertices that carry the rigid pose (e.g. the torso; at least 3, not on a line): each
         keyframe's pose for the ``"spline"`` track is the Kabsch fit of these vertices, and
@@ -168,7 +174,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                 reference=reference, workers=workers, gn_options=gn_options,
                                 warm_start=warm_start, solver_options=solver_options,
                                 coarse=coarse, fine=fine, fixpoint=fixpoint,
-                                rigid_track=rigid_track)
+                                rigid_track=rigid_track, fade_angle=fade_angle)
     kf = _keyframes(keyframes, prog)
     prob = interpolation_problem(opts, kf, frames=frames, K=K, pinned=pinned,
                                  rigid_subset=rigid_subset)

@@ -91,6 +91,7 @@ class InterpolationOptions:
     fine: bool = False
     fixpoint: int = 0
     rigid_track: str = "fit"
+    fade_angle: float = 0.5
 
     def __post_init__(self):
         put = object.__setattr__.__get__(self)
@@ -119,6 +120,11 @@ class InterpolationOptions:
         put("solver_options", dict(self.solver_options or {}))
         put("warm_start", bool(self.warm_start))
         put("fine", bool(self.fine))
+        fade = float(self.fade_angle) if self.fade_angle is not None else 0.0
+        if not np.isfinite(fade) or fade < 0:
+            raise ShellsplineError(f"`fade_angle` must be a finite non-negative angle in "
+                                   f"radians, got {self.fade_angle!r}")
+        put("fade_angle", fade)
 
     @property
     def periodic(self) -> bool:

@@ -179,6 +179,8 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
             V[k] = results[k][0]
         V = _placed(V, Vkey, T, pinned, prob, opts)
     seq = StageResult(V=V, Z=Z, W=tg.W_report, frame_records=[results[k][1] for k in ks])
+    seq.report["bending_fade"] = {"fade_angle": opts.fade_angle, "faded_edges": tg.faded_edges,
+                                  "interior_edges": int(T.n_interior)}
     if opts.fixpoint:
         fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix,
                             fixpoint_log)
@@ -243,6 +245,8 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
         moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
         P = Prolongation.encode(Vkey, T, dec, frames, pinned=None if moving else pinned)
         V = parallel_decode(P, coarse.V, frames, K, bc, opts.workers)
+        # no defect that the coarse frames do not have: the detail fades where it adds one
+        V, multires["guard"] = P.guard(V, coarse.V, K, bc=bc)
         del P  # its factorization is not needed any more (memory of a fine run)
         if moving:  # same semantics as full resolution: pins follow the blend
             V[:, pinned] = linear_blend(Vkey[:, pinned], frames, K, bc)
