@@ -296,7 +296,7 @@ def _where(name, runs, truth, inner, size, owner, names, rec) -> dict:
     excess = np.bincount(owner, d_l - d_c, minlength=J)
     total = max(float(np.sum(np.maximum(excess, 0.0))), 1e-300)  # joints where LΘA is worse
     joints = []
-    for j in np.argsort(-excess)[:3]:
+    for j in [j for j in np.argsort(-excess) if np.any(owner == j)][:3]:  # joints with skin
         m = owner == j
         joints.append({"joint": names[j], "vertices": int(m.sum()),
                        "share_of_excess": float(excess[j] / total),

@@ -76,6 +76,9 @@ def test_gt_case_small_clip(bench):
     assert rec["methods"]["cubic-discrete"]["err"] == pytest.approx(
         rec["methods"]["cubic"]["err"], rel=0.1)
     assert set(rec["where"]) == {"lta"}
+    # the joints named as carrying LΘA's excess have skin (child3, the chain's end, owns none)
+    joints = rec["where"]["lta"]["joints"]
+    assert joints and all(j["vertices"] > 0 and np.isfinite(j["lta"]) for j in joints)
     # lta@cubic: the same shapes, moved rigidly: identical shape error
     assert rec["methods"]["lta@cubic"]["shape"] == pytest.approx(rec["methods"]["lta"]["shape"],
                                                                 rel=1e-9)
