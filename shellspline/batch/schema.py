@@ -22,6 +22,7 @@ __all__ = ["JobError", "job_error", "JOB_KEYS", "PARAM_KEYS", "SOURCE_KEYS", "DE
 JOB_KEYS = {"name", "output", "executor", "scheduler", "workers"}
 #: keys allowed in [defaults] and in every [[sequences]] entry (per-sequence overrides)
 PARAM_KEYS = {"frames", "K", "bc", "method", "eta", "mu", "lam", "reference", "coarse", "fine",
+              "fade_angle",
               "max_iter", "max_time", "pinned", "fix_boundary", "formats", "keyframe_pattern",
               "frames_file", "pinned_file", "render", "plots", "delay"}
 SOURCE_KEYS = {"name", "glob", "keyframes", "synth", "vertices", "synth_params"}
@@ -30,10 +31,10 @@ DEFAULTS = {"frames": None, "K": None, "bc": "natural", "method": "lta", "eta": 
             "max_iter": None, "max_time": None, "pinned": None, "fix_boundary": False,
             "formats": ["obj"], "keyframe_pattern": "pose_*.obj",
             "frames_file": "frames.txt", "pinned_file": "pinned.txt", "render": [],
-            "plots": [], "delay": 0.0}
+            "plots": [], "delay": 0.0, "fade_angle": 0.5}
 #: the parameters handed to :func:`shellspline.interpolate` (``SequenceSpec.params``)
 INTERPOLATION_KEYS = ("method", "bc", "K", "eta", "mu", "lam", "reference", "coarse", "fine",
-                      "max_iter", "max_time", "fix_boundary")
+                      "max_iter", "max_time", "fix_boundary", "fade_angle")
 #: names a sequence may not take: the job's own files in the output root
 RESERVED_NAMES = {SUMMARY_NAME, LOG_NAME, LOCK_NAME, "half_axes.png"}
 _RENDERS = ("strip", "gif")
@@ -167,6 +168,7 @@ _CHECKS = {
     "eta": lambda w, k, v: _check_weight(w, v),
     "mu": lambda w, k, v: _check_weight(w, v),
     "lam": lambda w, k, v: _check_weight(w, v),
+    "fade_angle": lambda w, k, v: _check_weight(w, v),
     "reference": lambda w, k, v: _check_reference(w, v),
     "coarse": lambda w, k, v: _check_coarse(w, v),
     "fine": lambda w, k, v: _check_bool(w, v),

@@ -85,6 +85,8 @@ BAD_JOBS = [
      "key 'eta'"),
     ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
      'formats = ["stl"]\n', "key 'formats'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     'fade_angle = -0.5\n', "key 'fade_angle'"),
     ('[job]\noutput = "o"\n[[sequences]]\nglob = "nothing/*"\n', "key 'glob'"),
     ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
      '[[sequences]]\nname = "a"\nsynth = "cactus"\n', "two sequences are named 'a'"),
@@ -133,6 +135,7 @@ def test_overrides_and_precedence(tmp_path):
     assert s["d_ellipsoids_01"].params["eta"] == 0.5
     assert s["x"].frames == [0, 4, 8] and s["x"].frames_path is None
     assert s["x"].params["bc"] == "periodic" and s["x"].params["K"] == 9
+    assert s["x"].params["fade_angle"] == 0.5  # the default of interpolate
     assert s["x"].keyframes[0] == str((d[0] / "pose_00.obj").resolve())
 
 
