@@ -261,6 +261,14 @@ def srv_inverse(Q, t, *, R0=None, X0=None, d=None) -> ProductCurve:
         section 5.1 *with* the time step ``dt_i``, which the printed formula drops), and
         ``X_{i+1} = X_i + dt_i |q_i| q_i`` for the Euclidean part.
 
+    Raises
+    ------
+    ShellsplineError
+        On bad shapes, or when a joint would turn by ``pi`` or more in one step
+        (``dt_i |q_i|^2``, its rotation part): the samples ``exp(...)`` would still be right,
+        but the piecewise geodesic between them (the principal logarithm) would turn the other
+        way round, so the result would not have the SRV ``Q``. Sample ``t`` more finely.
+
     Examples
     --------
     >>> import numpy as np
@@ -269,6 +277,11 @@ def srv_inverse(Q, t, *, R0=None, X0=None, d=None) -> ProductCurve:
     >>> bool(np.allclose(c2.X, c.X) and np.allclose(c2.R, c.R))
     True
     """
+    return _srv_inverse(Q, t, R0, X0, d, "srv_inverse", "sample t more finely")
+
+
+def _srv_inverse(Q, t, R0, X0, d, where, hint) -> ProductCurve:
+    """:func:`srv_inverse`, its step-angle error naming ``where`` and advising ``hint``."""
     Q = np.asarray(Q, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
     if Q.ndim != 2 or t.shape != (Q.shape[0] + 1,):
@@ -291,7 +304,14 @@ def srv_inverse(Q, t, *, R0=None, X0=None, d=None) -> ProductCurve:
     N = t.shape[0]
     n = np.sqrt(np.einsum("ij,ij->i", Q, Q))
     inc = Q * (n * np.diff(t))[:, None]           # dt |q| q = log(c_{i+1} c_i^{-1})
-    E = so3.exp(inc[:, :3 * d].reshape(N - 1, d, 3))
+    w = inc[:, :3 * d].reshape(N - 1, d, 3)
+    ang = np.sqrt(np.einsum("ijk,ijk->ij", w, w))
+    if np.any(ang > _MAX_STEP_ANGLE):  # exp would wrap: right samples, wrong way between them
+        i, j = map(int, np.argwhere(ang > _MAX_STEP_ANGLE)[0])
+        raise ShellsplineError(f"{where}: joint {j} would turn by {ang[i, j]:.4f} rad between "
+                               f"samples {i} and {i + 1} (dt |q|^2); a piecewise geodesic turns "
+                               f"less than pi per step: {hint}")
+    E = so3.exp(w)
     R = cumulative_product(E, R0)
     X = X0 + np.concatenate([np.zeros((1, m)), np.cumsum(inc[:, 3 * d:], axis=0)], axis=0)
     return ProductCurve(R, X, t)
@@ -403,7 +423,17 @@ def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None, *,
     ProductCurve
         On ``curve0.t``. Start point ``c0(0) exp(s log(c0(0)^{-1} c1(0)))`` per rotation,
         ``(1-s) X0(0) + s X1(0)``; then ``c(t) = R^{-1}(q)(t) c(0)`` (right translation, under
-        which the SRVT is invariant).
+        which the SRVT is invariant). ``q1`` is the SRV of ``curve1 o warp`` on ``curve0.t``
+        with each joint's increment on the branch of the logarithm that ``curve1``'s path
+        takes (a fast joint that turns ``pi`` or more between two samples of ``curve0`` keeps
+        turning forwards, where the principal logarithm would turn it back).
+
+    Raises
+    ------
+    ShellsplineError
+        For different components or a bad ``warp``, or when a joint of the blend would turn
+        by ``pi`` or more between two samples of ``curve0`` (no piecewise geodesic on that
+        grid does; resample ``curve0`` more finely).
     """
     if (curve0.d, curve0.m) != (curve1.d, curve1.m):
         raise ShellsplineError(f"blend: curves must have the same components, got (d, m) = "
@@ -416,8 +446,48 @@ def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None, *,
         raise ShellsplineError(f"blend: warp must have one value per sample of curve0 "
                                f"({t0.shape[0]}), got shape {np.shape(warp)}")
     c1 = reparametrize(curve1, warp, t0, periodic=periodic)
-    Q = (1 - s) * srv(curve0) + s * srv(c1)
+    # the increments of curve1 o warp between curve0's samples, on the branch of the logarithm
+    # that curve1's own path takes: where warp skips several samples of a fast joint, the
+    # step may exceed pi and the principal logarithm of c1's samples would turn it backwards
+    d = curve1.d
+    inc = _increments(c1)
+    path = _path_increments(curve1, np.asarray(warp, dtype=np.float64), periodic)
+    if d:
+        inc[:, :3 * d] = _unwrapped(inc[:, :3 * d].reshape(-1, d, 3),
+                                    path[:, :3 * d].reshape(-1, d, 3)).reshape(-1, 3 * d)
+    Q = (1 - s) * srv(curve0) + s * _scale_sqrt(inc / np.diff(t0)[:, None])
     w = so3.log(np.swapaxes(curve0.R[0], -1, -2) @ c1.R[0])
     R0 = curve0.R[0] @ so3.exp(s * w)
     X0 = (1 - s) * curve0.X[0] + s * c1.X[0]
-    return srv_inverse(Q, t0, R0=R0, X0=X0)
+    return _srv_inverse(Q, t0, R0, X0, None, "blend", "resample curve0 on a finer grid "
+                        "(reparametrize) so that curve1 o warp turns less than pi per step")
+
+
+def _path_increments(curve: ProductCurve, phi, periodic: bool) -> np.ndarray:
+    """``(K-1, 3d+m)``: the integral of the curve's piecewise constant ``eta`` over
+    ``[phi_k, phi_{k+1}]`` (rotation vectors summed along the path: exact for a joint turning
+    about a fixed axis, and a guide to the branch of the logarithm otherwise). ``phi`` is taken
+    unwrapped when ``periodic`` (one more period adds the whole curve's integral)."""
+    T = curve.t
+    inc = _increments(curve)
+    A = np.concatenate([np.zeros((1, inc.shape[1])), np.cumsum(inc, axis=0)], axis=0)
+    laps = np.zeros_like(phi)
+    if periodic:
+        span = T[-1] - T[0]
+        laps = np.floor((phi - T[0]) / span)
+        phi = phi - laps * span
+    j = np.clip(np.searchsorted(T, phi, side="right") - 1, 0, T.shape[0] - 2)
+    u = np.clip((phi - T[j]) / (T[j + 1] - T[j]), 0.0, 1.0)
+    at = A[j] + u[:, None] * inc[j] + laps[:, None] * A[-1]
+    return np.diff(at, axis=0)
+
+
+def _unwrapped(w, ref) -> np.ndarray:
+    """The logarithm of ``exp(w)`` (``w (..., 3)`` principal) nearest ``ref (..., 3)``: one of
+    ``w + 2 pi n w / |w|``, ``n`` an integer (along ``ref`` where ``w`` is zero)."""
+    th = np.sqrt(np.einsum("...k,...k->...", w, w))
+    r = np.sqrt(np.einsum("...k,...k->...", ref, ref))
+    axis = np.where((th > 1e-12)[..., None], w / np.maximum(th, 1e-300)[..., None],
+                    ref / np.maximum(r, 1e-300)[..., None])
+    n = np.rint((np.einsum("...k,...k->...", ref, axis) - th) / (2 * np.pi))
+    return w + (2 * np.pi * n)[..., None] * axis

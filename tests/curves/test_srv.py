@@ -216,3 +216,63 @@ def test_blend_takes_the_warp_of_a_closed_alignment():
     np.testing.assert_allclose(b1.X, c0.X, atol=1e-12)  # c1 o phi is c0 again (a shift)
     b0 = blend(c0, c1, 0.0, warp=r.phi, periodic=True)
     np.testing.assert_allclose(b0.X, c0.X, atol=1e-12)
+
+
+def _spin(t, rate):
+    """(N,1,3,3): one joint turning about z at ``rate`` rad per unit time (scipy's rotations)."""
+    return Rotation.from_rotvec(np.outer(rate * np.asarray(t), [0.0, 0.0, 1.0])).as_matrix()[:, None]
+
+
+def test_blend_keeps_a_fast_joint_turning_the_right_way():
+    """A joint spinning 0.3 pi per sample of curve1 turns 1.2 pi per sample of the coarser
+    curve0: on curve0's grid its increments must not wrap onto the principal branch (-0.8 pi,
+    turning backwards). Oracle: the same blend on a fine resampling of curve0 (scipy Slerp),
+    read at curve0's times, and the closed form (q = s q1: the joint turns at s^2 omega)."""
+    omega = 4.8 * np.pi
+    t0, t1, tf = np.linspace(0, 1, 5), np.linspace(0, 1, 17), np.linspace(0, 1, 65)
+    c1 = ProductCurve(_spin(t1, omega), None, t1)
+    c0 = ProductCurve(np.broadcast_to(np.eye(3), (5, 1, 3, 3)), None, t0)  # at rest
+    c0f = ProductCurve(Slerp(t0, Rotation.from_matrix(c0.R[:, 0]))(tf).as_matrix()[:, None],
+                       None, tf)
+    for s in (0.25, 0.5, 0.75):
+        coarse, fine = blend(c0, c1, s), blend(c0f, c1, s)
+        np.testing.assert_allclose(coarse.R, fine.R[::16], atol=1e-10)
+        np.testing.assert_allclose(coarse.R, _spin(t0, s ** 2 * omega), atol=1e-10)
+    # at s = 1 the blend would turn 1.2 pi between curve0's samples: no piecewise geodesic on
+    # that grid does, so it is refused rather than wrapped; the fine grid carries it
+    with pytest.raises(ShellsplineError, match=r"joint 0 .* between samples 0 and 1"):
+        blend(c0, c1, 1.0)
+    np.testing.assert_allclose(blend(c0f, c1, 1.0).R, _spin(tf, omega), atol=1e-10)
+
+
+def test_blend_unwraps_a_closed_warp_across_the_period():
+    """A closed spin (four full turns over the period, 0.1 pi per sample) read through a
+    periodic warp that crosses the period's end, on a grid where it turns 4/3 pi per step:
+    the increments follow the path across the seam (closed form: the joint turns at
+    s^2 omega from the geodesic midpoint of the start points)."""
+    omega = 8 * np.pi
+    t1, t0 = np.linspace(0, 1, 81), np.linspace(0, 1, 7)
+    c1 = ProductCurve(_spin(t1, omega), None, t1)
+    c0 = ProductCurve(np.broadcast_to(np.eye(3), (7, 1, 3, 3)), None, t0)
+    b = blend(c0, c1, 0.5, warp=0.35 + t0, periodic=True)
+    w0 = Rotation.from_matrix(_spin([0.35], omega)[0, 0]).as_rotvec()  # principal, as blend
+    expect = _spin(t0, 0.25 * omega)[:, 0] @ Rotation.from_rotvec(0.5 * w0).as_matrix()
+    np.testing.assert_allclose(b.R[:, 0], expect, atol=1e-10)
+
+
+def test_srv_inverse_refuses_a_step_it_cannot_represent():
+    """dt |q|^2 >= pi for a joint: the samples exp(...) would be right, but the piecewise
+    geodesic between them would turn the other way (-(2 pi - angle)): refused in one line."""
+    t = np.linspace(0, 1, 5)
+    for turn, ok in ((0.9 * np.pi, True), (1.2 * np.pi, False)):
+        eta = np.array([0.0, 0.0, turn / 0.25])            # rad per unit time
+        Q = np.tile(eta / np.sqrt(np.linalg.norm(eta)), (4, 1))
+        if ok:
+            c = srv_inverse(Q, t, d=1)
+            np.testing.assert_allclose(c.R, _spin(t, turn / 0.25), atol=1e-10)
+            np.testing.assert_allclose(srv(c), Q, atol=1e-10)  # its own geodesics agree
+        else:
+            with pytest.raises(ShellsplineError, match=r"joint 0 would turn by 3\.7699 rad "
+                                                       r"between samples 0 and 1") as info:
+                srv_inverse(Q, t, d=1)
+            assert "\n" not in str(info.value)
