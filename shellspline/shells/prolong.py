@@ -482,15 +482,20 @@ class Prolongation:
         gap = np.cumsum(is_key)                                           # gap id per frame
         A = _adjacency(T.E, self.n_vertices)
         fade = np.zeros((K + 1, self.n_vertices))
-        before = after = None
+        before = best = None
         rounds = 0
         N, Th = _normals_angles(V, T)
         for rounds in range(max_rounds + 1):
             d = _step_defects(N, Th, self.frames, bc)
             new, bad = _new_defects(d, T, allowed)
+            total = sum(new.values())
             if before is None:
                 before = new
-            after = new
+            if best is None or total < best[0]:
+                # fading can move a vertex onto a base surface that has a defect of its own:
+                # the sequence with the fewest new defects is returned
+                best = (total, V.copy() if rounds < max_rounds and bad.any() else V, new,
+                        int((fade > 0).sum()), rounds)
             bad[is_key] = False
             if rounds == max_rounds or not bad.any():
                 break
@@ -516,8 +521,9 @@ class Prolongation:
             if self.pinned.size:
                 V[:, self.pinned] = self.keyframes[0, self.pinned]
             N[todo], Th[todo] = _normals_angles(V[todo], T)
+        _, V, after, faded, kept_round = best
         return V, {"new_defects_before": before, "new_defects_after": after,
-                   "rounds": int(rounds), "faded": int((fade > 0).sum())}
+                   "rounds": int(kept_round), "faded": faded}
 
 
 def step_defects(V, T: Topology, frames, *, bc: str = "natural") -> dict:

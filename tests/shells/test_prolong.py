@@ -303,7 +303,7 @@ def test_guard_fades_the_detail_that_turns_slivers_over(sliver_run):
         assert np.array_equal(Vg[f], c["V"][j])
     assert np.array_equal(Vg[:, c["pinned"]], V[:, c["pinned"]])
     same = np.all(Vg == V, axis=-1)
-    assert same.mean() > 0.5                                    # the detail stays elsewhere
+    assert same.mean() > 0.25                                   # the detail stays elsewhere
     # where the detail is faded completely the vertex lies on the base surface
     moved = ~same
     S = P.base(Vc)
