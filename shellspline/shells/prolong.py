@@ -430,7 +430,8 @@ class Prolongation:
             out[ks] = St.transpose(1, 0, 2)
 
     def guard(self, V, Vc, K=None, *, time_weights="linear", bc: str = "natural",
-              rings: int = 2, taper: int = 2, max_rounds: int = 20, chunk: int = 16):
+              rings: int = 2, taper: int = 2, max_rounds: int = 20, chunk: int = 16,
+              fallback=None):
         """Take back the detail where it adds a defect that the coarse frames do not have.
 
         The prolongation of a coarse solution carries each keyframe's fine detail (skin
@@ -464,6 +465,10 @@ class Prolongation:
             Spatial and temporal width of the fade.
         max_rounds : int
         chunk : int
+        fallback : (K+1,n,3) float array_like, optional
+            Positions to fade towards instead of the base surface, in the same placement as
+            ``V`` (e.g. the prolonged sequence that a full-resolution refinement started
+            from): ``V0 + f (fallback − V0)`` for the fade ``f`` of each vertex-frame.
 
         Returns
         -------
@@ -484,6 +489,12 @@ class Prolongation:
         if self.coarse_F is None:
             raise ShellsplineError("guard needs the coarse faces (encode from a Decimation)")
         W = self._time_weights(K, time_weights, bc)
+        if fallback is not None:
+            fallback = np.asarray(fallback, dtype=np.float64)
+            if fallback.shape != V.shape:
+                raise ShellsplineError(f"`fallback` must have the shape of `V` {V.shape}, got "
+                                       f"{fallback.shape}")
+            V0 = V.copy()
         periodic = str(bc).lower() == "periodic"
         T = topology(self.F, self.n_vertices)
         nc = self.kept.shape[0]
@@ -534,7 +545,10 @@ class Prolongation:
                 break
             fade = np.maximum(fade, spread)
             todo = np.flatnonzero(grown.any(axis=1))
-            self._decode_into(V, Vc, W, todo, chunk, scale=1.0 - fade)
+            if fallback is None:
+                self._decode_into(V, Vc, W, todo, chunk, scale=1.0 - fade)
+            else:
+                V[todo] = V0[todo] + fade[todo, :, None] * (fallback[todo] - V0[todo])
             if self.pinned.size:
                 V[:, self.pinned] = self.keyframes[0, self.pinned]
             N[todo], Th[todo] = _normals_angles(V[todo], T)

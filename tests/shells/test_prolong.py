@@ -336,3 +336,15 @@ def test_coarse_interpolation_reports_the_guard():
     assert g["new_defects_after"]["flipped"] == 0
     for j, f in enumerate(c["frames"]):
         assert np.array_equal(res.V[f], c["V"][j])
+
+
+def test_guard_towards_the_base_given_as_fallback_is_the_default_guard(sliver_run):
+    """``fallback`` fades positions linearly: with the base surface as fallback,
+    ``V0 + f (S − V0) = S + (1 − f) R c`` is the default guard (the detail scaled)."""
+    c, T, dec, Vc, P, V = sliver_run
+    a, ra = P.guard(V, Vc)
+    b, rb = P.guard(V, Vc, fallback=P.base(Vc))
+    assert ra == rb and ra["faded"] > 0
+    assert np.abs(a - b).max() < 1e-12
+    with pytest.raises(ValueError, match="fallback"):
+        P.guard(V, Vc, fallback=V[:-1])
