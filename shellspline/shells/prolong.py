@@ -52,7 +52,7 @@ from ..mesh.topology import Topology, topology
 from ..timeline import linear_time_weights as timeline_linear_time_weights
 
 __all__ = ["Prolongation", "linear_time_weights", "spline_time_weights", "prolong",
-           "step_defects"]
+           "step_defects", "fade_new_defects"]
 
 
 def linear_time_weights(frames, K: int, bc: str = "natural") -> np.ndarray:
@@ -413,25 +413,21 @@ class Prolongation:
                                    f"shape {W.shape}")
         return W
 
-    def _decode_into(self, out, Vc, W, todo, chunk, scale=None):
-        """``out[k] = S(Vc[k]) + R(S) c(k)`` for the frames ``todo``, ``chunk`` at a time; the
-        detail ``c(k)`` of vertex ``i`` times ``scale[k, i]`` when given ((K+1,n) floats)."""
+    def _decode_into(self, out, Vc, W, todo, chunk):
+        """``out[k] = S(Vc[k]) + R(S) c(k)`` for the frames ``todo``, ``chunk`` at a time."""
         step = max(1, int(chunk))
         for s in range(0, todo.shape[0], step):
             ks = todo[s:s + step]
             St = self._base_vm(Vc[ks])                          # (n,B,3)
             t, b, nrm = self._frames_vm(St)
             c = np.einsum("kj,jna->nka", W[ks], self.coeffs)
-            if scale is not None:
-                c *= scale[ks].T[..., None]
             St += t * c[..., :1]
             St += b * c[..., 1:2]
             St += nrm * c[..., 2:]
             out[ks] = St.transpose(1, 0, 2)
 
-    def guard(self, V, Vc, K=None, *, time_weights="linear", bc: str = "natural",
-              rings: int = 2, taper: int = 2, max_rounds: int = 20, chunk: int = 16,
-              fallback=None):
+    def guard(self, V, Vc, K=None, *, bc: str = "natural", rings: int = 2, taper: int = 2,
+              max_rounds: int = 20, fallback=None):
         """Take back the detail where it adds a defect that the coarse frames do not have.
 
         The prolongation of a coarse solution carries each keyframe's fine detail (skin
@@ -454,17 +450,16 @@ class Prolongation:
         Parameters
         ----------
         V : (K+1,n,3) float64 array
-            :meth:`decode`'s result for ``Vc`` with the same ``time_weights``, ``bc``.
+            :meth:`decode`'s result for ``Vc``.
         Vc : (K+1,nc,3) float array_like
             The coarse frames.
         K : int, optional
             Default ``V.shape[0] - 1``.
-        time_weights, bc
+        bc : {"natural", "hermite", "periodic"}
             As given to :meth:`decode`.
         rings, taper : int
             Spatial and temporal width of the fade.
         max_rounds : int
-        chunk : int
         fallback : (K+1,n,3) float array_like, optional
             Positions to fade towards instead of the base surface, in the same placement as
             ``V`` (e.g. the prolonged sequence that a full-resolution refinement started
@@ -488,73 +483,110 @@ class Prolongation:
                                    f"{Vc.shape}")
         if self.coarse_F is None:
             raise ShellsplineError("guard needs the coarse faces (encode from a Decimation)")
-        W = self._time_weights(K, time_weights, bc)
-        if fallback is not None:
-            fallback = np.asarray(fallback, dtype=np.float64)
-            if fallback.shape != V.shape:
-                raise ShellsplineError(f"`fallback` must have the shape of `V` {V.shape}, got "
-                                       f"{fallback.shape}")
-            V0 = V.copy()
-        periodic = str(bc).lower() == "periodic"
-        T = topology(self.F, self.n_vertices)
-        nc = self.kept.shape[0]
-        Tc = topology(self.coarse_F, nc)
-        # coarse vertices near a coarse defect of each step (one coarse ring of slack)
-        cbad = _defect_vertices(step_defects(Vc, Tc, self.frames, bc=bc), Tc)
-        Ac = _adjacency(Tc.E, nc)
-        cbad = np.asarray((Ac @ cbad.T.astype(np.float64)) > 0).T       # (K, nc)
-        allowed = cbad[:, self.collapse_map]                              # (K, n)
-        is_key = np.zeros(K + 1, dtype=bool)
-        is_key[self.frames] = True
-        is_key[K] |= periodic
-        gap = np.cumsum(is_key)                                           # gap id per frame
-        A = _adjacency(T.E, self.n_vertices)
-        fade = np.zeros((K + 1, self.n_vertices))
-        before = best = None
-        rounds = 0
-        N, Th = _normals_angles(V, T)
-        for rounds in range(max_rounds + 1):
-            d = _step_defects(N, Th, self.frames, bc)
-            new, bad = _new_defects(d, T, allowed)
-            total = sum(new.values())
-            if before is None:
-                before = new
-            if best is None or total < best[0]:
-                # fading can move a vertex onto a base surface that has a defect of its own:
-                # the sequence with the fewest new defects is returned
-                best = (total, V.copy() if rounds < max_rounds and bad.any() else V, new,
-                        int((fade > 0).sum()), rounds)
-            bad[is_key] = False
-            if rounds == max_rounds or not bad.any():
-                break
-            # spread over rings (linear) and frames (linear, same gap)
-            hit = bad.astype(np.float64)
-            level, reach = hit.copy(), hit > 0
-            for r in range(1, rings + 1):
-                reach = np.asarray((A @ reach.T.astype(np.float64)) > 0).T
-                level = np.maximum(level, reach * (1.0 - r / (rings + 1)))
-            spread = level.copy()
-            for dk in range(1, taper + 1):
-                w = 1.0 - dk / (taper + 1)
-                same = gap[dk:] == gap[:-dk]
-                spread[dk:] = np.maximum(spread[dk:], w * level[:-dk] * same[:, None])
-                spread[:-dk] = np.maximum(spread[:-dk], w * level[dk:] * same[:, None])
-            spread[is_key] = 0.0
-            grown = spread > fade
-            if not grown.any():
-                break
-            fade = np.maximum(fade, spread)
-            todo = np.flatnonzero(grown.any(axis=1))
-            if fallback is None:
-                self._decode_into(V, Vc, W, todo, chunk, scale=1.0 - fade)
-            else:
-                V[todo] = V0[todo] + fade[todo, :, None] * (fallback[todo] - V0[todo])
-            if self.pinned.size:
-                V[:, self.pinned] = self.keyframes[0, self.pinned]
-            N[todo], Th[todo] = _normals_angles(V[todo], T)
-        _, V, after, faded, kept_round = best
-        return V, {"new_defects_before": before, "new_defects_after": after,
-                   "rounds": int(kept_round), "faded": faded}
+        if fallback is None:
+            fallback = self.base(Vc)
+        return fade_new_defects(V, Vc, topology(self.F, self.n_vertices),
+                                topology(self.coarse_F, self.kept.shape[0]), self.collapse_map,
+                                self.frames, fallback, bc=bc, rings=rings, taper=taper,
+                                max_rounds=max_rounds, pinned=self.pinned,
+                                pinned_at=self.keyframes[0, self.pinned])
+
+
+def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fallback, *,
+                     bc: str = "natural", rings: int = 2, taper: int = 2, max_rounds: int = 20,
+                     pinned=None, pinned_at=None):
+    """Fade a fine sequence towards ``fallback`` where it has a defect that the coarse
+    sequence it came from does not have (the loop of :meth:`Prolongation.guard`).
+
+    Parameters
+    ----------
+    V : (K+1,n,3) float array_like
+        Fine sequence (keyframes at ``frames``).
+    Vc : (K+1,nc,3) float array_like
+        The coarse sequence.
+    T, Tc : Topology
+        Fine and coarse connectivity.
+    collapse_map : (n,) int array_like
+        Coarse vertex of every fine vertex (:attr:`~shellspline.mesh.decimate.Decimation.collapse_map`).
+    frames : (J,) int array_like
+    fallback : (K+1,n,3) float array_like
+        What a faded vertex moves towards, in the placement of ``V``: ``V + f (fallback − V)``.
+    bc, rings, taper, max_rounds
+        See :meth:`Prolongation.guard`.
+    pinned : (p,) int array_like, optional
+        Vertices reset to ``pinned_at`` ((p,3)) after every round.
+
+    Returns
+    -------
+    V : (K+1,n,3) float64 numpy array
+    record : dict
+        As :meth:`Prolongation.guard`.
+    """
+    V = np.array(V, dtype=np.float64)
+    Vc = np.asarray(Vc, dtype=np.float64)
+    K = V.shape[0] - 1
+    if V.ndim != 3 or V.shape[1:] != (T.n_vertices, 3) or \
+            Vc.shape != (K + 1, Tc.n_vertices, 3):
+        raise ShellsplineError(f"`V` and `Vc` must have shapes ({K + 1}, {T.n_vertices}, 3) and "
+                               f"({K + 1}, {Tc.n_vertices}, 3), got {V.shape} and {Vc.shape}")
+    fallback = np.asarray(fallback, dtype=np.float64)
+    if fallback.shape != V.shape:
+        raise ShellsplineError(f"`fallback` must have the shape of `V` {V.shape}, got "
+                               f"{fallback.shape}")
+    frames = np.asarray(frames, dtype=np.int64)
+    pinned = np.zeros(0, dtype=np.int64) if pinned is None else np.asarray(pinned, np.int64)
+    V0 = V.copy()
+    periodic = str(bc).lower() == "periodic"
+    n, nc = T.n_vertices, Tc.n_vertices
+    # coarse vertices near a coarse defect of each step (one coarse ring of slack)
+    cbad = _defect_vertices(step_defects(Vc, Tc, frames, bc=bc), Tc)
+    cbad = np.asarray((_adjacency(Tc.E, nc) @ cbad.T.astype(np.float64)) > 0).T  # (K, nc)
+    allowed = cbad[:, np.asarray(collapse_map, dtype=np.int64)]                  # (K, n)
+    is_key = np.zeros(K + 1, dtype=bool)
+    is_key[frames] = True
+    is_key[K] |= periodic
+    gap = np.cumsum(is_key)                                           # gap id per frame
+    A = _adjacency(T.E, n)
+    fade = np.zeros((K + 1, n))
+    before = best = None
+    N, Th = _normals_angles(V, T)
+    for rounds in range(max_rounds + 1):
+        new, bad = _new_defects(_step_defects(N, Th, frames, bc), T, allowed)
+        total = sum(new.values())
+        if before is None:
+            before = new
+        if best is None or total < best[0]:
+            # fading can move a vertex onto a fallback (the base surface) that has a defect of
+            # its own: the sequence with the fewest new defects is returned
+            best = (total, V.copy() if rounds < max_rounds and bad.any() else V, new,
+                    int((fade > 0).sum()), rounds)
+        bad[is_key] = False
+        if rounds == max_rounds or not bad.any():
+            break
+        # spread over rings (linear) and frames (linear, same gap)
+        level, reach = bad.astype(np.float64), bad
+        for r in range(1, rings + 1):
+            reach = np.asarray((A @ reach.T.astype(np.float64)) > 0).T
+            level = np.maximum(level, reach * (1.0 - r / (rings + 1)))
+        spread = level.copy()
+        for dk in range(1, taper + 1):
+            w = 1.0 - dk / (taper + 1)
+            same = gap[dk:] == gap[:-dk]
+            spread[dk:] = np.maximum(spread[dk:], w * level[:-dk] * same[:, None])
+            spread[:-dk] = np.maximum(spread[:-dk], w * level[dk:] * same[:, None])
+        spread[is_key] = 0.0
+        grown = spread > fade
+        if not grown.any():
+            break
+        fade = np.maximum(fade, spread)
+        todo = np.flatnonzero(grown.any(axis=1))
+        V[todo] = V0[todo] + fade[todo, :, None] * (fallback[todo] - V0[todo])
+        if pinned.size:
+            V[:, pinned] = pinned_at
+        N[todo], Th[todo] = _normals_angles(V[todo], T)
+    _, V, after, faded, kept_round = best
+    return V, {"new_defects_before": before, "new_defects_after": after,
+               "rounds": int(kept_round), "faded": faded}
 
 
 def step_defects(V, T: Topology, frames, *, bc: str = "natural") -> dict:
