@@ -222,7 +222,7 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
     for ``method="nonlinear"`` without ``fine``, the nonlinear spline) on the coarse meshes,
     prolong by detail transfer, optionally refine at full resolution (``fine``), place."""
     from ..mesh.decimate import decimate
-    from ..shells.prolong import Prolongation
+    from ..shells.prolong import Prolongation, fade_new_defects
 
     Vkey, T, pinned, frames, K, bc = prob.Vkey, prob.T, prob.pinned, prob.frames, prob.K, opts.bc
     with prog.stage("decimate"):
@@ -254,6 +254,10 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
     if opts.fine:
         fine = lta_sequence(Vkey, T, pinned, prob, opts, prog, Vinit=V, stage_prefix="fine ",
                             fixpoint_log=fixpoint_log)
+        # nor does the refinement: where it adds a defect, it fades back to its start
+        fine.V, multires["fine_guard"] = fade_new_defects(
+            fine.V, coarse.V, T, Tc, dec.collapse_map, frames,
+            _placed(V, Vkey, T, pinned, prob, opts), bc=bc)
         out.V, out.Z, out.W, out.frame_records = fine.V, fine.Z, fine.W, fine.frame_records
     else:
         out.frame_records = coarse.frame_records
