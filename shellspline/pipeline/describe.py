@@ -63,7 +63,7 @@ def bending_fade(Theta_key, periodic: bool = False, angle: float = FADE_ANGLE,
     --------
     >>> import numpy as np
     >>> Th = np.array([[0.0, 0.0, 0.0], [0.1, 0.375, 2.0]])
-    >>> bending_fade(Th).round(4).tolist()
+    >>> bending_fade(Th, angle=0.5).round(4).tolist()
     [[1.0, 0.1, 0.01]]
     """
     Th = np.asarray(Theta_key, dtype=np.float64)
