@@ -474,7 +474,7 @@ class Prolongation:
             ``collapsed``: counts not inherited from the coarse frames), ``rounds``, ``faded``
             (vertex-frames whose detail was reduced).
         """
-        V = np.array(V, dtype=np.float64)
+        V = np.asarray(V, dtype=np.float64)
         Vc = np.asarray(Vc, dtype=np.float64)
         K = V.shape[0] - 1 if K is None else int(K)
         if V.shape != (K + 1, self.n_vertices, 3) or Vc.shape != (K + 1, self.kept.shape[0], 3):
@@ -483,8 +483,9 @@ class Prolongation:
                                    f"{Vc.shape}")
         if self.coarse_F is None:
             raise ShellsplineError("guard needs the coarse faces (encode from a Decimation)")
-        if fallback is None:
-            fallback = self.base(Vc)
+        if fallback is None:  # the base surface, only of the frames that fade
+            def fallback(ks):
+                return self.base(Vc[ks])
         return fade_new_defects(V, Vc, topology(self.F, self.n_vertices),
                                 topology(self.coarse_F, self.kept.shape[0]), self.collapse_map,
                                 self.frames, fallback, bc=bc, rings=rings, taper=taper,
@@ -509,8 +510,10 @@ def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fal
     collapse_map : (n,) int array_like
         Coarse vertex of every fine vertex (:attr:`~shellspline.mesh.decimate.Decimation.collapse_map`).
     frames : (J,) int array_like
-    fallback : (K+1,n,3) float array_like
-        What a faded vertex moves towards, in the placement of ``V``: ``V + f (fallback − V)``.
+    fallback : (K+1,n,3) float array_like, or callable
+        What a faded vertex moves towards, in the placement of ``V``: ``V + f (fallback − V)``;
+        a callable ``fallback(ks)`` returns the ``(len(ks),n,3)`` positions of frames ``ks``
+        (computed only for frames that need them).
     bc, rings, taper, max_rounds
         See :meth:`Prolongation.guard`.
     pinned : (p,) int array_like, optional
@@ -529,13 +532,14 @@ def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fal
             Vc.shape != (K + 1, Tc.n_vertices, 3):
         raise ShellsplineError(f"`V` and `Vc` must have shapes ({K + 1}, {T.n_vertices}, 3) and "
                                f"({K + 1}, {Tc.n_vertices}, 3), got {V.shape} and {Vc.shape}")
-    fallback = np.asarray(fallback, dtype=np.float64)
-    if fallback.shape != V.shape:
-        raise ShellsplineError(f"`fallback` must have the shape of `V` {V.shape}, got "
-                               f"{fallback.shape}")
+    if not callable(fallback):
+        fallback = np.asarray(fallback, dtype=np.float64)
+        if fallback.shape != V.shape:
+            raise ShellsplineError(f"`fallback` must have the shape of `V` {V.shape}, got "
+                                   f"{fallback.shape}")
     frames = np.asarray(frames, dtype=np.int64)
     pinned = np.zeros(0, dtype=np.int64) if pinned is None else np.asarray(pinned, np.int64)
-    V0 = V.copy()
+    V0 = None  # the input, copied when the first vertex fades
     periodic = str(bc).lower() == "periodic"
     n, nc = T.n_vertices, Tc.n_vertices
     # coarse vertices near a coarse defect of each step (one coarse ring of slack)
@@ -580,7 +584,10 @@ def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fal
             break
         fade = np.maximum(fade, spread)
         todo = np.flatnonzero(grown.any(axis=1))
-        V[todo] = V0[todo] + fade[todo, :, None] * (fallback[todo] - V0[todo])
+        target = fallback(todo) if callable(fallback) else fallback[todo]
+        if V0 is None:
+            V0 = V.copy()
+        V[todo] = V0[todo] + fade[todo, :, None] * (target - V0[todo])
         if pinned.size:
             V[:, pinned] = pinned_at
         N[todo], Th[todo] = _normals_angles(V[todo], T)
@@ -631,12 +638,17 @@ def _normals_angles(V, T):
     3.5x faster than computing them anew on the horse)."""
     from ..mesh.geometry import face_normals
 
-    N = face_normals(V, T.F)
-    U = normalized(N)
     ef = T.edge_faces[T.interior]
-    n1, n2 = U[..., ef[:, 0], :], U[..., ef[:, 1], :]
-    e = normalized(V[..., T.flaps[:, 1], :] - V[..., T.flaps[:, 0], :])
-    return N, np.arctan2(dot(cross(n1, n2), e), dot(n1, n2))
+    N = np.empty(V.shape[:-2] + (T.F.shape[0], 3))
+    Th = np.empty(V.shape[:-2] + (ef.shape[0],))
+    for i in range(0, V.shape[0], 4):  # a few frames at a time: bounded temporaries
+        Vi = V[i:i + 4]
+        N[i:i + 4] = Ni = face_normals(Vi, T.F)
+        U = normalized(Ni)
+        n1, n2 = U[..., ef[:, 0], :], U[..., ef[:, 1], :]
+        e = normalized(Vi[..., T.flaps[:, 1], :] - Vi[..., T.flaps[:, 0], :])
+        Th[i:i + 4] = np.arctan2(dot(cross(n1, n2), e), dot(n1, n2))
+    return N, Th
 
 
 def _step_defects(N, Th, frames, bc):
