@@ -634,8 +634,8 @@ def step_defects(V, T: Topology, frames, *, bc: str = "natural") -> dict:
 def _normals_angles(V, T):
     """Face normals (K+1,m,3) and dihedral angles (K+1,i) of a sequence; the angles from
     the normals (``atan2((n1 × n2) · ê, n1 · n2)``, as
-    :func:`~shellspline.shells.descriptors.dihedral_angles` computes them, to round-off;
-    3.5x faster than computing them anew on the horse)."""
+    :func:`~shellspline.shells.descriptors.dihedral_angles` computes them, to round-off; on
+    the horse, K = 40, normals and angles take 0.16 s, ``dihedral_angles`` alone 0.69 s)."""
     from ..mesh.geometry import face_normals
 
     ef = T.edge_faces[T.interior]
@@ -644,10 +644,10 @@ def _normals_angles(V, T):
     for i in range(0, V.shape[0], 4):  # a few frames at a time: bounded temporaries
         Vi = V[i:i + 4]
         N[i:i + 4] = Ni = face_normals(Vi, T.F)
-        U = normalized(Ni)
-        n1, n2 = U[..., ef[:, 0], :], U[..., ef[:, 1], :]
-        e = normalized(Vi[..., T.flaps[:, 1], :] - Vi[..., T.flaps[:, 0], :])
-        Th[i:i + 4] = np.arctan2(dot(cross(n1, n2), e), dot(n1, n2))
+        n1, n2 = Ni[..., ef[:, 0], :], Ni[..., ef[:, 1], :]
+        e = Vi[..., T.flaps[:, 1], :] - Vi[..., T.flaps[:, 0], :]
+        # both arguments scaled by |n1| |n2| |e| > 0: the angle of the unit vectors
+        Th[i:i + 4] = np.arctan2(dot(cross(n1, n2), e), dot(n1, n2) * norms(e))
     return N, Th
 
 
