@@ -19,10 +19,11 @@ a factor of ~0.4 per iteration. Where the last step's secant curvature shows thi
 is replaced by the minimiser of the second-order model on the plane of the Gauss–Newton step
 and the last step (:meth:`GaussNewton.subspace_step`: one extra gradient evaluation; the
 search of nonlinear CG preconditioned by ``Jᵀ W J``), in a frame's tail only (see
-:data:`SUBSPACE_TAIL`). Horse (``benchmarks/bench_gn.py``):
-keyframes ``horse-reference, horse-03`` at frames 0, 20, 203 instead of 262 iterations
-(median 10 instead of 13, at most 20 instead of 30); with ``horse-07`` at 40, 473 instead of
-593 (median 10.5 instead of 12, at most 27 instead of 59); the same defects. Full Newton steps
+:data:`SUBSPACE_TAIL`). Horse (``benchmarks/bench_gn.py``, workers 2):
+keyframes ``horse-reference, horse-03`` at frames 0, 20, 193 instead of 270 iterations
+(median 10 instead of 12, at most 23 instead of 29), every frame converged (18 of 19 before);
+with ``horse-07`` at 40, 419 instead of 618 (median 10 instead of 13, at most 24 instead of
+52), 38 of 38 frames converged (35 before), 38 s instead of 43 s; the same defects. Full Newton steps
 do not pay: the Hessian is indefinite along a mode spread over hundreds of vertices until
 close to the solution on most horse frames.
 
