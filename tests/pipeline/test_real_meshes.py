@@ -351,3 +351,46 @@ def test_bending_fade_removes_the_jump_of_a_flexing_joint():
     assert new["flipped_faces"] == 0 and new["folded_edges"] == 0 and new["collapsed_faces"] == 0
     assert new["pop"] < 0.5 * old["pop"]
     assert np.all(ss.face_areas(res.V, T) > 0)
+
+
+def test_flap_strain_and_an_isometric_hinge_keeps_its_weight():
+    # the paper's hexagon folds isometrically along its diagonals: its folding edges turn by
+    # far more than fade_angle but no length or area changes, so nothing competes with their
+    # targets and the fade leaves them (and the result) alone, bit for bit
+    import data_synth
+    from shellspline.pipeline.describe import bending_fade, flap_strain
+    from shellspline.shells.descriptors import lta_descriptors
+
+    d = data_synth.generate("hexagon")
+    T = ss.topology(d["F"])
+    Z = lta_descriptors(np.asarray(d["V"]), T)
+    strain = flap_strain(Z, T)
+    assert strain.shape == (len(d["frames"]) - 1, T.n_interior) and strain.max() < 1e-9
+    Th = Z[:, T.descriptor_slices()[1]]
+    assert (bending_fade(Th) < 1).any() and np.all(bending_fade(Th, strain=strain) == 1.0)
+    V = [ss.interpolate((d["V"], d["F"]), frames=d["frames"], fade_angle=a).V for a in (0, 0.5)]
+    assert np.array_equal(V[0], V[1])
+    # strain by hand: an edge 10 % longer, a face with twice its area
+    S = np.array([[0.0, 0.0], [0.0, 0.0]])
+    assert np.all(bending_fade(np.array([[0.0, 0.0], [2.0, 2.0]]), strain=S) == 1.0)
+    full = bending_fade(np.array([[0.0, 0.0], [2.0, 2.0]]), strain=S + 0.5)
+    assert np.allclose(full, 0.01)
+
+
+def test_flap_strain_of_a_stretched_flap():
+    from shellspline.pipeline.describe import flap_strain
+    from shellspline.shells.descriptors import lta_descriptors
+
+    V, F = _flap(0.3)
+    T = ss.topology(F)
+    W = V.copy()
+    W[1, 0] = 1.1                      # the shared edge 10 % longer
+    W[3] *= [1.0, 3.0, 3.0]            # the second triangle 3x its area
+    Z = lta_descriptors(np.stack([V, W, V]), T)
+    s = flap_strain(Z, T)
+    a0, a1 = (ss.face_areas(X, T) for X in (V, W))
+    assert s.shape == (2, 1)
+    assert s[0, 0] == pytest.approx(max(0.1, *np.abs(a1 / a0 - 1)), rel=1e-12)
+    assert s[0, 0] == pytest.approx(np.abs(a1[1] / a0[1] - 1), rel=1e-12) and s[0, 0] > 2.0
+    # back again: relative to the gap's first keyframe
+    assert s[1, 0] == pytest.approx(np.abs(a0 / a1 - 1).max(), rel=1e-12)
