@@ -237,6 +237,8 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
     coarse = lta_sequence(dec.V, Tc, dec.pinned, prob, opts, prog, stage_prefix="coarse ",
                           fixpoint_log=fixpoint_log)
     out = StageResult(V=coarse.V, report={"multires": multires})
+    if "bending_fade" in coarse.report:
+        multires["bending_fade"] = coarse.report["bending_fade"]
     if opts.method == "nonlinear" and not opts.fine:
         # the nonlinear spline on the coarse meshes (started from their LΘA spline),
         # prolonged like the LΘA result
@@ -262,6 +264,7 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
             fine.V, coarse.V, T, Tc, dec.collapse_map, frames,
             _placed(V, Vkey, T, pinned, prob, opts), bc=bc)
         out.V, out.Z, out.W, out.frame_records = fine.V, fine.Z, fine.W, fine.frame_records
+        out.report["bending_fade"] = fine.report.get("bending_fade")
     else:
         out.frame_records = coarse.frame_records
         # energies where the spline was solved (full-resolution descriptors of every frame

@@ -346,6 +346,10 @@ def test_bending_fade_removes_the_jump_of_a_flexing_joint():
         assert res.report["quality"]["keyframes_exact"]
         assert res.report["parameters"]["fade_angle"] == fade
     assert res.report["bending_fade"]["faded_edges"] > 0
+    # the multiresolution path reports the coarse solve's fade (and the fine one's)
+    rc = ss.interpolate((d["V"], d["F"]), frames=d["frames"], coarse=150, fine=True)
+    assert rc.report["multires"]["bending_fade"]["faded_edges"] > 0
+    assert rc.report["bending_fade"]["faded_edges"] > 0
     old, new = out[0.0], out[0.5]
     assert old["flipped_faces"] > 0 and old["pop"] > 5.0      # the defect, without the fade
     assert new["flipped_faces"] == 0 and new["folded_edges"] == 0 and new["collapsed_faces"] == 0
