@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh.geometry import dot, face_normals, norms
+from .mesh.geometry import dot, face_normals, flap_angles, norms
 from .mesh.topology import Topology
 from .shells.descriptors import edge_lengths
 
@@ -288,7 +288,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     >>> d["flipped_faces"], d["collapsed_faces"], d["folded_edges"], round(d["pop"], 6)
     (0, 0, 0, 1.0)
     """
-    from .shells.descriptors import FOLD_BAND, dihedral_angles
+    from .shells.descriptors import FOLD_BAND
     from .timeline import keyframe_gap
 
     V = np.asarray(V, dtype=np.float64)
@@ -298,7 +298,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     F = T.F
     Nkey = face_normals(V[frames], F)                                   # (J, m, 3)
     akey = 0.5 * norms(Nkey).min(axis=0)
-    Tkey = dihedral_angles(V[frames], T)                                # (J, i)
+    Tkey = flap_angles(V[frames], Nkey, T)                              # (J, i)
     flipped = np.zeros(K + 1, dtype=np.int64)
     collapsed = np.zeros(K + 1, dtype=np.int64)
     folded = np.zeros(K + 1, dtype=np.int64)
@@ -316,7 +316,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     for i in range(0, K + 1, chunk):
         Vc = V[i:i + chunk]
         N = face_normals(Vc, F)
-        Th = dihedral_angles(Vc, T)
+        Th = flap_angles(Vc, N, T)          # the dihedral angles, from the normals
         a = 0.5 * norms(N)
         collapsed[i:i + len(Vc)] = (a < COLLAPSE_RATIO * akey).sum(axis=1)
         if prevN is not None:

@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import tol
 
 __all__ = ["cross", "dot", "norms", "normalized", "face_normals", "face_areas",
-           "vertex_face_incidence", "vertex_normals"]
+           "vertex_face_incidence", "vertex_normals", "flap_angles"]
 
 
 def cross(a, b) -> np.ndarray:
@@ -143,3 +143,38 @@ def vertex_normals(V, F, incidence=None) -> np.ndarray:
     N = np.moveaxis(np.asarray(inc @ cols).reshape((n,) + batch + (3,)), 0, -2)
     nn = norms(N)[..., None]
     return np.divide(N, nn, out=np.zeros_like(N), where=nn > 0)
+
+
+def flap_angles(V, N, T) -> np.ndarray:
+    """Signed dihedral angles of the interior edges from the face normals ``N`` of ``V``.
+
+    ``atan2((n1 × n2) · e, (n1 · n2) |e|)`` with ``n1, n2`` the normals of the edge's two
+    faces (first the face holding the flap's third vertex) and ``e`` the edge vector: the
+    angle of :func:`shellspline.shells.descriptors.dihedral_angles` to round-off, for
+    callers that already have the normals (the defect checks: one cross product per face
+    instead of two per edge).
+
+    Parameters
+    ----------
+    V : (..., n, 3) float64 array
+    N : (..., m, 3) float64 array
+        Face normals of ``V`` (any positive length per face, e.g. :func:`face_normals`).
+    T : Topology
+
+    Returns
+    -------
+    (..., i) float64 array in (-π, π]
+
+    Examples
+    --------
+    >>> from shellspline.mesh.topology import topology
+    >>> F = np.array([[0, 1, 2], [1, 0, 3]])
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, -1]])
+    >>> np.degrees(flap_angles(V, face_normals(V, F), topology(F))).round(6).tolist()
+    [90.0]
+    """
+    ef = T.edge_faces[T.interior]
+    n1, n2 = N[..., ef[:, 0], :], N[..., ef[:, 1], :]
+    e = V[..., T.flaps[:, 1], :] - V[..., T.flaps[:, 0], :]
+    # both arguments scaled by |n1| |n2| |e| > 0: the angle of the unit vectors
+    return np.arctan2(dot(cross(n1, n2), e), dot(n1, n2) * norms(e))

@@ -636,18 +636,14 @@ def _normals_angles(V, T):
     the normals (``atan2((n1 × n2) · ê, n1 · n2)``, as
     :func:`~shellspline.shells.descriptors.dihedral_angles` computes them, to round-off; on
     the horse, K = 40, normals and angles take 0.16 s, ``dihedral_angles`` alone 0.69 s)."""
-    from ..mesh.geometry import face_normals
+    from ..mesh.geometry import face_normals, flap_angles
 
-    ef = T.edge_faces[T.interior]
     N = np.empty(V.shape[:-2] + (T.F.shape[0], 3))
-    Th = np.empty(V.shape[:-2] + (ef.shape[0],))
+    Th = np.empty(V.shape[:-2] + (T.n_interior,))
     for i in range(0, V.shape[0], 4):  # a few frames at a time: bounded temporaries
         Vi = V[i:i + 4]
         N[i:i + 4] = Ni = face_normals(Vi, T.F)
-        n1, n2 = Ni[..., ef[:, 0], :], Ni[..., ef[:, 1], :]
-        e = Vi[..., T.flaps[:, 1], :] - Vi[..., T.flaps[:, 0], :]
-        # both arguments scaled by |n1| |n2| |e| > 0: the angle of the unit vectors
-        Th[i:i + 4] = np.arctan2(dot(cross(n1, n2), e), dot(n1, n2) * norms(e))
+        Th[i:i + 4] = flap_angles(Vi, Ni, T)
     return N, Th
 
 

@@ -77,3 +77,23 @@ def test_best_rotations_match_scipy_and_never_reflect(n):
     assert np.all(np.linalg.det(best_rotations(X, mirrored)) > 0)
     # one set against a batch (broadcast)
     np.testing.assert_allclose(best_rotations(X[0], Y[:1])[0], R[0], atol=1e-12)
+
+
+def test_flap_angles_from_normals_are_the_dihedral_angles():
+    # the defect checks take the angles from the face normals they already have: the same
+    # angles as the descriptors' own (independent formula: two cross products per flap)
+    import trimesh
+
+    from shellspline.mesh.geometry import face_normals, flap_angles
+    from shellspline.mesh.topology import topology
+    from shellspline.shells.descriptors import dihedral_angles
+
+    m = trimesh.creation.icosphere(subdivisions=2)
+    T = topology(m.faces)
+    rng = np.random.default_rng(3)
+    V = np.asarray(m.vertices)[None] + 0.3 * rng.normal(size=(4,) + m.vertices.shape)
+    th = flap_angles(V, face_normals(V, T.F), T)
+    ref = dihedral_angles(V, T)
+    assert th.shape == ref.shape == (4, T.n_interior)
+    assert np.abs(np.angle(np.exp(1j * (th - ref)))).max() < 1e-12
+    assert (np.abs(ref) > 3.0).any()            # folds near ±π are among them
