@@ -340,10 +340,17 @@ def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Moti
     same = (a.n_joints == b.n_joints and np.array_equal(a.parents, b.parents)
             and a.channels == b.channels)
     if not same:
+        why = ""
+        if a.n_joints == b.n_joints:  # name the first joint that differs
+            j = next(j for j in range(a.n_joints) if a.parents[j] != b.parents[j]
+                     or a.channels[j] != b.channels[j])
+            why = (f"; joint {j} ({a.names[j]}): parent {a.parents[j]}, channels "
+                   f"{' '.join(a.channels[j])} against parent {b.parents[j]}, channels "
+                   f"{' '.join(b.channels[j])}")
         raise ShellsplineError(
             f"the two motions have different skeletons: {a.n_joints} joints "
             f"({sum(map(len, a.channels))} channels) against {b.n_joints} joints "
-            f"({sum(map(len, b.channels))} channels)")
+            f"({sum(map(len, b.channels))} channels){why}")
     if n_frames is None:
         ft = min(a.frame_time, b.frame_time)
         dur = max((a.n_frames - 1) * a.frame_time, (b.n_frames - 1) * b.frame_time)

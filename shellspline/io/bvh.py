@@ -18,7 +18,10 @@ Conventions (what real files from Blender, CMU, motion builders and game studios
   applied before the rotation, whatever the channel order.
 * A joint's world transform is ``p_j = p_parent + R_parent @ t_j``, ``R_j = R_parent @
   R_local_j``; a root's parent is the world frame.
-* Lines may end in CRLF; tokens may be separated by tabs; keywords are case-insensitive.
+* Lines may end in CRLF; tokens may be separated by tabs; keywords are case-insensitive; a
+  UTF-8 byte-order mark is skipped. A joint name is everything after ``ROOT``/``JOINT`` on
+  its line up to an optional ``{`` (3ds Max writes names with spaces, ``Bip01 L Thigh``;
+  runs of whitespace inside a name read as one space).
   Malformed input raises :class:`~shellspline.errors.ShellsplineError` with one line that
   names the file and the line number.
 
@@ -274,6 +277,9 @@ class _Tokens:
     def peek(self) -> str | None:
         return self.items[self.pos][0] if self.pos < len(self.items) else None
 
+    def peek_line(self) -> int | None:
+        return self.items[self.pos][1] if self.pos < len(self.items) else None
+
     def expect(self, word: str) -> int:
         tok, line = self.next(repr(word))
         if tok.lower() != word.lower():
@@ -320,7 +326,7 @@ def read_bvh(path) -> Motion:
     """
     p = Path(path)
     name = str(p)
-    text = p.read_bytes().decode("utf-8", errors="replace")
+    text = p.read_bytes().decode("utf-8", errors="replace").removeprefix("\ufeff")  # BOM
     lines = text.splitlines()
     motion_at = next((i for i, s in enumerate(lines) if s.strip().upper() == "MOTION"), None)
     first = next((i for i, s in enumerate(lines) if s.strip()), None)
@@ -348,6 +354,8 @@ def _read_joint(toks: _Tokens, parent, names, parents, offsets, channels, ends) 
     jname, line = toks.next("a joint name")
     if jname == "{":
         raise toks.error("joint without a name", line)
+    while toks.peek() not in (None, "{") and toks.peek_line() == line:
+        jname += " " + toks.next("a joint name")[0]  # "Bip01 L Thigh" (3ds Max Biped)
     j = len(names)
     names.append(jname)
     parents.append(parent)

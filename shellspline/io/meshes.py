@@ -370,7 +370,10 @@ def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 if rec.size != count * width:
                     raise _Unreadable(f"element '{ename}' is truncated")
                 rec = rec.reshape(count, width)
-                cols = {n: rec[:, i] for i, (n, _) in enumerate(props)}
+                # the declared type, as in binary files and trimesh's reader: an ASCII
+                # "property float x" is a float32, whichever digits the text has
+                cols = {n: rec[:, i].astype(k) if k[0] == "f" else rec[:, i]
+                        for i, (n, k) in enumerate(props)}
                 pos += count * width
             else:
                 dt = np.dtype([(n, order + k) for n, k in props])

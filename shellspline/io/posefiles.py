@@ -15,9 +15,13 @@ format     content
 =========  =====================================================================================
 
 Poses are ``(n, 4, 4)`` rigid motions body -> world. Reading validates once (finite numbers,
-unit quaternions within 1e-3 — then normalised —, rotation blocks within 1e-3 of orthonormal —
-then projected —, strictly increasing times) and raises a one-line
-:class:`~shellspline.errors.ShellsplineError` naming the file and line. Writing is atomic
+unit quaternions within 1e-2 — then normalised; files written with 2 or 3 digits are not
+exactly unit —, rotation blocks within 1e-3 of orthonormal — then projected —, strictly
+increasing times) and raises a one-line :class:`~shellspline.errors.ShellsplineError` naming
+the file and line. What real exporters add is accepted: a UTF-8 byte-order mark, CRLF, tabs,
+a header line without ``#`` (a first data line with no number on it, e.g. ``timestamp tx ty
+...``), and a line repeated verbatim right after itself (the same time and pose: dropped).
+COLMAP ``images.txt`` is recognised and refused with a message (not supported). Writing is atomic
 (a temporary file in the target folder, then a rename) and makes quaternion signs continuous.
 Layer rule: numpy, :mod:`shellspline.groups`, :mod:`shellspline.errors` and
 :mod:`shellspline.io.atomic` only.
@@ -89,7 +93,7 @@ def detect_format(path) -> str:
     if path.suffix.lower() == ".json":
         return "json"
     try:
-        with open(path, encoding="utf-8") as f:
+        with open(path, encoding="utf-8-sig") as f:
             head = [ln.strip() for _, ln in zip(range(200), f)]
     except UnicodeDecodeError:
         _fail(path, 0, "not a text pose file (undecodable bytes)")
@@ -97,12 +101,17 @@ def detect_format(path) -> str:
         if not s:
             continue
         low = s.lower()
+        if "image list with two lines of data per image" in low:
+            _fail(path, k, "COLMAP images.txt is not supported (convert it to TUM: camera "
+                           "centre -R^T t and the inverse rotation, with a time per image)")
         if low.startswith("#timestamp") or "p_rs_r" in low:
             return "euroc"
         if low.replace(" ", "").startswith("t,tx,ty,tz"):
             return "csv"
         if s.startswith("#"):
             continue
+        if _is_header(s.replace(",", " ").split()):
+            continue  # a header line without '#'
         if "," in s:
             first = s.split(",")[0].strip()
             return "euroc" if first.isdigit() and len(first) >= 13 else "csv"
@@ -134,14 +143,20 @@ def _is_float(x):
         return False
 
 
+def _is_header(fields):
+    """A line of column names: no field is a number (``timestamp tx ty ...``)."""
+    return bool(fields) and not any(_is_float(x) for x in fields)
+
+
 def _quats(path, lines, q):
     """Unit quaternions ``(n, 4)`` from file values, normalised; one-line error at the first
-    that is not within 1e-3 of unit norm."""
+    that is not within 1e-2 of unit norm (a quaternion written with 2 digits is within 1e-2;
+    a norm farther from 1 means the columns are not what the format says)."""
     nq = np.linalg.norm(q, axis=1)
-    bad = np.abs(nq - 1) > 1e-3
+    bad = np.abs(nq - 1) > 1e-2
     if np.any(bad):
         i = int(np.argmax(bad))
-        _fail(path, lines[i], f"quaternion norm {nq[i]:.6g} is not 1 (within 1e-3)")
+        _fail(path, lines[i], f"quaternion norm {nq[i]:.6g} is not 1 (within 1e-2)")
     return q / nq[:, None]
 
 
@@ -184,7 +199,7 @@ def read_poses(path, format=None) -> PoseTrack:
     fmt = detect_format(path) if format is None else str(format).lower()
     if fmt not in FORMATS:
         raise ShellsplineError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
-    text = path.read_text(encoding="utf-8")
+    text = path.read_text(encoding="utf-8-sig")
     if fmt == "json":
         t, T, lines = _read_json(path, text)
         _check_times(path, t, lines)
@@ -196,17 +211,26 @@ def read_poses(path, format=None) -> PoseTrack:
             f = s.split()
         else:
             f = [x.strip() for x in s.split(",")]
-            if fmt == "csv" and f[0].lower() == "t":
-                continue  # header
-            if fmt == "euroc":
-                if not f[0].lstrip("-").isdigit():
-                    _fail(path, k, f"EuRoC timestamps are integer nanoseconds, got {f[0]!r}")
-                tns.append(int(f[0]))
+        if not rows and _is_header(f):
+            continue  # column names without '#' (ours: t,tx,ty,...)
+        if fmt == "euroc":
+            if not f[0].lstrip("-").isdigit():
+                _fail(path, k, f"EuRoC timestamps are integer nanoseconds, got {f[0]!r}")
+            tns.append(int(f[0]))
         rows.append(_numbers(path, k, f, n, what))
         lines.append(k)
     if not rows:
         _fail(path, 0, "no poses in the file")
     V = np.array(rows, dtype=np.float64)
+    if len(rows) > 1 and fmt != "kitti":  # a line repeated right after itself: dropped
+        # (KITTI has no times: a repeated pose is a frame where the camera stood still)
+        keep = np.ones(len(rows), dtype=bool)
+        keep[1:] = np.any(V[1:] != V[:-1], axis=1)
+        if tns:
+            keep[1:] |= np.diff(np.array(tns, dtype=np.int64)) != 0
+        if not keep.all():
+            V, lines = V[keep], [ln for ln, kp in zip(lines, keep) if kp]
+            tns = [x for x, kp in zip(tns, keep) if kp]
     finite = np.all(np.isfinite(V), axis=1)
     if not np.all(finite):
         _fail(path, lines[int(np.argmin(finite))], f"non-finite number (expected {what})")

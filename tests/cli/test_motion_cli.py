@@ -203,6 +203,21 @@ def test_held_out_layouts_through_the_cli(tmp_path, capsys):
     assert np.abs(c.R[-1] - c.R[0]).max() <= 1e-6
 
 
+def test_same_joints_other_rotation_order_names_the_joint(tmp_path, capsys):
+    """Two exports of one skeleton that differ only in a joint's rotation order: the error
+    says which joint and how (the counts alone are equal)."""
+    a = read_bvh(walk())
+    chans = list(a.channels)
+    j = 3
+    chans[j] = chans[j][:3] + ("Xrotation", "Yrotation", "Zrotation")
+    b = type(a)(a.names, a.parents, a.offsets, tuple(chans), a.frame_time, a.values,
+                a.end_sites)
+    write_bvh(b, tmp_path / "xyz.bvh")
+    code, _, err = run(capsys, "distance", walk(), tmp_path / "xyz.bvh")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"joint {j} ({a.names[j]})" in err and "Xrotation Yrotation Zrotation" in err
+
+
 def test_side_view_follows_the_body_not_the_root_marker():
     """After closing, the Bandai walks' root (a ground marker) carries the foot-planting
     shift while the hips carry the travel: the side view and the strip/GIF camera follow

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from conftest import shared_data
 
 from shellspline.cli.path import build_curve, keyframe_indices
@@ -57,7 +58,9 @@ def test_written_quaternions_are_sign_continuous_and_scalar_last(tmp_path):
 @pytest.mark.parametrize("content,name,match", [
     ("1 0 0 0 0 0 0 1\n2 2 3 4 5 6 7\n", "a.txt", r"a\.txt:2: expected 8 numbers"),
     ("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 2\n", "a.txt", r"a\.txt:2: quaternion norm 2"),
-    ("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", "a.txt", r"a\.txt:2: times must increase"),
+    ("1 0 0 0 0 0 0 1\n1 5 0 0 0 0 0 1\n", "a.txt", r"a\.txt:2: times must increase"),
+    ("# Image list with two lines of data per image:\n1 1 0 0 0 0 0 0 1 a.png\n\n", "images.txt",
+     r"images\.txt:1: COLMAP images\.txt is not supported"),
     ("# c\n1 0 0 0 0 0 x 1\n", "a.txt", r"a\.txt:2: not a number: 'x'"),
     ("1 2 3 4 5\n", "a.txt", r"a\.txt:1: cannot tell the pose format: 5 numbers"),
     ("# only comments\n", "a.txt", r"a\.txt: no poses"),
@@ -75,6 +78,44 @@ def test_bad_pose_files_give_one_line_errors_naming_file_and_line(tmp_path, cont
     with pytest.raises(ShellsplineError, match=match) as exc:
         read_poses(p)
     assert "\n" not in str(exc.value)
+
+
+def _tum_lines(t, T):
+    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
+    return [" ".join(repr(float(x)) for x in (ti, *Ti[:3, 3], *qi)) for ti, Ti, qi in
+            zip(t, T, q)]
+
+
+def test_what_real_exporters_add_is_accepted(tmp_path):
+    """A BOM, CRLF, a header line without '#', a line repeated verbatim, quaternions
+    written with 3 digits (norm off by up to 1e-3 per component) and sign flips: read as
+    scipy reads the same numbers."""
+    t, T = _track(12)
+    lines = _tum_lines(t, T)
+    q3 = np.round(Rotation.from_matrix(T[:, :3, :3]).as_quat(), 3)
+    q3[1::2] *= -1  # q and -q: the same rotation
+    rows = [" ".join(ln.split()[:4]) + " " + " ".join(repr(float(x)) for x in q)
+            for ln, q in zip(lines, q3)]
+    rows.insert(5, rows[4])  # a logger wrote pose 4 twice
+    text = "timestamp tx ty tz qx qy qz qw\r\n" + "\r\n".join(rows) + "\r\n"
+    p = tmp_path / "poses.txt"
+    p.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert detect_format(p) == "tum"
+    back = read_poses(p)
+    np.testing.assert_array_equal(back.t, t)
+    np.testing.assert_allclose(back.T[:, :3, 3], T[:, :3, 3], atol=1e-15)
+    np.testing.assert_allclose(back.T[:, :3, :3], Rotation.from_quat(q3).as_matrix(),
+                               atol=1e-15)
+    # the same numbers as CSV without a header: column names skipped too
+    c = tmp_path / "poses.csv"
+    c.write_text("time,x,y,z,qx,qy,qz,qw\n" + "\n".join(ln.replace(" ", ",")
+                                                        for ln in lines) + "\n")
+    np.testing.assert_allclose(read_poses(c).T, T, atol=1e-12)
+    # KITTI has no times: a repeated pose is a frame of its own, kept
+    k = tmp_path / "k.txt"
+    k.write_text("\n".join(" ".join(repr(float(x)) for x in Ti[:3].ravel())
+                           for Ti in T[[0, 0, 1]]) + "\n")
+    assert read_poses(k).t.tolist() == [0.0, 1.0, 2.0]
 
 
 def test_keyframe_indices_keep_first_and_last():

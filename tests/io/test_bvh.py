@@ -239,3 +239,39 @@ def test_real_clip_rewritten_in_another_layout_has_the_same_kinematics(tmp_path)
     P2, R2 = forward_kinematics(back)
     np.testing.assert_allclose(P2, P[:, keep], atol=1e-9 * np.abs(P).max())
     np.testing.assert_allclose(R2, R[:, keep], atol=1e-10)
+
+
+def _biped_text(brace_same_line: bool, bom: bool) -> str:
+    """A 3ds Max Biped-style file: joint names with spaces, ZXY rotations, CRLF."""
+    def head(kw, name):
+        return [f"{kw} {name} {{"] if brace_same_line else [f"{kw} {name}", "{"]
+    lines = (["HIERARCHY"] + head("ROOT", "Bip01") + [
+        "OFFSET 0 0 0",
+        "CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"]
+        + head("JOINT", "Bip01  L Thigh") + [  # two spaces: read as one
+            "OFFSET 10 -5 0", "CHANNELS 3 Zrotation Xrotation Yrotation"]
+        + head("JOINT", "Bip01 L Calf") + [
+            "OFFSET 0 -40 0", "CHANNELS 3 Zrotation Xrotation Yrotation",
+            "End Site", "{", "OFFSET 0 -42 0", "}", "}", "}", "}",
+            "MOTION", "Frames: 2", "Frame Time: 0.0333333",
+            "1 90 3 10 20 30 40 50 60 -70 80 -90",
+            "0 0 0 0 0 0 0 0 0 0 0 0"])
+    return ("\ufeff" if bom else "") + "\r\n".join(lines) + "\r\n"
+
+
+@pytest.mark.parametrize("brace_same_line, bom", [(False, False), (True, True)])
+def test_names_with_spaces_and_bom(tmp_path, brace_same_line, bom):
+    m = read_bvh(_write(tmp_path, _biped_text(brace_same_line, bom)))
+    assert m.names == ("Bip01", "Bip01 L Thigh", "Bip01 L Calf")
+    assert m.parents.tolist() == [-1, 0, 1]
+    P, _ = forward_kinematics(m)
+    # independent oracle: scipy intrinsic Euler angles composed by hand
+    R0 = Rotation.from_euler("ZXY", [10, 20, 30], degrees=True)
+    R1 = R0 * Rotation.from_euler("ZXY", [40, 50, 60], degrees=True)
+    thigh = np.array([1, 90, 3]) + R0.apply([10, -5, 0])
+    np.testing.assert_allclose(P[0, 1], thigh, atol=1e-12)
+    np.testing.assert_allclose(P[0, 2], thigh + R1.apply([0, -40, 0]), atol=1e-12)
+    # written back with the spaces, read back identical
+    back = read_bvh(write_bvh(m, tmp_path / "back.bvh"))
+    assert back.names == m.names
+    np.testing.assert_array_equal(back.values, m.values)

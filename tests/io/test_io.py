@@ -114,6 +114,25 @@ def test_float32_ply_converted_exactly(tmp_path):
     assert np.array_equal(F2, F)
 
 
+def test_ascii_ply_float_is_float32_for_triangles_and_polygons(tmp_path):
+    """ASCII "property float" reads as the float32 the header declares, whether the faces
+    are triangles (trimesh's reader) or quads (ours): the same mesh reads the same."""
+    V = np.array([[0.1, 0.2, 0.3], [1.1, 0.2, 0.3], [1.1, 1.7, 0.3], [0.1, 1.7, 0.3]])
+    head = ("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+            "property float z\nproperty uchar red\nelement face {}\n"
+            "property list uchar int vertex_indices\nend_header\n")
+    verts = "".join(f"{x} {y} {z} 200\n" for x, y, z in V)
+    tri = tmp_path / "tri.ply"
+    tri.write_text(head.format(2) + verts + "3 0 1 2\n3 0 2 3\n")
+    quad = tmp_path / "quad.ply"
+    quad.write_text(head.format(1) + verts + "4 0 1 2 3\n")
+    expect = V.astype(np.float32).astype(np.float64)
+    for p in (tri, quad):
+        V2, F2 = sio.read_mesh(p)
+        assert np.array_equal(V2, expect), p
+        assert F2.shape == (2, 3)
+
+
 def test_obj_dialects(tmp_path):
     text = ("# comment line\r\n"
             "o thing\r\n"
