@@ -250,6 +250,10 @@ def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *, slashes: b
         tokens = [t.split(b"/", 1)[0] for t in tokens]
     try:
         idx = np.array(list(map(int, tokens)), dtype=np.int64)
+    except OverflowError:
+        bad = next(t for t in tokens if abs(int(t)) >= 2 ** 63)
+        raise _Unreadable(f"face index '{bad.decode('ascii', 'replace')}' is too "
+                          "large") from None
     except ValueError:
         bad = next(t for t in tokens if not re.fullmatch(rb"[+-]?\d+", t))
         raise _Unreadable(f"face index '{bad.decode('ascii', 'replace')}' is not an "
@@ -287,10 +291,14 @@ def _line_number(lines: list[bytes], occurrence: int) -> int:
 def _read_with_trimesh(p: Path, ext: str, name: str):
     import trimesh
 
+    if ext == ".ply":
+        _check_ply_header(p)
     declared = _ply_header_counts(p) if ext == ".ply" else _off_header_counts(p)
     own = _read_ply if ext == ".ply" else _read_off
     try:
-        loaded = trimesh.load(str(p), file_type=ext[1:], process=False)
+        # skip_materials: a PLY comment naming a missing TextureFile (MeshLab) would make
+        # trimesh log a traceback to the user's terminal
+        loaded = trimesh.load(str(p), file_type=ext[1:], process=False, skip_materials=True)
     except Exception as exc:
         if declared is None or not isinstance(exc, (ValueError, IndexError, TypeError)):
             raise
@@ -395,7 +403,7 @@ def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 if isinstance(kind, tuple):
                     if tokens is not None:
                         k = int(tokens[pos])
-                        vals = [int(x) for x in tokens[pos + 1:pos + 1 + k]]
+                        vals = tokens[pos + 1:pos + 1 + k]  # texcoord lists are floats
                         pos += 1 + k
                     else:
                         cdt, idt = np.dtype(order + kind[1]), np.dtype(order + kind[2])
@@ -405,7 +413,7 @@ def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                     if len(vals) != k:
                         raise _Unreadable(f"element '{ename}' is truncated")
                     if pname in ("vertex_indices", "vertex_index"):
-                        lists.append(vals)
+                        lists.append([int(x) for x in vals] if tokens is not None else vals)
                 else:
                     pos += 1 if tokens is not None else np.dtype(kind).itemsize
         if ename == "face":
@@ -470,6 +478,39 @@ def polygon_offsets(sizes: np.ndarray) -> np.ndarray:
     offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
     np.cumsum(sizes, out=offsets[1:])
     return offsets
+
+
+def _check_ply_header(p: Path) -> None:
+    """Header problems said in words before any reader sees the data: element counts that
+    are not non-negative integers, property types PLY does not have, a face element
+    without a list of vertex indices."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return  # not a PLY header: the readers say so
+    element = None
+    face_lists = None
+    for k, ln in enumerate(head[:end].decode("ascii", "replace").splitlines(), start=1):
+        t = ln.split()
+        if len(t) >= 2 and t[0] == "element":
+            if len(t) != 3 or not t[2].isdigit():
+                raise _Unreadable(f"header line {k}: element '{t[1]}' needs a non-negative "
+                                  f"count, got {' '.join(t[2:]) or 'none'!r}")
+            element = t[1]
+            if element == "face":
+                face_lists = []
+        elif t and t[0] == "property" and element is not None:
+            types = t[2:4] if len(t) >= 2 and t[1] == "list" else t[1:2]
+            bad = [x for x in types if x not in _PLY_TYPES]
+            if bad or len(t) < (5 if t[1:2] == ["list"] else 3):
+                raise _Unreadable(f"header line {k}: not a PLY property: '{ln.strip()}'"
+                                  + (f" (unknown type '{bad[0]}')" if bad else ""))
+            if element == "face" and t[1] == "list":
+                face_lists.append(t[-1])
+    if face_lists is not None and not any(n in ("vertex_indices", "vertex_index")
+                                          for n in face_lists):
+        raise _Unreadable("the face element has no 'vertex_indices' list property")
 
 
 def _ply_header_counts(p: Path) -> tuple[int | None, int | None] | None:

@@ -133,6 +133,69 @@ def test_ascii_ply_float_is_float32_for_triangles_and_polygons(tmp_path):
         assert F2.shape == (2, 3)
 
 
+_PYRAMID = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1]])
+_PYRAMID_POLYS = [[0, 1, 2, 3], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]]
+
+
+def _meshlab_ply(path, polys, fmt):
+    """A PLY as MeshLab writes it: per-vertex quality, per-face texcoord lists (floats) and
+    texnumber, and a TextureFile comment naming an image that is not there."""
+    import struct
+    e = ">" if "big" in fmt else "<"
+    head = (f"ply\nformat {fmt} 1.0\ncomment VCGLIB generated\ncomment TextureFile tex.png\n"
+            f"element vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+            f"property float quality\nelement face {len(polys)}\n"
+            "property list uchar int vertex_indices\nproperty list uchar float texcoord\n"
+            "property int texnumber\nend_header\n").encode()
+    if fmt == "ascii":
+        body = "".join(f"{x} {y} {z} 0.5\n" for x, y, z in _PYRAMID)
+        body += "".join(f"{len(f)} {' '.join(map(str, f))} {2 * len(f)} "
+                        f"{' '.join(['0.25'] * 2 * len(f))} 0\n" for f in polys)
+        body = body.encode()
+    else:
+        body = b"".join(struct.pack(e + "4f", *v, 0.5) for v in _PYRAMID)
+        body += b"".join(struct.pack(e + "B", len(f)) + struct.pack(e + f"{len(f)}i", *f)
+                         + struct.pack(e + "B", 2 * len(f))
+                         + struct.pack(e + f"{2 * len(f)}f", *[0.25] * (2 * len(f)))
+                         + struct.pack(e + "i", 0) for f in polys)
+    path.write_bytes(head + body)
+    return path
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian", "binary_big_endian"])
+@pytest.mark.parametrize("quads", [True, False])
+def test_meshlab_ply_with_texcoord_lists(tmp_path, caplog, fmt, quads):
+    polys = _PYRAMID_POLYS if quads else [[0, 1, 2], [0, 2, 3]] + _PYRAMID_POLYS[1:]
+    p = _meshlab_ply(tmp_path / "m.ply", polys, fmt)
+    with caplog.at_level("DEBUG"):
+        V, offsets, indices, _ = sio.meshes.read_polygons(p)
+    assert np.array_equal(V, _PYRAMID)
+    assert [indices[a:b].tolist() for a, b in zip(offsets[:-1], offsets[1:])] == polys
+    # trimesh logged "unable to load image!" with a traceback (shown on the terminal)
+    assert not [r for r in caplog.records if r.levelno >= 30 or r.exc_info]
+
+
+@pytest.mark.parametrize("header, phrase", [
+    ("element vertex 4\nproperty float128 x\nproperty float y\nproperty float z\n",
+     "header line 4: not a PLY property: 'property float128 x' (unknown type 'float128')"),
+    ("element vertex -4\nproperty float x\nproperty float y\nproperty float z\n",
+     "element 'vertex' needs a non-negative count, got '-4'"),
+])
+def test_ply_header_errors_in_words(tmp_path, header, phrase):
+    p = tmp_path / "h.ply"
+    p.write_text("ply\nformat ascii 1.0\n" + header + "element face 1\nproperty list uchar "
+                 "int vertex_indices\nend_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n")
+    raises_mesh_error(lambda: sio.read_mesh(p), "h.ply", phrase)
+    q = tmp_path / "nolist.ply"
+    q.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                 "property float z\nelement face 1\nproperty int a\nend_header\n0 0 0\n1 0 0\n"
+                 "0 1 0\n4\n")
+    raises_mesh_error(lambda: sio.read_mesh(q), "no 'vertex_indices' list property")
+    r = tmp_path / "big.obj"
+    r.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n")
+    raises_mesh_error(lambda: sio.read_mesh(r), "face index '99999999999999999999' is too large")
+
+
 def test_obj_dialects(tmp_path):
     text = ("# comment line\r\n"
             "o thing\r\n"
