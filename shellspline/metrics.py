@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh.geometry import dot, face_normals, flap_angles, norms
+from .mesh.geometry import face_normals, norms
 from .mesh.topology import Topology
+from .shells.defects import COLLAPSE_RATIO, DefectRules
 from .shells.descriptors import edge_lengths
 
 __all__ = ["length_scale", "half_axes", "keyframe_kinks", "edge_strain", "speed", "lta_energies", "sequence_defects",
-           "shell_energies"]
+           "shell_energies", "COLLAPSE_RATIO"]
 
 
 def length_scale(V, F) -> float:
@@ -223,16 +224,13 @@ def shell_energies(V, T: Topology, *, bc: str = "natural", mu: float = 1.0, lam:
     return out
 
 
-#: A face is *collapsed* in a frame when its area is below this fraction of its smallest
-#: keyframe area (issue 13: the horse's LΘA output had 36 such faces, linear blending none).
-COLLAPSE_RATIO = 1e-3
-
-
 def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
                      chunk: int = 8) -> dict:
     """Defects of a sequence that its keyframes do not have themselves.
 
-    Three kinds of element defect and one of motion, each counted per frame:
+    Three kinds of element defect and one of motion, each counted per frame (the element
+    rules are those of :class:`~shellspline.shells.defects.DefectRules`, which the
+    multiresolution guard uses too):
 
     - **flipped faces**: step ``k−1 → k`` reverses a face's normal (``n_k · n_{k−1} < 0``)
       although the face's normals at the two keyframes around the step do not point against
@@ -265,7 +263,7 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     bc : {"natural", "periodic", "hermite"}
         ``"periodic"``: the steps after the last keyframe lead back to keyframe 0.
     chunk : int
-        Frames per batch (bounds memory on large meshes).
+        Steps per batch of the vertex displacements (bounds memory on large meshes).
 
     Returns
     -------
@@ -288,58 +286,19 @@ def sequence_defects(V, T: Topology, frames, *, bc: str = "natural",
     >>> d["flipped_faces"], d["collapsed_faces"], d["folded_edges"], round(d["pop"], 6)
     (0, 0, 0, 1.0)
     """
-    from .shells.descriptors import FOLD_BAND
-    from .timeline import keyframe_gap
-
     V = np.asarray(V, dtype=np.float64)
     frames = np.asarray(frames, dtype=np.int64)
     K = V.shape[0] - 1
-    periodic = str(bc).lower() == "periodic"
-    F = T.F
-    Nkey = face_normals(V[frames], F)                                   # (J, m, 3)
-    akey = 0.5 * norms(Nkey).min(axis=0)
-    Tkey = flap_angles(V[frames], Nkey, T)                              # (J, i)
-    flipped = np.zeros(K + 1, dtype=np.int64)
-    collapsed = np.zeros(K + 1, dtype=np.int64)
-    folded = np.zeros(K + 1, dtype=np.int64)
+    # the element defects: the rules of shells.defects (one implementation)
+    d = DefectRules(V[frames], T, frames, K, bc).scan(V)
+    flipped = np.bincount(d["flipped"][:, 0] + 1, minlength=K + 1)
+    folded = np.bincount(d["folded"][:, 0] + 1, minlength=K + 1)
+    collapsed = np.bincount(d["collapsed"][:, 0], minlength=K + 1)
     steps = np.zeros(K)
-    is_key = np.zeros(K + 1, dtype=bool)
-    is_key[frames] = True
-    is_key[K] |= periodic
-    g0, g1 = keyframe_gap(frames, K, periodic)                          # per step
-    key_flip = dot(Nkey[g0], Nkey[g1]) < 0 if K else None
-    # a crossing the keyframes hold themselves: one end near ±π, the short way through it
-    Ta, Tb = Tkey[g0], Tkey[g1]
-    band = np.pi - FOLD_BAND
-    key_fold = ((np.abs(Ta) > band) | (np.abs(Tb) > band)) & (np.abs(Tb - Ta) > np.pi)
-    prevN = prevT = prevV = None
-    for i in range(0, K + 1, chunk):
-        Vc = V[i:i + chunk]
-        N = face_normals(Vc, F)
-        Th = flap_angles(Vc, N, T)          # the dihedral angles, from the normals
-        a = 0.5 * norms(N)
-        collapsed[i:i + len(Vc)] = (a < COLLAPSE_RATIO * akey).sum(axis=1)
-        if prevN is not None:
-            N, Th, Vc = (np.concatenate([p[None], c]) for p, c in
-                         ((prevN, N), (prevT, Th), (prevV, Vc)))
-            s0 = i - 1
-        else:
-            s0 = i
-        if len(Vc) > 1:
-            ks = np.arange(s0, s0 + len(Vc) - 1)                      # steps ks -> ks+1
-            flip = dot(N[1:], N[:-1]) < 0
-            flipped[ks + 1] = (flip & ~key_flip[ks]).sum(axis=1)
-            through = np.abs(Th[1:] - Th[:-1]) > np.pi                  # short path via ±π
-            # a step from or to a keyframe that holds the edge within FOLD_BAND of ±π: the
-            # keyframe's sign there is round-off (an angle of exactly π came out +π or −π
-            # as the joint's keyframe was scaled by 1/D and back), not a fold
-            held = (is_key[ks, None] & (np.abs(Th[:-1]) > band)) | \
-                (is_key[ks + 1, None] & (np.abs(Th[1:]) > band))
-            folded[ks + 1] = (through & ~key_fold[ks] & ~held).sum(axis=1)
-            d = Vc[1:] - Vc[:-1]
-            steps[ks] = np.sqrt(np.einsum("kni,kni->kn", d, d).max(axis=1))
-        prevN, prevT, prevV = N[-1], Th[-1], Vc[-1]
-    collapsed[is_key] = 0
+    for i in range(0, K, chunk):  # largest vertex displacement of every step
+        j = min(i + chunk, K)
+        dV = V[i + 1:j + 1] - V[i:j]
+        steps[i:j] = np.sqrt(np.einsum("kni,kni->kn", dV, dV).max(axis=1))
     pop = np.zeros(K + 1)
     if K >= 2:
         # steps at round-off level (static frames) are not motion

@@ -26,13 +26,14 @@ carried on frames of the base surface is safe where the coarse in-between moves 
 nearly rigidly at the scale of the detail; on real meshes it is not everywhere: skin creases
 that a keyframe holds folded by up to 2.7 rad against the smooth base pass through each
 other, and slivers (1 % of an edge high) turn over at the slightest non-rigid motion of the
-base under them. Measured with :func:`step_defects` (the rules of
-:func:`shellspline.metrics.sequence_defects`, element by element), a fine defect in a step is
-*inherited* when one of its vertices was merged into a coarse vertex within one coarse ring of
-a coarse element with a defect in the same step; :meth:`Prolongation.guard` fades the detail
-of the vertices of every other defect to zero (the vertex then lies on the base), spread over
-two graph rings and two frames, keyframes untouched, and repeats until none is left; where the
-base surface itself has a defect (a fair surface through the coarse vertices can fold a fine
+base under them. Measured with :class:`~shellspline.shells.defects.DefectRules` (the rules
+that :func:`shellspline.metrics.sequence_defects` counts, element by element), a fine defect
+in a step is *inherited* when one of its vertices was merged into a coarse vertex within one
+coarse ring of a coarse element with a defect in the same step; :meth:`Prolongation.guard`
+fades the detail of the vertices of every other defect to zero (the vertex then lies on the
+base), spread over two graph rings and two frames, keyframes untouched, and repeats (scanning
+again only the steps next to the frames it changed) until none is left; where the base
+surface itself has a defect (a fair surface through the coarse vertices can fold a fine
 crease on its own) the round with the fewest new defects is returned and the rest reported.
 ``data_synth.stress.slivers`` at a quarter of its vertices: 184 new flipped faces and 76
 folded edges → 0 and at most 1; the horse (keyframes 0/03/07, 1000 coarse vertices): 9 new
@@ -50,6 +51,7 @@ from ..mesh.geometry import cross, dot, normalized, norms, vertex_face_incidence
 from ..mesh.pinned import pinned_mask
 from ..mesh.topology import Topology, topology
 from ..timeline import linear_time_weights as timeline_linear_time_weights
+from .defects import DefectRules, step_defects
 
 __all__ = ["Prolongation", "linear_time_weights", "spline_time_weights", "prolong",
            "step_defects", "fade_new_defects"]
@@ -439,7 +441,7 @@ class Prolongation:
         faces and no folded coarse edge became 31 flipped fine faces and 13 folded edges;
         ``data_synth.stress.slivers``: 3 → 220 flipped, 0 → 236 folded).
 
-        This pass finds, step by step, the fine defects of :func:`step_defects` that are not
+        This pass finds, step by step, the fine defects (:class:`~.defects.DefectRules`) not
         *inherited* (no vertex of the fine face, flap or collapsed face is merged into a
         coarse vertex within one coarse ring of a coarse element with a defect in the same
         step), and fades the detail of their vertices to zero: the vertex then lies on
@@ -543,7 +545,7 @@ def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fal
     periodic = str(bc).lower() == "periodic"
     n, nc = T.n_vertices, Tc.n_vertices
     # coarse vertices near a coarse defect of each step (one coarse ring of slack)
-    cbad = _defect_vertices(step_defects(Vc, Tc, frames, bc=bc), Tc)
+    cbad = _defect_vertices(DefectRules(Vc[frames], Tc, frames, K, bc).scan(Vc), Tc, K)
     cbad = np.asarray((_adjacency(Tc.E, nc) @ cbad.T.astype(np.float64)) > 0).T  # (K, nc)
     allowed = cbad[:, np.asarray(collapse_map, dtype=np.int64)]                  # (K, n)
     is_key = np.zeros(K + 1, dtype=bool)
@@ -553,9 +555,10 @@ def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fal
     A = _adjacency(T.E, n)
     fade = np.zeros((K + 1, n))
     before = best = None
-    N, Th = _normals_angles(V, T)
+    rules = DefectRules(V[frames], T, frames, K, bc)  # keyframes never fade
+    found = rules.scan(V)
     for rounds in range(max_rounds + 1):
-        new, bad = _new_defects(_step_defects(N, Th, frames, bc), T, allowed)
+        new, bad = _new_defects(found, T, allowed)
         total = sum(new.values())
         if before is None:
             before = new
@@ -590,86 +593,12 @@ def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fal
         V[todo] = V0[todo] + fade[todo, :, None] * (target - V0[todo])
         if pinned.size:
             V[:, pinned] = pinned_at
-        N[todo], Th[todo] = _normals_angles(V[todo], T)
+        # only the steps next to a changed frame can change: scan those again
+        steps = np.union1d(todo - 1, todo)
+        found = _rescanned(found, rules.scan(V, steps[(steps >= 0) & (steps < K)]))
     _, V, after, faded, kept_round = best
     return V, {"new_defects_before": before, "new_defects_after": after,
                "rounds": int(kept_round), "faded": faded}
-
-
-def step_defects(V, T: Topology, frames, *, bc: str = "natural") -> dict:
-    """Which element has which defect in which step of a sequence, by the rules of
-    :func:`shellspline.metrics.sequence_defects` (which counts them).
-
-    Parameters
-    ----------
-    V : (K+1,n,3) float array_like
-    T : Topology
-    frames : (J,) int array_like
-        Keyframe frames.
-    bc : {"natural", "hermite", "periodic"}
-
-    Returns
-    -------
-    dict
-        ``flipped`` (K,m) bool: step ``k → k+1`` reverses face ``t``'s normal although the
-        keyframes around the step do not point it against each other; ``folded`` (K,i) bool:
-        the step takes interior edge ``e``'s dihedral angle through ±π, not held so by the
-        keyframes (:data:`~shellspline.shells.descriptors.FOLD_BAND`); ``collapsed`` (K+1,m)
-        bool: in-between frame ``k`` has face ``t`` below ``COLLAPSE_RATIO`` (1e-3) of its
-        smallest keyframe area.
-
-    Examples
-    --------
-    >>> from shellspline.mesh.topology import topology
-    >>> F = np.array([[0, 1, 2], [1, 0, 3]])
-    >>> V0 = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0]])
-    >>> V = np.stack([V0, V0 * [1, 1, 0] + [0, 0, 0], V0 * [1, -1, 1], V0])
-    >>> step_defects(V, topology(F), [0, 3])["flipped"].sum(axis=1).tolist()
-    [0, 2, 2]
-    """
-    V = np.asarray(V, dtype=np.float64)
-    return _step_defects(*_normals_angles(V, T), frames, bc)
-
-
-def _normals_angles(V, T):
-    """Face normals (K+1,m,3) and dihedral angles (K+1,i) of a sequence; the angles from
-    the normals (``atan2((n1 × n2) · ê, n1 · n2)``, as
-    :func:`~shellspline.shells.descriptors.dihedral_angles` computes them, to round-off; on
-    the horse, K = 40, normals and angles take 0.16 s, ``dihedral_angles`` alone 0.69 s)."""
-    from ..mesh.geometry import face_normals, flap_angles
-
-    N = np.empty(V.shape[:-2] + (T.F.shape[0], 3))
-    Th = np.empty(V.shape[:-2] + (T.n_interior,))
-    for i in range(0, V.shape[0], 4):  # a few frames at a time: bounded temporaries
-        Vi = V[i:i + 4]
-        N[i:i + 4] = Ni = face_normals(Vi, T.F)
-        Th[i:i + 4] = flap_angles(Vi, Ni, T)
-    return N, Th
-
-
-def _step_defects(N, Th, frames, bc):
-    """:func:`step_defects` from the sequence's face normals and dihedral angles."""
-    from .descriptors import FOLD_BAND
-    from ..timeline import keyframe_gap
-
-    fr = np.asarray(frames, dtype=np.int64)
-    K = N.shape[0] - 1
-    periodic = str(bc).lower() == "periodic"
-    g0, g1 = keyframe_gap(fr, K, periodic)
-    Nk, Tk = N[fr], Th[fr]
-    flipped = (dot(N[1:], N[:-1]) < 0) & ~(dot(Nk[g0], Nk[g1]) < 0)
-    band = np.pi - FOLD_BAND
-    Ta, Tb = Tk[g0], Tk[g1]
-    key_fold = ((np.abs(Ta) > band) | (np.abs(Tb) > band)) & (np.abs(Tb - Ta) > np.pi)
-    is_key = np.zeros(K + 1, dtype=bool)
-    is_key[fr] = True
-    is_key[K] |= periodic
-    held = (is_key[:-1, None] & (np.abs(Th[:-1]) > band)) | \
-        (is_key[1:, None] & (np.abs(Th[1:]) > band))
-    folded = (np.abs(Th[1:] - Th[:-1]) > np.pi) & ~key_fold & ~held
-    a = 0.5 * norms(N)
-    collapsed = (a < 1e-3 * a[fr].min(axis=0)) & ~is_key[:, None]
-    return {"flipped": flipped, "folded": folded, "collapsed": collapsed}
 
 
 def _adjacency(E, n):
@@ -679,38 +608,54 @@ def _adjacency(E, n):
             + sp.identity(n)).tocsr()
 
 
-def _defect_vertices(d, T):
-    """(K, n) bool: vertices of an element with any defect of :func:`step_defects` ``d`` in
-    step ``k`` (a collapsed face counts in both steps next to its frame)."""
-    K = d["flipped"].shape[0]
+def _defect_vertices(d, T, K):
+    """(K, n) bool: vertices of an element with any defect of a
+    :meth:`~shellspline.shells.defects.DefectRules.scan` ``d`` in step ``k`` (a collapsed
+    face counts in both steps next to its frame)."""
     out = np.zeros((K, T.n_vertices), dtype=bool)
-    for k, t in zip(*np.nonzero(d["flipped"])):
-        out[k, T.F[t]] = True
-    for k, e in zip(*np.nonzero(d["folded"])):
-        out[k, T.flaps[e]] = True
-    for k, t in zip(*np.nonzero(d["collapsed"])):
-        out[max(k - 1, 0):k + 1, T.F[t]] = True
+    k, t = d["flipped"].T
+    out[k[:, None], T.F[t]] = True
+    k, e = d["folded"].T
+    out[k[:, None], T.flaps[e]] = True
+    k, t = d["collapsed"].T
+    out[np.maximum(k - 1, 0)[:, None], T.F[t]] = True
+    inside = k < K
+    out[k[inside, None], T.F[t[inside]]] = True
     return out
 
 
 def _new_defects(d, T, allowed):
-    """Defects of ``d`` (:func:`step_defects`) with no vertex in ``allowed`` ((K, n) bool,
-    per step): counts and the (K+1, n) bool mask of their vertices in the frames involved."""
+    """Defects of a :meth:`~shellspline.shells.defects.DefectRules.scan` ``d`` with no vertex
+    in ``allowed`` ((K, n) bool, per step): counts and the (K+1, n) bool mask of their
+    vertices in the frames involved."""
     K = allowed.shape[0]
     bad = np.zeros((K + 1, T.n_vertices), dtype=bool)
-    fl = d["flipped"] & ~allowed[:, T.F].any(axis=-1)
-    fo = d["folded"] & ~allowed[:, T.flaps].any(axis=-1)
     at_frame = np.zeros((K + 1, T.n_vertices), dtype=bool)
     at_frame[:-1] |= allowed
     at_frame[1:] |= allowed
-    co = d["collapsed"] & ~at_frame[:, T.F].any(axis=-1)
-    for k, t in zip(*np.nonzero(fl)):
-        bad[k:k + 2, T.F[t]] = True
-    for k, e in zip(*np.nonzero(fo)):
-        bad[k:k + 2, T.flaps[e]] = True
-    for k, t in zip(*np.nonzero(co)):
-        bad[k, T.F[t]] = True
-    return {"flipped": int(fl.sum()), "folded": int(fo.sum()), "collapsed": int(co.sum())}, bad
+    count = {}
+    for key, verts, ok, span in (("flipped", T.F, allowed, 2), ("folded", T.flaps, allowed, 2),
+                                 ("collapsed", T.F, at_frame, 1)):
+        k, x = d[key].T
+        vx = verts[x]                                           # (r, 3 or 4)
+        new = ~ok[k[:, None], vx].any(axis=1)
+        k, vx = k[new, None], vx[new]
+        for dk in range(span):
+            bad[k + dk, vx] = True
+        count[key] = int(new.sum())
+    return count, bad
+
+
+def _rescanned(found, part):
+    """The defect lists ``found`` with the steps and frames that ``part`` (a scan of some
+    steps) looked at replaced by ``part``'s."""
+    out = {}
+    for key in ("flipped", "folded", "collapsed"):
+        rows = found[key]
+        # flips and folds are listed by step, collapsed faces by frame
+        seen = np.isin(rows[:, 0], part["frames"] if key == "collapsed" else part["steps"])
+        out[key] = np.concatenate([rows[~seen], part[key]])
+    return out
 
 
 def _edge_weights(Vs, E):

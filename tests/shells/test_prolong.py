@@ -311,6 +311,39 @@ def test_guard_fades_the_detail_that_turns_slivers_over(sliver_run):
     assert on_base[moved].any()
 
 
+def test_guard_rescanning_only_the_changed_steps_is_the_full_rescan(sliver_run, monkeypatch):
+    """After a round of fading, the guard scans again only the steps next to the frames it
+    changed: the sequence and record are those of scanning every step every round (17
+    rounds on the sliver tube when this was written), towards the base and towards an
+    explicit fallback."""
+    from shellspline.shells.defects import DefectRules
+
+    c, T, dec, Vc, P, V = sliver_run
+    rng = np.random.default_rng(1)
+    shaken = V + 0.02 * rng.normal(size=V.shape)
+    shaken[P.frames] = V[P.frames]
+    scans = []
+    scan = DefectRules.scan
+
+    def counted(self, V, steps=None):
+        scans.append(self.K if steps is None else len(np.unique(steps)))
+        return scan(self, V, steps)
+
+    monkeypatch.setattr(DefectRules, "scan", counted)
+    fast = [P.guard(V, Vc), P.guard(shaken, Vc, fallback=V)]
+    assert fast[0][1]["rounds"] > 5 and fast[1][1]["rounds"] > 1
+    assert min(scans) < P.frames[-1] // 2                         # some rounds scan a few
+
+    def full(self, V, steps=None):
+        return scan(self, V)                                      # every step, every round
+
+    monkeypatch.setattr(DefectRules, "scan", full)
+    slow = [P.guard(V, Vc), P.guard(shaken, Vc, fallback=V)]
+    for (a, ra), (b, rb) in zip(fast, slow):
+        assert ra == rb
+        assert np.array_equal(a, b)
+
+
 def test_guard_changes_nothing_where_the_prolongation_adds_no_defect(bumpy):
     d, dec, P = bumpy
     fr = d["frames"]
