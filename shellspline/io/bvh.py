@@ -22,6 +22,9 @@ Conventions (what real files from Blender, CMU, motion builders and game studios
   UTF-8 byte-order mark is skipped. A joint name is everything after ``ROOT``/``JOINT`` on
   its line up to an optional ``{`` (3ds Max writes names with spaces, ``Bip01 L Thigh``;
   runs of whitespace inside a name read as one space).
+* Every line after ``Frame Time:`` is a frame, as Blender's importer reads them: when the
+  ``Frames:`` count disagrees (exporters write off-by-one counts) a ``UserWarning`` says
+  so and all frame lines are kept; a truncated last line still fails (wrong value count).
   Malformed input raises :class:`~shellspline.errors.ShellsplineError` with one line that
   names the file and the line number.
 
@@ -32,6 +35,7 @@ bit for bit.
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -321,8 +325,13 @@ def read_bvh(path) -> Motion:
     ShellsplineError
         One line naming the file and line: missing ``HIERARCHY``/``MOTION``, unbalanced
         braces, unknown channels, a bad ``Frames:``/``Frame Time:`` header, a frame line
-        with the wrong number of values or a non-number, fewer or more frame lines than
-        declared. ``OSError`` if the file cannot be read.
+        with the wrong number of values or a non-number. ``OSError`` if the file cannot be
+        read.
+
+    Warns
+    -----
+    UserWarning
+        When the number of frame lines differs from the ``Frames:`` count (all are read).
     """
     p = Path(path)
     name = str(p)
@@ -420,10 +429,10 @@ def _read_motion(lines: list[str], at: int, C: int, name: str) -> tuple[float, n
     if not (np.isfinite(ft) and ft > 0):
         raise ShellsplineError(f"{name}:{i}: Frame Time: must be positive, got {ft!r}")
     rows = [(k + 1, s) for k, s in enumerate(lines[i:], start=i) if s.strip()]
-    if len(rows) != n:
-        where = rows[n][0] if len(rows) > n else len(lines)
-        raise ShellsplineError(f"{name}:{where}: Frames: declares {n} frames, the file has "
-                               f"{len(rows)} frame lines")
+    if len(rows) != n:  # as Blender's importer: every frame line is read, the count warned
+        warnings.warn(f"{name}: Frames: declares {n} frames, the file has {len(rows)} frame "
+                      f"lines; all {len(rows)} are read", UserWarning, stacklevel=3)
+        n = len(rows)
     values = np.zeros((n, C))
     for f, (line, s) in enumerate(rows):
         tok = s.split()

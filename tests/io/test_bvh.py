@@ -174,7 +174,6 @@ def test_frames_window_scales_frame_time(tmp_path):
     (lambda s: s.replace("0 0 0 0 0 0 90 0 0", "0 0 0 0 0 0 90 0"),
      "m.bvh:21: frame 2 has 8 values, the HIERARCHY declares 9 channels"),
     (lambda s: s.split("MOTION")[0], "no MOTION section"),
-    (lambda s: s.replace("Frames:\t3", "Frames:\t4"), "declares 4 frames, the file has 3"),
     (lambda s: s.replace("Frame Time:\t0.008333333", "Frame Time: abc"), "m.bvh:18: Frame Time"),
     (lambda s: s.replace("Zrotation Yrotation", "Wrotation Yrotation"),
      "m.bvh:9: CHANNELS of knee: unknown channel 'Wrotation'"),
@@ -275,3 +274,18 @@ def test_names_with_spaces_and_bom(tmp_path, brace_same_line, bom):
     back = read_bvh(write_bvh(m, tmp_path / "back.bvh"))
     assert back.names == m.names
     np.testing.assert_array_equal(back.values, m.values)
+
+
+@pytest.mark.parametrize("declared", [2, 4, 0])
+def test_frame_count_that_disagrees_is_warned_and_every_line_read(tmp_path, declared):
+    """Blender's importer reads every frame line whatever ``Frames:`` says; so do we, with a
+    warning (the CLI shows it as a note). The values are those of the lines."""
+    p = _write(tmp_path, TWO_JOINTS.replace("Frames:\t3", f"Frames:\t{declared}"))
+    with pytest.warns(UserWarning, match=f"declares {declared} frames, the file has 3"):
+        m = read_bvh(p)
+    assert m.n_frames == 3
+    np.testing.assert_array_equal(m.values[1], [10, 20, 30, 90, 0, 0, 0, 0, 0])
+    # a truncated last line is still an error (the download stopped mid-line)
+    cut = TWO_JOINTS.replace("Frames:\t3", "Frames:\t4") + "1 2 3 4\r\n"
+    with pytest.raises(ShellsplineError, match="frame 3 has 4 values"):
+        read_bvh(_write(tmp_path, cut, "cut.bvh"))
