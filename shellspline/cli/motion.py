@@ -170,14 +170,16 @@ def _check_outputs(args, *paths):
 
 def _read(path):
     """A BVH clip (a ``.bvh`` file or one that starts with ``HIERARCHY``), a mesh sequence (a
-    folder of mesh frames, name order) or a pose track (any other file)."""
+    folder of mesh frames, natural name order) or a pose track (any other file)."""
     from ..io import MESH_EXTENSIONS, read_keyframes
     from ..io.bvh import read_bvh
     from ..io.posefiles import read_poses
 
+    from ..io.sequences import frame_files
+
     p = Path(path)
     if p.is_dir():
-        frames = sorted(f for f in p.iterdir() if f.suffix.lower() in MESH_EXTENSIONS)
+        frames = frame_files(p)  # natural order: mesh.2.obj before mesh.10.obj
         if len(frames) < 3:
             raise ShellsplineError(f"{path}: a mesh sequence needs at least 3 frames "
                                    f"({', '.join(MESH_EXTENSIONS)} files), found {len(frames)}")

@@ -23,7 +23,7 @@ from .meshes import check_indices, read_polygons
 
 __all__ = ["write_sequence", "check_output_dir", "read_sequence", "jsonable", "GLB_NAME",
            "SEQUENCE_FORMATS", "ANIMATION_NAMES", "MESH_NAME", "write_obj_frame",
-           "write_ply_frame"]
+           "write_ply_frame", "natural_key", "frame_files"]
 
 FRAME_RE = re.compile(r"^frame_(\d+)\.(obj|ply)$")
 GLB_NAME = "animation.glb"
@@ -35,6 +35,25 @@ ANIMATION_NAMES = {"glb": GLB_NAME, "mdd": "animation.mdd", "pc2": "animation.pc
 """The one animation file of an output directory, by format (``obj``/``ply``: frame files)."""
 MESH_NAME = "mesh.obj"
 """The mesh a point cache (``mdd``/``pc2``) animates, beside it in the output directory."""
+
+
+
+def natural_key(name: str) -> list:
+    """Sort key that orders the digit runs of a name by value: ``mesh.2.obj`` before
+    ``mesh.10.obj`` (Houdini's ``$F``, Maya's ``name.#`` write frame numbers unpadded)."""
+    return [(1, int(t), "") if t.isdigit() else (0, 0, t)
+            for t in re.split(r"(\d+)", str(name)) if t]
+
+
+def frame_files(folder) -> list[Path]:
+    """The mesh files (OBJ/PLY/OFF) of ``folder`` in natural name order
+    (:func:`natural_key`), e.g. the frames of an animation exported one file per frame."""
+    from .meshes import MESH_EXTENSIONS
+
+    return sorted((f for f in Path(folder).iterdir()
+                   if f.suffix.lower() in MESH_EXTENSIONS and f.is_file()),
+                  key=lambda f: natural_key(f.name))
+
 
 # ----------------------------------------------------------------------------------------
 # Writing sequences

@@ -179,6 +179,24 @@ def test_mesh_sequence_folders(capsys, tmp_path):
     assert code == 2 and "two BVH files, two mesh sequence folders or two pose" in err
 
 
+def test_unpadded_frame_numbers_read_in_numeric_order(capsys, tmp_path):
+    """Houdini/Maya write ``mesh.1.obj ... mesh.12.obj``: frame 10 comes after frame 9, not
+    after frame 1 (the blend of the folder with itself returns its frames in that order)."""
+    from data_synth.skinned import skinned_sequence
+    from shellspline.io import read_sequence
+
+    Vs, F, _ = skinned_sequence(walk(), start=10, stop=22, n_vertices=200)
+    d = tmp_path / "houdini"
+    d.mkdir()
+    for k, V in enumerate(Vs):
+        (d / f"mesh.{k + 1}.obj").write_text(
+            "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+            + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist()))
+    code, _, err = run(capsys, "blend", d, d, "-o", tmp_path / "mid", "--align", "none", "-q")
+    assert code == 0, err
+    np.testing.assert_allclose(read_sequence(tmp_path / "mid")[0], Vs, atol=1e-8)
+
+
 def test_held_out_layouts_through_the_cli(tmp_path, capsys):
     one, cmu, simple = tmp_path / "one.bvh", tmp_path / "cmu.bvh", tmp_path / "simple.bvh"
     write_bvh(synth.motion(frames=1), one)
