@@ -118,6 +118,19 @@ def test_what_real_exporters_add_is_accepted(tmp_path):
     assert read_poses(k).t.tolist() == [0.0, 1.0, 2.0]
 
 
+@pytest.mark.parametrize("kind", ["interp", "bezier", "bspline"])
+def test_curve_does_not_depend_on_the_time_unit(kind):
+    """ORB-SLAM3 writes TUM files with nanosecond timestamps: the same poses at the same
+    instants give the same curve as in seconds (the C² solve once stopped at once there)."""
+    t, T = _track(60, seed=4)
+    keys = keyframe_indices(t.size, 5)
+    ref = build_curve(t[keys], T[keys], kind)(t)
+    for scale, shift in ((1e9, 0.0), (1e9, -t[0]), (1e-3, 0.0)):
+        tt = (t + shift) * scale
+        got = build_curve(tt[keys], T[keys], kind)(tt)
+        np.testing.assert_allclose(got, ref, atol=1e-9)
+
+
 def test_keyframe_indices_keep_first_and_last():
     np.testing.assert_array_equal(keyframe_indices(10, 3), [0, 3, 6, 9])
     np.testing.assert_array_equal(keyframe_indices(11, 3), [0, 3, 6, 9, 10])
