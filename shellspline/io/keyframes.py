@@ -354,6 +354,8 @@ def _check_not_empty(V: np.ndarray, F: np.ndarray, name: str) -> None:
 
 
 def check_same_polygons(offsets, indices, off0, idx0, name: str, name0: str) -> None:
+    """The polygons of a keyframe must be those of the first, face by face; a polygon may
+    start at another corner (an exporter's choice: the same face, same orientation)."""
     if offsets.shape == off0.shape and np.array_equal(offsets, off0) and \
             np.array_equal(indices, idx0):
         return
@@ -363,11 +365,30 @@ def check_same_polygons(offsets, indices, off0, idx0, name: str, name0: str) -> 
     P = offsets.size - 1
     diff = np.diff(offsets) != np.diff(off0)
     if not diff.any():
+        if np.array_equal(polygons_from_lowest(offsets, indices),
+                          polygons_from_lowest(off0, idx0)):
+            return
         diff = np.add.reduceat(indices != idx0, offsets[:-1]) > 0 if P else diff
     t = int(np.flatnonzero(diff)[0])
     raise MeshError(f"{name}: face list differs from {name0} (first difference at face {t}: "
                     f"{indices[offsets[t]:offsets[t + 1]].tolist()} vs "
-                    f"{idx0[off0[t]:off0[t + 1]].tolist()})")
+                    f"{idx0[off0[t]:off0[t + 1]].tolist()}); every keyframe must be the same "
+                    "mesh with the same vertex order (Blender: Keep Vertex Order)")
+
+
+def polygons_from_lowest(offsets: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """Corner indices with every polygon turned cyclically to start at its lowest vertex
+    (orientation kept): equal for two lists of the same faces written from other corners."""
+    sizes = np.diff(offsets)
+    if indices.size == 0:
+        return indices
+    start = np.repeat(offsets[:-1], sizes)
+    size = np.repeat(sizes, sizes)
+    local = np.arange(indices.size) - start
+    lowest = np.repeat(np.minimum.reduceat(indices, offsets[:-1]), sizes)
+    first = np.where(indices == lowest, local, np.iinfo(np.int64).max)
+    shift = np.repeat(np.minimum.reduceat(first, offsets[:-1]), sizes)
+    return indices[start + (local + shift) % size]
 
 
 #: Coordinates are refused above this magnitude: the shell energy's Hessians hold fourth

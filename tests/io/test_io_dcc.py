@@ -483,3 +483,29 @@ def test_data_synth_command_line_writes_the_dcc_set(tmp_path, tube, fmt, capsys)
     assert np.array_equal(kf.V[:, kf.source.to_solve[0]], tube["V"][:, 0])
     with pytest.raises(SystemExit):
         synth_main(["dcc_tube", str(tmp_path / "e"), "--vertices", "100"])
+
+
+def test_polygons_written_from_another_corner_are_the_same_faces(tmp_path, tube):
+    """One keyframe's exporter starts every polygon at another corner (same orientation): the
+    keyframes read exactly as if it had not; a real difference still names the face, with a
+    hint about vertex order."""
+    polys = polygon_list(tube)
+    rng = np.random.default_rng(5)
+    turned = [p[k:] + p[:k] for p, k in zip(polys, rng.integers(0, 16, len(polys)) % 3)]
+    assert turned != polys
+    ref = sio.read_keyframes(write_set(tmp_path, tube))
+    paths = write_set(tmp_path, tube)
+    lines = paths[1].read_text(encoding="utf-8-sig").splitlines()
+    faces = iter(turned)
+    lines = ["f " + " ".join(str(i + 1) for i in next(faces)) if ln.startswith("f ") else ln
+             for ln in lines]
+    paths[1].write_text("\n".join(lines) + "\n")
+    got = sio.read_keyframes(paths)
+    np.testing.assert_array_equal(got.V, ref.V)
+    np.testing.assert_array_equal(got.F, ref.F)
+    # reversed orientation is another face list
+    lines = ["f " + " ".join(str(i + 1) for i in p[::-1]) for p in polys]
+    paths[2].write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in tube["V"][2].tolist())
+                        + "\n".join(lines) + "\n")
+    raises_mesh_error(lambda: sio.read_keyframes(paths), "pose_2.obj: face list differs",
+                      "first difference at face 0", "same vertex order")
