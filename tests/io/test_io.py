@@ -270,7 +270,8 @@ def test_mismatched_vertex_count(tmp_path):
 def test_mismatched_faces(tmp_path):
     V, F = sphere()
     F2 = F.copy()
-    F2[17] = F2[17][[1, 2, 0]]  # same triangle, different listing
+    F2[17] = F2[17][[0, 2, 1]]  # same vertices, other orientation (a turned listing,
+    # [1, 2, 0], is the same face: accepted, see test_io_dcc)
     a = write_obj(tmp_path / "a.obj", V, F)
     b = write_obj(tmp_path / "b.obj", V, F2)
     raises_mesh_error(lambda: sio.read_keyframes([a, b]), "b.obj", "face list differs",
