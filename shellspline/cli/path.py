@@ -59,7 +59,8 @@ def add_parsers(sub) -> None:
                       help="output poses at this rate from the first to the last keyframe time "
                            "(KITTI: poses per index step)")
     when.add_argument("--times", metavar="FILE",
-                      help="output poses at these times, one per line ('#' comments), in the "
+                      help="output poses at these times: the first field of every line "
+                           "('#' comments; a TUM or EuRoC file gives its timestamps), in the "
                            "input's unit (seconds; EuRoC: nanoseconds; KITTI: pose index)")
     p.add_argument("--plot", metavar="PNG",
                    help="plot positions, rotation angles and angular rate (needs matplotlib: "
@@ -75,20 +76,27 @@ def keyframe_indices(n: int, every: int) -> np.ndarray:
 
 
 def _read_times(path, nanoseconds=False):
-    """Times from a text file, one per line (``#`` comments); with ``nanoseconds`` integers
-    kept exact (EuRoC timestamps exceed float64's 16 digits)."""
+    """Times from a text file: the first field of every line (``#`` comments; fields split
+    at whitespace or commas, so a TUM or EuRoC file gives its timestamps; a first line of
+    column names is skipped); with ``nanoseconds`` integers kept exact (EuRoC timestamps
+    exceed float64's 16 digits)."""
+    import re
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such times file")
     vals = []
-    for k, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for k, raw in enumerate(path.read_text(encoding="utf-8-sig").splitlines(), start=1):
         s = raw.strip()
         if not s or s.startswith("#"):
             continue
-        tok = s.split()[0].rstrip(",")
+        fields = re.split(r"[,\s]+", s)
+        tok = fields[0]
         try:
             v = int(tok) if nanoseconds else float(tok)
         except ValueError:
+            if not vals and not any(_is_number(x) for x in fields):
+                continue  # column names
             what = "an integer nanosecond timestamp" if nanoseconds else "a time"
             raise ShellsplineError(f"{path}:{k}: not {what}: {tok!r}") from None
         if not np.isfinite(v):
@@ -100,6 +108,14 @@ def _read_times(path, nanoseconds=False):
     if np.any(np.diff(t) < 0):
         raise ShellsplineError(f"{path}: times must not decrease")
     return t
+
+
+def _is_number(x: str) -> bool:
+    try:
+        float(x)
+    except ValueError:
+        return False
+    return True
 
 
 def build_curve(t, T, kind="interp", group="so3xr3", bc="natural"):

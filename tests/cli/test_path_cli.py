@@ -193,6 +193,27 @@ def test_path_times_file_in_euroc_nanoseconds(tmp_path):
     assert [int(r.split(",")[0]) for r in rows] == ns.tolist()
 
 
+def test_times_from_a_pose_file_with_column_names(tmp_path):
+    """--times takes the first field of another pose file: EuRoC CSV with its header (integer
+    nanoseconds), a TUM-like file with a header line without '#' and a BOM."""
+    t, T = _track(12)
+    origin = 1_403_636_579_758_555_392
+    src = tmp_path / "in.csv"
+    write_poses(src, t - t[0], T, "euroc", origin_ns=origin)
+    other = tmp_path / "other.csv"
+    write_poses(other, t[[1, 4, 6]] - t[0], T[[1, 4, 6]], "euroc", origin_ns=origin)
+    out = tmp_path / "out.csv"
+    assert main(["path", str(src), "-o", str(out), "--times", str(other), "-q"]) == 0
+    np.testing.assert_allclose(read_poses(out).T, T[[1, 4, 6]], atol=1e-9)  # keyframes
+    tum = tmp_path / "in.txt"
+    write_poses(tum, t, T, "tum")
+    times = tmp_path / "times.txt"
+    times.write_bytes(b"\xef\xbb\xbftimestamp,x\n" + f"{float(t[2])!r},0\n{float(t[3])!r},0\n".encode())
+    assert main(["path", str(tum), "-o", str(tmp_path / "o.txt"), "--times", str(times),
+                 "-q"]) == 0
+    np.testing.assert_array_equal(read_poses(tmp_path / "o.txt").t, t[[2, 3]])
+
+
 def test_path_periodic_and_clamped(tmp_path):
     ang = np.linspace(0, 2 * np.pi, 13)
     T = se3.from_rt(so3.exp(ang[:, None] * [0, 0, 1.0]),
