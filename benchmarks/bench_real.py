@@ -14,6 +14,9 @@ between are rebuilt by
 * ``lta-keyref``: the same with ``reference="keyframe"`` (the LΘA weights of each frame's
   nearest keyframe instead of the first keyframe's; the skin at the joints changes its
   triangles between keyframes, and the first keyframe's weights misjudge them later on);
+* ``lta-continuous``: the same with ``spline="continuous"`` (the C² cubic spline in time
+  through the keyframe descriptors instead of the paper's time-discrete spline, whose velocity
+  kinks at the keyframes ``cubic-discrete`` below measures);
 * ``lta-c1000``: the same with ``coarse=1000`` (full mode only);
 * ``linear``: ``shellspline.linear_blend`` (per-vertex linear blending);
 * ``cubic``: ``scipy.interpolate.CubicSpline`` through the keyframes, per vertex coordinate,
@@ -196,6 +199,8 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
         runs["lta"] = (res.V, t, gn_summary(res.report))
         res_k, t = _timed(shellspline.interpolate, kf, workers=workers, reference="keyframe")
         runs["lta-keyref"] = (res_k.V, t, gn_summary(res_k.report))
+        res_s, t = _timed(shellspline.interpolate, kf, workers=workers, spline="continuous")
+        runs["lta-continuous"] = (res_s.V, t, gn_summary(res_s.report))
         if coarse:
             res_c, t = _timed(shellspline.interpolate, kf, workers=workers, coarse=1000)
             runs["lta-c1000"] = (res_c.V, t, gn_summary(res_c.report))

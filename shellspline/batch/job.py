@@ -52,7 +52,7 @@ class SequenceSpec:
         ``{"name", "vertices", "params"}`` for :func:`data_synth.generate`.
     params : dict
         ``method, bc, K, eta, mu, lam, reference, coarse, fine, max_iter, max_time,
-        fix_boundary, fade_angle`` for :func:`shellspline.interpolate`.
+        fix_boundary, fade_angle, spline`` for :func:`shellspline.interpolate`.
     formats, render, plots : list of str
     delay : float
         Seconds to sleep between writing the staging directory and publishing it (a testing
@@ -152,7 +152,7 @@ def load_job(path) -> Job:
         [job]        name, output, executor = "local"|"dask", scheduler, workers
         [defaults]   frames, K, bc, method, eta, mu, lam, reference, coarse, fine, max_iter,
                      max_time, pinned, fix_boundary, formats, keyframe_pattern, frames_file,
-                     pinned_file, render, plots, delay, fade_angle
+                     pinned_file, render, plots, delay, fade_angle, spline
         [[sequences]] one of: glob = "dir/*" (sequence directories) |
                      keyframes = ["a.obj", ...] + name | synth = "ellipsoids" + name
                      (+ vertices, synth_params)
@@ -273,6 +273,9 @@ class _Entry:
         params = {k: merged[k] for k in INTERPOLATION_KEYS}
         if params["max_time"] is not None and params["method"] != "nonlinear":
             raise job_error(f"{where} key 'max_time'", "applies to method = 'nonlinear' only")
+        if params["spline"] == "continuous" and params["reference"] == "keyframe":
+            raise job_error(f"{where} key 'spline'", "'continuous' needs weights constant in "
+                            "time: reference = 'constant' or a keyframe index, got 'keyframe'")
         self.common = dict(params=params, formats=merged["formats"], render=merged["render"],
                            plots=merged["plots"], delay=merged["delay"])
         name = e.get("name")

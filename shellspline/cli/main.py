@@ -162,6 +162,11 @@ def _build_parser() -> argparse.ArgumentParser:
                         "keyframes of a gap keeps 1%% of its bending weight there (skin "
                         "folding at joints: removes jumps between local minima); 0 = the "
                         "paper's weights (default 0.5)")
+    q.add_argument("--spline", choices=("discrete", "continuous"), default="discrete",
+                   help="time spline of the LΘA descriptors: the paper's time-discrete spline "
+                        "(discrete, default) or the C² cubic spline in continuous time through "
+                        "the keyframe descriptors (continuous: no velocity kink at the "
+                        "keyframes; constant --reference and --fixpoint 0 only)")
     q.add_argument("--rigid-subset", metavar="FILE",
                    help="file of vertex indices (like --pinned) that carry the rigid pose, "
                         "e.g. the torso: each keyframe's pose is their Kabsch fit and the "
@@ -311,7 +316,7 @@ def _interpolate(args) -> int:
                          solver_options=solver_options, coarse=args.coarse, fine=args.fine,
                          fixpoint=args.fixpoint, rigid_track=args.rigid_track,
                          rigid_subset=rigid_subset, fade_angle=args.fade_angle,
-                         progress=bar)
+                         spline=args.spline, progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     if res.source is not None:  # the input's polygons and numbering, written back

@@ -1,6 +1,6 @@
 """The describe and solve stages: LΘA descriptors of the keyframes on consistent angle
-branches, the weights of the chosen reference, and the time-discrete spline of the targets
-(paper 001 §4, §7).
+branches, the weights of the chosen reference, and the time spline of the targets (paper 001
+§4, §7: the time-discrete spline; ``spline="continuous"``: the C² cubic it approximates).
 """
 from __future__ import annotations
 
@@ -286,8 +286,9 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
             # constant weights: the spline is one linear map of the keyframes, Z = S Zkey;
             # the reconstruction takes its rows on demand and the (K+1, d) array is formed
             # afterwards (0.5 GB at 150k vertices, K = 50, not held while the workers run)
-            Z = SplineRows(lta_spline(np.eye(len(frames)), frames, K, bc=bc), Zkey, clamp)
-        else:
+            Z = SplineRows(lta_spline(np.eye(len(frames)), frames, K, bc=bc, spline=opts.spline),
+                           Zkey, clamp)
+        else:  # weights vary in time: the options allow only the discrete spline here
             Z = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline))
     return SplineTargets(Zkey=Zkey, clamp=clamp, Z=Z, W_of=W_of, W_spline=W_spline,
                          W_report=W_report, faded_edges=faded)

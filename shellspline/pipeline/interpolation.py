@@ -18,7 +18,7 @@ from ..io.keyframes import Keyframes, keyframes_from_arrays, read_keyframes
 from ..io.sequences import jsonable
 from ..progress import Progress
 from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
-from .options import (METHODS, REFERENCES, RIGID_TRACKS, InterpolationOptions,
+from .options import (METHODS, REFERENCES, RIGID_TRACKS, SPLINES, InterpolationOptions,
                       interpolation_problem, notices)
 from .placement import placement_track
 from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
@@ -27,7 +27,7 @@ from .stages import in_input_units, run_method
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
            "canonical_frames", "linear_blend", "placement_track", "sequence_quality",
-           "quality_ok", "POP_LIMIT", "RIGID_TRACKS"]
+           "quality_ok", "POP_LIMIT", "RIGID_TRACKS", "SPLINES"]
 
 
 @dataclass
@@ -70,7 +70,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 warm_start: bool = True, solver_options: dict | None = None,
                 coarse="auto", fine: bool = False, fixpoint: int = 0,
                 rigid_track: str = "fit", rigid_subset=None, fade_angle: float = 0.5,
-                progress=None) -> InterpolationResult:
+                spline: str = "discrete", progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
     Parameters
@@ -146,6 +146,16 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         (smoothly from half this turn; :func:`shellspline.pipeline.describe.bending_fade`):
         skin that folds or unfolds at a joint otherwise makes the frames jump between two
         local minima (pops, flipped faces). ``0`` keeps the paper's weights everywhere.
+    spline : {"discrete", "continuous"}
+        The time spline of the LΘA descriptors (lengths, unwrapped dihedral angles, areas).
+        ``"discrete"``: the paper's time-discrete spline (eqs. 7, 11), piecewise cubic with a
+        small velocity kink at every interior keyframe. ``"continuous"``: the C² cubic spline
+        in continuous time through the keyframe descriptors, the limit of the discrete one
+        (same end conditions; :func:`shellspline.shells.lta_spline.continuous_spline_matrix`):
+        no kink, closer to smooth true motion (README "In-betweens against ground truth").
+        Only with a constant reference and ``fixpoint=0`` (with weights that vary in time
+        the continuous limit is not a cubic spline). For ``method="nonlinear"`` it shapes the
+        LΘA start; ``"linear"`` and ``"geodesic"`` do not use it.
     rigid_subset : (s,) int array, optional
         Vertices that carry the rigid pose (e.g. the torso; at least 3, not on a line): each
         keyframe's pose for the ``"spline"`` track is the Kabsch fit of these vertices, and
@@ -174,7 +184,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                 reference=reference, workers=workers, gn_options=gn_options,
                                 warm_start=warm_start, solver_options=solver_options,
                                 coarse=coarse, fine=fine, fixpoint=fixpoint,
-                                rigid_track=rigid_track, fade_angle=fade_angle)
+                                rigid_track=rigid_track, fade_angle=fade_angle, spline=spline)
     kf = _keyframes(keyframes, prog)
     prob = interpolation_problem(opts, kf, frames=frames, K=K, pinned=pinned,
                                  rigid_subset=rigid_subset)

@@ -15,13 +15,14 @@ from ..errors import ShellsplineError, tol
 from ..io.keyframes import Keyframes
 from ..metrics import length_scale
 from ..mesh.topology import Topology
+from ..shells.lta_spline import SPLINES, canonical_spline
 from ..shells.reconstruct import LARGE_MESH
 from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
 
 __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_problem", "notices",
            "coarse_target", "canonical_choice", "METHODS", "REFERENCES", "RIGID_TRACKS",
            "BOUNDARY_CONDITIONS", "AUTO_COARSE_ABOVE", "AUTO_COARSE_VERTICES",
-           "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN"]
+           "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN", "SPLINES"]
 
 METHODS = ("lta", "linear", "geodesic", "nonlinear")
 REFERENCES = ("constant", "keyframe", "geodesic")
@@ -68,7 +69,9 @@ class InterpolationOptions:
 
     Constructing one validates every field: choices are lower-cased and checked, ``eta``,
     ``mu``, ``lam`` finite and non-negative (``mu`` and ``lam`` not both zero), ``workers``
-    >= 1, ``fixpoint`` >= 0, ``reference`` a choice or an int keyframe index; ``coarse`` is
+    >= 1, ``fixpoint`` >= 0, ``reference`` a choice or an int keyframe index, ``spline`` one
+    of :data:`SPLINES` (``'continuous'`` only with a constant reference and ``fixpoint=0``:
+    its weights must not vary in time); ``coarse`` is
     kept as given and resolved against the mesh by :func:`coarse_target`.
 
     Raises
@@ -92,6 +95,7 @@ class InterpolationOptions:
     fixpoint: int = 0
     rigid_track: str = "fit"
     fade_angle: float = 0.5
+    spline: str = "discrete"
 
     def __post_init__(self):
         put = object.__setattr__.__get__(self)
@@ -125,6 +129,13 @@ class InterpolationOptions:
             raise ShellsplineError(f"`fade_angle` must be a finite non-negative angle in "
                                    f"radians, got {self.fade_angle!r}")
         put("fade_angle", fade)
+        put("spline", canonical_spline(self.spline))
+        if self.spline == "continuous" and (isinstance(self.reference, str)
+                                            and self.reference != "constant" or self.fixpoint):
+            got = (f"reference={self.reference!r}" if isinstance(self.reference, str)
+                   and self.reference != "constant" else f"fixpoint={self.fixpoint}")
+            raise ShellsplineError("`spline='continuous'` needs weights constant in time (reference "
+                                   f"'constant' or a keyframe index, fixpoint=0), got {got}")
 
     @property
     def periodic(self) -> bool:

@@ -466,3 +466,105 @@ def test_many_columns_weighted_natural_completes():
     for c in cols:  # spot-check against the per-column shared-matrix solve
         np.testing.assert_allclose(Z[:, c], lta_spline(Zk[:, c], frames, K, weights=W[:, c:c + 1]),
                                    rtol=1e-10, atol=1e-10)
+
+
+# --------------------------------------------------------------------------------------
+# 9. The continuous-time spline (spline="continuous")
+# --------------------------------------------------------------------------------------
+CONT_CASES = [("natural", [0, 3, 7, 10], 10), ("natural", [0, 2, 3, 9, 17], 17),
+              ("natural", [0, 5], 5), ("periodic", [0, 4, 5, 9], 12),
+              ("periodic", [0, 2], 4), ("periodic", [0, 1, 6, 7, 8], 11)]
+
+
+@pytest.mark.parametrize("bc, frames, K", CONT_CASES)
+def test_continuous_equals_scipy_cubic_spline(bc, frames, K):
+    """Per column, P @ Z_key is scipy's CubicSpline through the keyframes (natural or
+    periodic) at every frame, to round-off; keyframe rows are exactly the unit vectors."""
+    rng = np.random.default_rng(len(frames) + K)
+    fr = np.array(frames)
+    Zk = rng.normal(size=(len(fr), 7)) * [1, 10, 0.1, 1, 1, 3, 1e3]
+    P = lta.continuous_spline_matrix(fr, K, bc)
+    if bc == "periodic":
+        cs = CubicSpline(np.append(fr, K), np.vstack([Zk, Zk[:1]]), bc_type="periodic")
+    else:
+        cs = CubicSpline(fr, Zk, bc_type="natural")
+    Z = lta_spline(Zk, fr, K, bc=bc, spline="continuous")
+    ref = cs(np.arange(K + 1))
+    assert np.abs(Z - ref).max() <= 1e-12 * np.abs(Zk).max()
+    assert np.array_equal(Z[fr], Zk)  # keyframes exact
+    assert np.array_equal(P[fr], np.eye(len(fr)))
+    if bc == "periodic":
+        assert np.array_equal(Z[K], Zk[0])
+
+
+def test_continuous_extrapolates_along_the_end_tangent():
+    """Frames after the last keyframe continue the natural spline's tangent line (as the
+    discrete spline extrapolates linearly): value and slope from scipy at the last knot."""
+    fr, K = np.array([0, 3, 7, 10]), 14
+    Zk = np.array([[0.0], [2.0], [-1.0], [0.5]])
+    cs = CubicSpline(fr, Zk[:, 0], bc_type="natural")
+    Z = lta_spline(Zk, fr, K, spline="continuous")[:, 0]
+    t = np.arange(11, 15)
+    assert np.allclose(Z[t], cs(10) + cs(10, 1) * (t - 10), atol=1e-13)
+    assert np.allclose(Z[:11], cs(np.arange(11)), atol=1e-13)
+
+
+def test_continuous_hermite_is_the_natural_spline_through_its_keyframes():
+    """Hermite ends: the poses at 1 and K-1 fix the end velocities; the discrete hermite
+    spline is its natural one with those keyframes, and so is the continuous one."""
+    fr, K = np.array([0, 1, 6, 11, 12]), 12
+    Zk = np.array([0.0, 0.3, 2.0, -0.2, 0.1])
+    Zh = lta_spline(Zk, fr, K, bc="hermite", spline="continuous")
+    assert np.allclose(Zh, CubicSpline(fr, Zk, bc_type="natural")(np.arange(K + 1)), atol=1e-13)
+    assert np.array_equal(lta_spline(Zk, fr, K, bc="hermite"), lta_spline(Zk, fr, K))
+
+
+@pytest.mark.parametrize("bc, frames, K", [("natural", [0, 3, 7, 10], 10),
+                                           ("periodic", [0, 4, 5, 9], 12)])
+def test_discrete_spline_converges_to_the_continuous_one(bc, frames, K):
+    """The discrete spline on an m times finer time grid (keyframes at the same times) tends
+    to the continuous one at second order: the error falls ~4x per halving of the step."""
+    fr = np.array(frames)
+    Zk = np.array([[0.0, 1.0], [2.0, -1.0], [-1.0, 0.5], [0.5, 2.0]])
+    Zc = lta_spline(Zk, fr, K, bc=bc, spline="continuous")
+    err = []
+    for m in (2, 4, 8, 16):
+        err.append(np.abs(lta_spline(Zk, fr * m, K * m, bc=bc)[::m] - Zc).max())
+    ratios = np.array(err[:-1]) / np.array(err[1:])
+    assert err[0] > 1e-3  # the discrete spline differs
+    assert np.all((ratios > 3.5) & (ratios < 4.5)), ratios
+
+
+def test_continuous_weights_constant_in_time_or_refused():
+    """Weights constant in time (None, (d,), equal rows) give the continuous spline; weights
+    that vary in time are refused with a one-line error naming `spline`."""
+    fr, K = np.array([0, 4, 8]), 8
+    Zk = np.array([[0.0, 1.0], [1.0, 3.0], [0.0, 2.0]])
+    ref = lta.continuous_spline_matrix(fr, K) @ Zk
+    for w in (None, np.array([1.0, 5.0]), np.tile([2.0, 7.0], (K + 1, 1))):
+        assert np.allclose(lta_spline(Zk, fr, K, weights=w, spline="continuous"), ref,
+                           atol=1e-14)
+        assert np.allclose(LTASpline(fr, K, weights=w, spline="Continuous ").solve(Zk), ref,
+                           atol=1e-14)
+    W = np.ones((K + 1, 2))
+    W[5:] = 3.0
+    with pytest.raises(ValueError, match=r"`spline='continuous'` needs weights constant in "
+                                         r"time.*shape \(9, 2\)") as e:
+        lta_spline(Zk, fr, K, weights=W, spline="continuous")
+    assert "\n" not in str(e.value)
+    with pytest.raises(ValueError, match=r"`spline` must be one of 'discrete', 'continuous'"
+                                         r".*got 'cubic'"):
+        LTASpline(fr, K, spline="cubic")
+    with pytest.raises(ValueError, match="`spline`"):
+        lta.canonical_spline(None)
+
+
+def test_discrete_is_the_default_and_unchanged():
+    """spline='discrete' is the default and is the dense oracle's minimiser (the paper's
+    spline); the continuous one differs from it between keyframes."""
+    fr, K = np.array([0, 3, 7, 10]), 12
+    Zk = np.array([0.0, 2.0, -1.0, 0.5])
+    Zd = lta_spline(Zk, fr, K)
+    assert np.array_equal(Zd, lta_spline(Zk, fr, K, spline="discrete"))
+    assert np.allclose(Zd, _dense_oracle(Zk, fr, K, np.ones(K + 1), "natural"), atol=1e-12)
+    assert np.abs(lta_spline(Zk, fr, K, spline="continuous") - Zd).max() > 1e-2
