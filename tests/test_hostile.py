@@ -515,3 +515,49 @@ def test_hostile_cases_through_the_console_script(ell, hostile, tmp_path):
         assert proc.returncode == 2, proc.stderr
         _assert_one_line_error(proc.stderr, says)
         assert proc.stdout == ""
+
+
+# ------------------------------------------------------------------------------------------
+# Motion, camera and mesh files as real tools get them wrong: one line naming the file and
+# the problem, exit 2, never a traceback (and never an internal error passed off as input)
+# ------------------------------------------------------------------------------------------
+_BVH = ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition "
+        "Zrotation Xrotation Yrotation\n JOINT Left Leg\n {\n  OFFSET 0 -1 0\n  CHANNELS 3 "
+        "Zrotation Xrotation Yrotation\n  End Site\n  {\n   OFFSET 0 -1 0\n  }\n }\n}\nMOTION\n"
+        "Frames: 3\nFrame Time: 0.0333333\n" + "0 1 0 0 0 0 10 0 0\n" * 3)
+_TUM = "".join(f"{t} {t} 0 0 0 0 0 1\n" for t in range(5))
+_PLY_HEAD = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty {} x\nproperty float y\n"
+             "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+             "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+_READER_CASES = {
+    # name: (file name, content, command before/after the file, words the message must hold)
+    "bvh-no-motion": ("a.bvh", _BVH.split("MOTION")[0], ["motion", "close", "{f}", "-o",
+                                                           "{o}.bvh"], ["no MOTION section"]),
+    "bvh-1.#QNAN": ("b.bvh", _BVH.replace("10 0 0\n", "1.#QNAN 0 0\n", 1),
+                    ["motion", "close", "{f}", "-o", "{o}.bvh"], [":19: frame 0", "'1.#QNAN'"]),
+    "bvh-short-line": ("c.bvh", _BVH[:-3] + "\n", ["motion", "close", "{f}", "-o", "{o}.bvh"],
+                       ["frame 2 has 8 values"]),
+    "poses-empty": ("e.txt", "", ["path", "{f}", "-o", "{o}.txt"], ["no poses"]),
+    "poses-nan": ("n.txt", _TUM.replace("2 2 0", "2 nan 0"), ["path", "{f}", "-o", "{o}.txt"],
+                  [":3:", "non-finite"]),
+    "poses-colmap": ("images.txt", "# Image list with two lines of data per image:\n"
+                     "1 1 0 0 0 0 0 0 1 a.png\n\n", ["path", "{f}", "-o", "{o}.txt"],
+                     ["COLMAP images.txt is not supported"]),
+    "poses-quaternion-columns": ("q.txt", _TUM.replace("0 0 0 1", "0 0 5 1"),
+                                 ["motion", "close", "{f}", "-o", "{o}.txt"],
+                                 [":1:", "quaternion norm"]),
+    "ply-unknown-type": ("p.ply", _PLY_HEAD.format("float128"),
+                         ["interpolate", "{f}", "{f}", "-o", "{o}"], ["unknown type"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_READER_CASES))
+def test_reader_refusals_are_one_line_naming_the_file(tmp_path, capsys, case):
+    name, content, argv, says = _READER_CASES[case]
+    f = tmp_path / name
+    f.write_text(content)
+    out = tmp_path / "out"
+    argv = [a.format(f=f, o=out) for a in argv]
+    rc, err = _run(capsys, *argv)
+    _assert_one_line_error(err, name, *says)
+    assert rc == 2

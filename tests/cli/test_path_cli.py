@@ -208,7 +208,8 @@ def test_times_from_a_pose_file_with_column_names(tmp_path):
     tum = tmp_path / "in.txt"
     write_poses(tum, t, T, "tum")
     times = tmp_path / "times.txt"
-    times.write_bytes(b"\xef\xbb\xbftimestamp,x\n" + f"{float(t[2])!r},0\n{float(t[3])!r},0\n".encode())
+    rows = f"{float(t[2])!r},0\n{float(t[3])!r},0\n"
+    times.write_bytes(b"\xef\xbb\xbftimestamp,x\n" + rows.encode())
     assert main(["path", str(tum), "-o", str(tmp_path / "o.txt"), "--times", str(times),
                  "-q"]) == 0
     np.testing.assert_array_equal(read_poses(tmp_path / "o.txt").t, t[[2, 3]])
