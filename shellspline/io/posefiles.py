@@ -21,7 +21,11 @@ increasing times) and raises a one-line :class:`~shellspline.errors.ShellsplineE
 the file and line. What real exporters add is accepted: a UTF-8 byte-order mark, CRLF, tabs,
 a header line without ``#`` (a first data line with no number on it, e.g. ``timestamp tx ty
 ...``), and a line repeated verbatim right after itself (the same time and pose: dropped).
-COLMAP ``images.txt`` is recognised and refused with a message (not supported). Writing is atomic
+Column names above the data, when they name the quaternion (``qx ... qw``, ``q_RS_w []``),
+are checked against the detected format: integer nanoseconds under scalar-last names are
+ours (``csv``, times in the file's unit), not EuRoC; a scalar-first header over TUM-like
+data is refused (every quaternion would still be a unit one, read wrong). COLMAP
+``images.txt`` is recognised and refused with a message (not supported). Writing is atomic
 (a temporary file in the target folder, then a rename) and makes quaternion signs continuous.
 Layer rule: numpy, :mod:`shellspline.groups`, :mod:`shellspline.errors` and
 :mod:`shellspline.io.atomic` only.
@@ -29,6 +33,7 @@ Layer rule: numpy, :mod:`shellspline.groups`, :mod:`shellspline.errors` and
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,6 +102,7 @@ def detect_format(path) -> str:
             head = [ln.strip() for _, ln in zip(range(200), f)]
     except UnicodeDecodeError:
         _fail(path, 0, "not a text pose file (undecodable bytes)")
+    header = None  # the last comment or column-names line before the data
     for k, s in enumerate(head, start=1):
         if not s:
             continue
@@ -104,25 +110,51 @@ def detect_format(path) -> str:
         if "image list with two lines of data per image" in low:
             _fail(path, k, "COLMAP images.txt is not supported (convert it to TUM: camera "
                            "centre -R^T t and the inverse rotation, with a time per image)")
-        if low.startswith("#timestamp") or "p_rs_r" in low:
+        if "," in s and (low.startswith("#timestamp") or "p_rs_r" in low):
             return "euroc"
         if low.replace(" ", "").startswith("t,tx,ty,tz"):
             return "csv"
-        if s.startswith("#"):
+        if s.startswith("#") or _is_header(s.replace(",", " ").split()):
+            header = (k, s)  # a comment, or column names without '#'
             continue
-        if _is_header(s.replace(",", " ").split()):
-            continue  # a header line without '#'
         if "," in s:
             first = s.split(",")[0].strip()
-            return "euroc" if first.isdigit() and len(first) >= 13 else "csv"
-        n = len(s.split())
-        if n == 8:
-            return "tum"
-        if n == 12:
-            return "kitti"
-        _fail(path, k, f"cannot tell the pose format: {n} numbers on a line (TUM has 8, KITTI "
-                       "12; EuRoC and ours are CSV)")
+            fmt = "euroc" if first.isdigit() and len(first) >= 13 else "csv"
+        else:
+            n = len(s.split())
+            if n not in (8, 12):
+                _fail(path, k, f"cannot tell the pose format: {n} numbers on a line (TUM has "
+                               "8, KITTI 12; EuRoC and ours are CSV)")
+            fmt = "tum" if n == 8 else "kitti"
+        return _agree_with_header(path, header, fmt)
     _fail(path, 0, "no poses in the file")
+
+
+def _scalar_first(names) -> bool | None:
+    """Whether column names put the quaternion's scalar before its x (``qw qx qy qz``,
+    ``q_RS_w []``: True; ``qx qy qz qw``: False), or None when they do not name both."""
+    keys = [re.sub(r"\[.*?\]|[^a-z0-9]", "", x.lower()) for x in names]
+    w = next((i for i, x in enumerate(keys) if x[:1] == "q" and x[-1:] == "w"), None)
+    x = next((i for i, x in enumerate(keys) if x[:1] == "q" and x[-1:] == "x"), None)
+    return None if w is None or x is None else w < x
+
+
+def _agree_with_header(path, header, fmt):
+    """The format detected from the data, checked against the column names above it: a
+    header that puts the quaternion's scalar elsewhere than the format would be read
+    silently wrong (every quaternion is still a unit one)."""
+    if header is None or fmt == "kitti":
+        return fmt
+    k, s = header
+    first = _scalar_first(re.split(r"[,\s]+", s.lstrip("#").strip()))
+    if first is None or first == (fmt == "euroc"):
+        return fmt
+    if fmt == "euroc":  # integer nanoseconds, quaternion scalar last: ours, in the file's unit
+        return "csv"
+    order = "first (w x y z)" if first else "last (x y z w)"
+    need = ("TUM has it last (qx qy qz qw)" if fmt == "tum" else
+            "ours has it last; EuRoC has it first with integer nanosecond timestamps")
+    _fail(path, k, f"the column names put the quaternion scalar {order}; {need}")
 
 
 def _numbers(path, k, fields, n, what):

@@ -131,6 +131,34 @@ def test_curve_does_not_depend_on_the_time_unit(kind):
         np.testing.assert_allclose(got, ref, atol=1e-9)
 
 
+def test_column_names_decide_the_quaternion_order(tmp_path):
+    """A header that names the columns is believed over the guess from the data: integer
+    nanoseconds with 'qx,qy,qz,qw' are not EuRoC (scalar first) but ours; a TUM-like file
+    whose header says 'qw qx qy qz' is refused instead of read with every rotation wrong."""
+    t, T = _track(10)
+    ns = (np.round(t * 1e9)).astype(np.int64)
+    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # x y z w
+    p = tmp_path / "ns.csv"
+    p.write_text("timestamp,tx,ty,tz,qx,qy,qz,qw\n" + "".join(
+        f"{n}," + ",".join(repr(float(x)) for x in (*Ti[:3, 3], *qi)) + "\n"
+        for n, Ti, qi in zip(ns, T, q)))
+    assert detect_format(p) == "csv"
+    back = read_poses(p)
+    np.testing.assert_allclose(back.T[:, :3, :3], Rotation.from_quat(q).as_matrix(), atol=1e-14)
+    np.testing.assert_array_equal(back.t, ns.astype(np.float64))
+    w = tmp_path / "wxyz.txt"
+    w.write_text("# timestamp x y z qw qx qy qz\n" + "".join(
+        " ".join(repr(float(x)) for x in (ti, *Ti[:3, 3], qi[3], *qi[:3])) + "\n"
+        for ti, Ti, qi in zip(t, T, q)))
+    with pytest.raises(ShellsplineError, match=r"wxyz\.txt:1: the column names put the "
+                                               r"quaternion scalar first.*TUM has it last"):
+        read_poses(w)
+    # the real EuRoC header is still EuRoC
+    e = tmp_path / "e.csv"
+    write_poses(e, t - t[0], T, "euroc", origin_ns=int(ns[0]))
+    assert detect_format(e) == "euroc"
+
+
 def test_keyframe_indices_keep_first_and_last():
     np.testing.assert_array_equal(keyframe_indices(10, 3), [0, 3, 6, 9])
     np.testing.assert_array_equal(keyframe_indices(11, 3), [0, 3, 6, 9, 10])
