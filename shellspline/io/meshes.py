@@ -7,12 +7,13 @@
   ignored. trimesh's OBJ loader is not used because, even with ``process=False``, it drops
   vertices no face uses (unless ``maintain_order=True``), splits vertices at texture/normal
   seams, needs Pillow for any file with ``vt`` lines, and triangulates polygons per file.
-* **PLY** (ASCII and binary) and **OFF** are read with
-  ``trimesh.load(path, process=False)``, which keeps the vertex order and merges nothing.
-  trimesh triangulates polygons per file (and reorders the faces of files that mix triangles
-  and polygons), so when the face count declared in the header differs from the number of
-  triangles loaded the polygons are taken from the file itself (PLY: trimesh's raw element
-  data; OFF: the face lines).
+* **PLY** (ASCII and binary) is read with ``trimesh.load(path, process=False)``, which
+  keeps the vertex order and merges nothing. trimesh triangulates polygons per file (and
+  reorders the faces of files that mix triangles and polygons), so when the face count
+  declared in the header differs from the number of triangles loaded the polygons are read
+  from the file by our own reader (also used for what trimesh cannot read).
+* **OFF** (``OFF``, ``COFF``, ``NOFF``...) is read by our own reader: trimesh drops faces of
+  fewer than 3 corners without a word.
 """
 from __future__ import annotations
 
@@ -105,17 +106,23 @@ def read_polygons(path):
         raise MeshError(f"cannot read '{name}': {exc}") from None
     except OSError as exc:
         raise MeshError(f"cannot read '{name}': {exc.strerror or exc}") from None
-    except Exception as exc:  # trimesh raises many kinds; report one line, no traceback
+    except (ValueError, IndexError, KeyError, TypeError, OverflowError, EOFError) as exc:
+        # malformed content the parsers did not foresee: one line, no traceback (other
+        # exceptions are bugs, reported as such by the CLI, never as bad input)
         raise MeshError(f"cannot read '{name}': {one_line(exc)}") from None
     return V, offsets, indices, uv
 
 
 def check_indices(offsets: np.ndarray, indices: np.ndarray, n: int, name: str) -> None:
-    """Polygon corners must be vertices; a polygon must not repeat a vertex."""
+    """A polygon has at least 3 corners, which are vertices, none repeated."""
+    sizes = np.diff(offsets)
+    if (sizes < 3).any():
+        t = int(np.flatnonzero(sizes < 3)[0])
+        raise MeshError(f"{name}: face {t} has {int(sizes[t])} vertices (a face needs at "
+                        f"least 3; {int((sizes < 3).sum())} such faces)")
     if indices.size and (indices.min() < 0 or indices.max() >= n):
         raise MeshError(f"{name}: face indices must lie in [0, {n}), got range "
                         f"[{indices.min()}, {indices.max()}]")
-    sizes = np.diff(offsets)
     if sizes.size and (sizes == 3).all():
         F = indices.reshape(-1, 3)
         bad = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
@@ -291,25 +298,19 @@ def _line_number(lines: list[bytes], occurrence: int) -> int:
 def _read_with_trimesh(p: Path, ext: str, name: str):
     import trimesh
 
-    if ext == ".ply":
-        _check_ply_header(p)
-    declared = _ply_header_counts(p) if ext == ".ply" else _off_header_counts(p)
-    own = _read_ply if ext == ".ply" else _read_off
+    if ext == ".off":  # ours: trimesh drops faces of fewer than 3 corners without a word
+        return _own_reader(_read_off, p, _off_header_counts(p))
+    _check_ply_header(p)
+    declared = _ply_header_counts(p)
+    own = _read_ply
     try:
         # skip_materials: a PLY comment naming a missing TextureFile (MeshLab) would make
         # trimesh log a traceback to the user's terminal
         loaded = trimesh.load(str(p), file_type=ext[1:], process=False, skip_materials=True)
-    except Exception as exc:
-        if declared is None or not isinstance(exc, (ValueError, IndexError, TypeError)):
-            raise
-        # trimesh reads neither binary PLY nor OFF files that mix polygon sizes
-        try:
-            return own(p)
-        except (_Unreadable, ValueError, IndexError):
-            nv, nf = declared
-            raise _Unreadable(f"the data does not match the header, which declares {nv} "
-                              f"vertices and {nf} faces (truncated file or wrong counts; "
-                              f"{one_line(exc)})") from None
+    except Exception:
+        # trimesh reads neither binary PLY nor OFF files that mix polygon sizes; and what it
+        # cannot read, ours says in words (its messages are about its own code)
+        return _own_reader(own, p, declared)
     if isinstance(loaded, trimesh.Scene):
         geoms = list(loaded.geometry.values())
         if len(geoms) > 1:
@@ -330,11 +331,31 @@ def _read_with_trimesh(p: Path, ext: str, name: str):
                 raise _Unreadable(f"the file declares {nf} faces but {F.shape[0]} were found "
                                   "(truncated?)")
             # polygons, which trimesh triangulated (and may have reordered): read as written
-            return own(p)
+            return _own_reader(own, p, declared)
         if nv is not None and V.shape[0] != nv:
             raise _Unreadable(f"the file declares {nv} vertices but {V.shape[0]} were found "
                               "(truncated?)")
     return V, polygon_offsets(np.full(F.shape[0], 3)), F.ravel()
+
+
+def _own_reader(own, p: Path, declared):
+    """Our PLY/OFF reader on ``p``; its parsing failures become one worded reason."""
+    try:
+        return own(p)
+    except _Unreadable as exc:
+        if "truncated" not in str(exc) and "does not match" not in str(exc):
+            raise  # a header problem, said as such
+        why = str(exc)
+    except (ValueError, IndexError, KeyError, TypeError, OverflowError) as exc:
+        text = str(exc)
+        bad = re.search(r"(?:invalid literal for int\(\) with base 10|could not convert "
+                        r"string to float): b?'([^']*)'", text)
+        why = (f"'{bad.group(1)}' is not {'an integer' if 'int()' in text else 'a number'}"
+               if bad else "values missing or malformed")
+    nv, nf = declared if declared is not None else (None, None)
+    head = "" if nv is None or nf is None else f", which declares {nv} vertices and {nf} faces"
+    raise _Unreadable(f"the data does not match the header{head} ({why}; truncated file or "
+                      "wrong counts?)")
 
 
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
@@ -391,6 +412,9 @@ def _read_ply(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 cols = {n: rec[n] for n, _ in props}
                 pos += count * dt.itemsize
             if ename == "vertex":
+                missing = [c for c in "xyz" if c not in cols]
+                if missing:
+                    raise _Unreadable(f"the vertex element has no '{missing[0]}' property")
                 V = np.stack([cols[c].astype(np.float64) for c in "xyz"], axis=1)
             continue
         if tokens is None and ename == "face" and len(props) == 1 and \
@@ -462,6 +486,9 @@ def _read_off(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     head = rows[0][1:] if len(rows[0]) > 1 else rows[1]
     start = 1 if len(rows[0]) > 1 else 2
     nv, nf = int(head[0]), int(head[1])
+    if nv < 0 or nf < 0:
+        raise _Unreadable(f"the header's vertex and face counts must not be negative, got "
+                          f"{nv} and {nf}")
     vrows, frows = rows[start:start + nv], rows[start + nv:start + nv + nf]
     if len(vrows) != nv or len(frows) != nf:
         raise _Unreadable(f"the file declares {nv} vertices and {nf} faces but is shorter")
@@ -487,8 +514,10 @@ def _check_ply_header(p: Path) -> None:
     with open(p, "rb") as fh:
         head = fh.read(1 << 16)
     end = head.find(b"end_header")
-    if not head.startswith(b"ply") or end < 0:
-        return  # not a PLY header: the readers say so
+    if not head.startswith(b"ply"):
+        raise _Unreadable("not a PLY file (it does not start with 'ply')")
+    if end < 0:
+        raise _Unreadable("the PLY header has no end_header (truncated file?)")
     element = None
     face_lists = None
     for k, ln in enumerate(head[:end].decode("ascii", "replace").splitlines(), start=1):

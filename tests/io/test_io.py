@@ -196,6 +196,30 @@ def test_ply_header_errors_in_words(tmp_path, header, phrase):
     raises_mesh_error(lambda: sio.read_mesh(r), "face index '99999999999999999999' is too large")
 
 
+@pytest.mark.parametrize("name, content, phrase", [
+    ("two.off", "OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n2 0 1\n",
+     "face 1 has 2 vertices (a face needs at least 3"),
+    ("words.off", "OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 x\n",
+     "which declares 4 vertices and 1 faces ('x' is not an integer"),
+    ("count.off", "OFF\nfour 1 0\n0 0 0\n", "('four' is not an integer"),
+    ("noend.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n",
+     "the PLY header has no end_header"),
+    ("noz.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y"
+     "\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0\n1 0\n1 1\n"
+     "0 1\n4 0 1 2 3\n", "the vertex element has no 'z' property"),
+    ("half.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y"
+     "\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+     "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2.5 3\n", "'2.5' is not an integer"),
+])
+def test_malformed_ply_and_off_say_why_in_words(tmp_path, name, content, phrase):
+    """No Python exception names (IndexError, KeyError, 'invalid literal ...') in the
+    message: what is wrong with the file, in words."""
+    p = tmp_path / name
+    p.write_text(content)
+    msg = raises_mesh_error(lambda: sio.read_mesh(p), name, phrase)
+    assert "Error" not in msg and "literal" not in msg
+
+
 def test_obj_dialects(tmp_path):
     text = ("# comment line\r\n"
             "o thing\r\n"
