@@ -19,7 +19,8 @@ Conventions (what real files from Blender, CMU, motion builders and game studios
 * A joint's world transform is ``p_j = p_parent + R_parent @ t_j``, ``R_j = R_parent @
   R_local_j``; a root's parent is the world frame.
 * Lines may end in CRLF; tokens may be separated by tabs; keywords are case-insensitive; a
-  UTF-8 byte-order mark is skipped. A joint name is everything after ``ROOT``/``JOINT`` on
+  UTF-8 byte-order mark is skipped; a file that is not UTF-8 is read as Windows-1252 (joint
+  names with accents from older exporters). A joint name is everything after ``ROOT``/``JOINT`` on
   its line up to an optional ``{`` (3ds Max writes names with spaces, ``Bip01 L Thigh``;
   runs of whitespace inside a name read as one space).
 * Every line after ``Frame Time:`` is a frame, as Blender's importer reads them: when the
@@ -335,7 +336,12 @@ def read_bvh(path) -> Motion:
     """
     p = Path(path)
     name = str(p)
-    text = p.read_bytes().decode("utf-8", errors="replace").removeprefix("\ufeff")  # BOM
+    data = p.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:  # joint names in a Windows code page (older exporters)
+        text = data.decode("cp1252", errors="replace")
+    text = text.removeprefix("\ufeff")  # byte-order mark
     lines = text.splitlines()
     motion_at = next((i for i, s in enumerate(lines) if s.strip().upper() == "MOTION"), None)
     first = next((i for i, s in enumerate(lines) if s.strip()), None)

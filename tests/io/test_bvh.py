@@ -289,3 +289,12 @@ def test_frame_count_that_disagrees_is_warned_and_every_line_read(tmp_path, decl
     cut = TWO_JOINTS.replace("Frames:\t3", "Frames:\t4") + "1 2 3 4\r\n"
     with pytest.raises(ShellsplineError, match="frame 3 has 4 values"):
         read_bvh(_write(tmp_path, cut, "cut.bvh"))
+
+
+def test_joint_names_in_a_windows_code_page(tmp_path):
+    text = TWO_JOINTS.replace("knee", "genou_épaule")
+    p = tmp_path / "cp.bvh"
+    p.write_bytes(text.encode("cp1252"))
+    m = read_bvh(p)
+    assert m.names == ("hip", "genou_épaule")
+    assert read_bvh(write_bvh(m, tmp_path / "utf8.bvh")).names == m.names
