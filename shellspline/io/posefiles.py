@@ -79,6 +79,18 @@ def _fail(path, line, msg):
     raise ShellsplineError(f"{where}: {msg}")
 
 
+def _text(path) -> str:
+    """The file's text: UTF-8 (a byte-order mark skipped), else Windows-1252 (comments with
+    accents from older tools); binary data is refused."""
+    data = Path(path).read_bytes()
+    if b"\0" in data:
+        _fail(path, 0, "not a text pose file (binary data)")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return data.decode("cp1252", errors="replace")
+
+
 def _data_lines(text, comment="#"):
     for k, raw in enumerate(text.splitlines(), start=1):
         s = raw.strip()
@@ -97,11 +109,7 @@ def detect_format(path) -> str:
     path = Path(path)
     if path.suffix.lower() == ".json":
         return "json"
-    try:
-        with open(path, encoding="utf-8-sig") as f:
-            head = [ln.strip() for _, ln in zip(range(200), f)]
-    except UnicodeDecodeError:
-        _fail(path, 0, "not a text pose file (undecodable bytes)")
+    head = [ln.strip() for ln in _text(path).splitlines()[:200]]
     header = None  # the last comment or column-names line before the data
     for k, s in enumerate(head, start=1):
         if not s:
@@ -231,7 +239,7 @@ def read_poses(path, format=None) -> PoseTrack:
     fmt = detect_format(path) if format is None else str(format).lower()
     if fmt not in FORMATS:
         raise ShellsplineError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
-    text = path.read_text(encoding="utf-8-sig")
+    text = _text(path)
     if fmt == "json":
         t, T, lines = _read_json(path, text)
         _check_times(path, t, lines)

@@ -131,6 +131,18 @@ def test_curve_does_not_depend_on_the_time_unit(kind):
         np.testing.assert_allclose(got, ref, atol=1e-9)
 
 
+def test_comments_in_a_windows_code_page_and_binary_data(tmp_path):
+    t, T = _track(5)
+    p = tmp_path / "p.txt"
+    p.write_bytes("# Données de la caméra\n".encode("cp1252")
+                  + ("\n".join(_tum_lines(t, T)) + "\n").encode())
+    np.testing.assert_allclose(read_poses(p).T, T, atol=1e-14)
+    b = tmp_path / "b.txt"
+    b.write_bytes(b"\x00\x01\x02 1 2 3")
+    with pytest.raises(ShellsplineError, match=r"b\.txt: not a text pose file"):
+        read_poses(b)
+
+
 def test_column_names_decide_the_quaternion_order(tmp_path):
     """A header that names the columns is believed over the guess from the data: integer
     nanoseconds with 'qx,qy,qz,qw' are not EuRoC (scalar first) but ours; a TUM-like file
