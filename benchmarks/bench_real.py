@@ -17,6 +17,8 @@ between are rebuilt by
 * ``lta-continuous``: the same with ``spline="continuous"`` (the C² cubic spline in time
   through the keyframe descriptors instead of the paper's time-discrete spline, whose velocity
   kinks at the keyframes ``cubic-discrete`` below measures);
+* ``lta-cont-keyref``: both, ``spline="continuous", reference="keyframe"`` (the continuous
+  limit of the spline weighted by the nearest keyframe);
 * ``lta-c1000``: the same with ``coarse=1000`` (full mode only);
 * ``linear``: ``shellspline.linear_blend`` (per-vertex linear blending);
 * ``cubic``: ``scipy.interpolate.CubicSpline`` through the keyframes, per vertex coordinate,
@@ -201,6 +203,9 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
         runs["lta-keyref"] = (res_k.V, t, gn_summary(res_k.report))
         res_s, t = _timed(shellspline.interpolate, kf, workers=workers, spline="continuous")
         runs["lta-continuous"] = (res_s.V, t, gn_summary(res_s.report))
+        res_s, t = _timed(shellspline.interpolate, kf, workers=workers, spline="continuous",
+                          reference="keyframe")
+        runs["lta-cont-keyref"] = (res_s.V, t, gn_summary(res_s.report))
         if coarse:
             res_c, t = _timed(shellspline.interpolate, kf, workers=workers, coarse=1000)
             runs["lta-c1000"] = (res_c.V, t, gn_summary(res_c.report))

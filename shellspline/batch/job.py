@@ -273,9 +273,6 @@ class _Entry:
         params = {k: merged[k] for k in INTERPOLATION_KEYS}
         if params["max_time"] is not None and params["method"] != "nonlinear":
             raise job_error(f"{where} key 'max_time'", "applies to method = 'nonlinear' only")
-        if params["spline"] == "continuous" and params["reference"] == "keyframe":
-            raise job_error(f"{where} key 'spline'", "'continuous' needs weights constant in "
-                            "time: reference = 'constant' or a keyframe index, got 'keyframe'")
         self.common = dict(params=params, formats=merged["formats"], render=merged["render"],
                            plots=merged["plots"], delay=merged["delay"])
         name = e.get("name")

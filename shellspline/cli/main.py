@@ -166,7 +166,8 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="time spline of the LΘA descriptors: the paper's time-discrete spline "
                         "(discrete, default) or the C² cubic spline in continuous time through "
                         "the keyframe descriptors (continuous: no velocity kink at the "
-                        "keyframes; constant --reference and --fixpoint 0 only)")
+                        "keyframes; with --reference keyframe/geodesic or --fixpoint the "
+                        "continuous limit of the weighted discrete spline)")
     q.add_argument("--rigid-subset", metavar="FILE",
                    help="file of vertex indices (like --pinned) that carry the rigid pose, "
                         "e.g. the torso: each keyframe's pose is their Kabsch fit and the "

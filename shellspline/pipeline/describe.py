@@ -288,8 +288,8 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
             # afterwards (0.5 GB at 150k vertices, K = 50, not held while the workers run)
             Z = SplineRows(lta_spline(np.eye(len(frames)), frames, K, bc=bc, spline=opts.spline),
                            Zkey, clamp)
-        else:  # weights vary in time: the options allow only the discrete spline here
-            Z = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline))
+        else:
+            Z = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline, spline=opts.spline))
     return SplineTargets(Zkey=Zkey, clamp=clamp, Z=Z, W_of=W_of, W_spline=W_spline,
                          W_report=W_report, faded_edges=faded)
 

@@ -153,9 +153,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         in continuous time through the keyframe descriptors, the limit of the discrete one
         (same end conditions; :func:`shellspline.shells.lta_spline.continuous_spline_matrix`):
         no kink, closer to smooth true motion (README "In-betweens against ground truth").
-        Only with a constant reference and ``fixpoint=0`` (with weights that vary in time
-        the continuous limit is not a cubic spline). For ``method="nonlinear"`` it shapes the
-        LΘA start; ``"linear"`` and ``"geodesic"`` do not use it.
+        With a reference that varies in time (``"keyframe"``, ``"geodesic"``, ``fixpoint``)
+        it is the continuous limit of the weighted discrete spline (a cubic on every frame
+        interval, the flux ``w z'`` continuous). For ``method="nonlinear"`` it shapes the LΘA
+        start; ``"linear"`` and ``"geodesic"`` do not use it.
     rigid_subset : (s,) int array, optional
         Vertices that carry the rigid pose (e.g. the torso; at least 3, not on a line): each
         keyframe's pose for the ``"spline"`` track is the Kabsch fit of these vertices, and

@@ -70,8 +70,7 @@ class InterpolationOptions:
     Constructing one validates every field: choices are lower-cased and checked, ``eta``,
     ``mu``, ``lam`` finite and non-negative (``mu`` and ``lam`` not both zero), ``workers``
     >= 1, ``fixpoint`` >= 0, ``reference`` a choice or an int keyframe index, ``spline`` one
-    of :data:`SPLINES` (``'continuous'`` only with a constant reference and ``fixpoint=0``:
-    its weights must not vary in time); ``coarse`` is
+    of :data:`SPLINES`; ``coarse`` is
     kept as given and resolved against the mesh by :func:`coarse_target`.
 
     Raises
@@ -130,12 +129,6 @@ class InterpolationOptions:
                                    f"radians, got {self.fade_angle!r}")
         put("fade_angle", fade)
         put("spline", canonical_spline(self.spline))
-        if self.spline == "continuous" and (isinstance(self.reference, str)
-                                            and self.reference != "constant" or self.fixpoint):
-            got = (f"reference={self.reference!r}" if isinstance(self.reference, str)
-                   and self.reference != "constant" else f"fixpoint={self.fixpoint}")
-            raise ShellsplineError("`spline='continuous'` needs weights constant in time (reference "
-                                   f"'constant' or a keyframe index, fixpoint=0), got {got}")
 
     @property
     def periodic(self) -> bool:

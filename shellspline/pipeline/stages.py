@@ -201,7 +201,8 @@ def fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix
         t0 = time.perf_counter()
         with prog.stage(stage_prefix + f"fixpoint {it + 1} solve"):
             W_spline = lta_weights(seq.V, T, mu=opts.mu, lam=opts.lam, eta=opts.eta)
-            Znew = tg.clamp(lta_spline(tg.Zkey, frames, K, bc=bc, weights=W_spline))
+            Znew = tg.clamp(lta_spline(tg.Zkey, frames, K, bc=bc, weights=W_spline,
+                                       spline=opts.spline))
         stage = stage_prefix + f"fixpoint {it + 1} reconstruct"
         with prog.stage(stage, total=len(ks)):
             results = run_reconstruction(T, ks, Znew, lambda k: W_spline[k], seq.V, pinned,

@@ -15,7 +15,9 @@ hard constraints. The normal equations are small pentadiagonal systems, one per 
 :class:`LTASpline` is the precompute object (factor once, :meth:`LTASpline.solve` many
 times); :func:`lta_spline` is the one-shot wrapper. ``spline='continuous'`` replaces the
 discrete spline by the C² cubic spline in continuous time that it approximates
-(:func:`continuous_spline_matrix`; constant reference only). :func:`lta_energy_per_frame` and
+(:func:`continuous_spline_matrix`; with weights that vary in time, the continuous limit of the
+weighted energy: a banded system in the frames' values and fluxes ``w z'``, vectorised over the
+columns like the discrete one). :func:`lta_energy_per_frame` and
 :func:`spline_energy` evaluate the energy of a given descriptor path.
 """
 from __future__ import annotations
@@ -149,6 +151,8 @@ class _Structure:
         free_in_order = order[key_of[order] < 0]
         self.free_nodes = free_in_order  # node of each unknown position
         self.n = int(free_in_order.shape[0])
+        # every unknown is a frame value (see _HermiteStructure, whose unknowns are not)
+        self.z_pos, self.z_nodes = np.arange(self.n), free_in_order
         pos_of = np.full(n_nodes, -1, dtype=np.int64)
         pos_of[free_in_order] = np.arange(self.n)
         self.pos_of = pos_of
@@ -183,6 +187,96 @@ class _Structure:
             (np.ones(rows.shape[0]), (rows, cols)),
             shape=((p + 1) * n + len(keys), 6 * T),
         )
+
+    def values(self, W: np.ndarray) -> np.ndarray:
+        return _term_values(self, W)
+
+
+def _band_assembly(pos_t: np.ndarray, key_t: np.ndarray, types: np.ndarray, n: int):
+    """The band layout of ``Σ_t x_tᵀ H_t x_t`` over local slot vectors ``x_t``.
+
+    ``pos_t (T,s)``: unknown position of each local slot (-1: a keyframe value), ``key_t
+    (T,s)``: its keyframe index (-1: unknown), ``types (s,s)``: which of the six value types
+    ``H_t[x, y]`` is. Returns ``(p, assembly, cq_pos, cq_key)`` as in :class:`_Structure`.
+    """
+    T, ns = pos_t.shape
+    pairs = [(x, y) for x in range(ns) for y in range(ns)]
+    both = [(pos_t[:, x] >= 0) & (pos_t[:, y] >= 0) & (pos_t[:, x] >= pos_t[:, y])
+            for x, y in pairs]
+    p = max([int((pos_t[b, x] - pos_t[b, y]).max()) for (x, y), b in zip(pairs, both)
+             if b.any()], default=0)
+    rows, cols = [], []
+    q_rows: dict[tuple[int, int], int] = {}
+    for (x, y), b in zip(pairs, both):
+        t = np.flatnonzero(b)
+        rows.append((pos_t[t, x] - pos_t[t, y]) * n + pos_t[t, y])
+        cols.append(types[x, y] * T + t)
+        t = np.flatnonzero((pos_t[:, x] >= 0) & (key_t[:, y] >= 0))
+        q = [q_rows.setdefault((int(pos_t[i, x]), int(key_t[i, y])), len(q_rows)) for i in t]
+        rows.append((p + 1) * n + np.array(q, dtype=np.int64))
+        cols.append(types[x, y] * T + t)
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    keys = sorted(q_rows, key=q_rows.get)
+    assembly = scipy.sparse.csr_array((np.ones(rows.shape[0]), (rows, cols)),
+                                      shape=((p + 1) * n + len(keys), 6 * T))
+    return (p, assembly, np.array([r[0] for r in keys], dtype=np.int64),
+            np.array([r[1] for r in keys], dtype=np.int64))
+
+
+class _HermiteStructure:
+    """The continuous-time spline with weights that vary in time, as a banded system.
+
+    The limit of the discrete energy as the time step goes to 0, with ``w_k`` the weight of
+    the unit segment ``[k, k+1]`` (as the discrete energy reads it), is ``Σ_k w_k ∫_k^{k+1}
+    z''² dt`` over curves whose flux ``w z'`` is continuous: its minimiser is a cubic on every
+    segment. The unknowns are each frame's value ``z_k`` (unless a keyframe) and flux ``u_k``;
+    on segment ``[a, b]`` with ``Δ = z_b - z_a`` and end slopes ``u_a/w``, ``u_b/w`` the
+    cubic's energy is ``12 w Δ² - 12 (u_a + u_b) Δ + (4/w)(u_a² + u_a u_b + u_b²)``. Nodes
+    are ordered as in :class:`_Structure`, each node's ``z`` before its ``u``.
+    """
+
+    # local slots (z_a, u_a, z_b, u_b); value types 12w, -12w, 6, -6, 4/w, 2/w
+    _TYPES = np.array([[0, 2, 1, 2], [2, 4, 3, 5], [1, 3, 0, 3], [2, 5, 3, 4]])
+
+    def __init__(self, frames: np.ndarray, K: int, bc: str):
+        base = _Structure(frames, K, bc)  # node order and keyframe lookup
+        self.K, self.bc, self.frames = K, bc, frames
+        n_nodes = base.n_nodes
+        if bc == "periodic":  # the folded order of _Structure, keyframes included
+            fold = np.zeros(K, dtype=np.int64)
+            fold[0::2], fold[1::2] = np.arange((K + 1) // 2), K - 1 - np.arange(K // 2)
+            order = fold
+        else:
+            order = np.arange(n_nodes)
+        is_free = base.key_of[order] < 0
+        n_per = 1 + is_free  # unknowns per node in that order
+        start = np.concatenate([[0], np.cumsum(n_per)[:-1]])
+        pos_z = np.full(n_nodes, -1, dtype=np.int64)
+        pos_u = np.empty(n_nodes, dtype=np.int64)
+        pos_z[order[is_free]] = start[is_free]
+        pos_u[order] = start + is_free
+        self.n = int(n_per.sum())
+        t = np.arange(K)
+        a, b = t, (t + 1) % n_nodes
+        self.seg = a  # the weight row of each segment
+        pos_t = np.stack([pos_z[a], pos_u[a], pos_z[b], pos_u[b]], axis=1)
+        minus = np.full(K, -1, dtype=np.int64)
+        key_t = np.stack([base.key_of[a], minus, base.key_of[b], minus], axis=1)
+        self.T = K
+        self.p, self.assembly, self.cq_pos, self.cq_key = _band_assembly(
+            pos_t, key_t, self._TYPES, self.n)
+        self.z_nodes = np.flatnonzero(pos_z >= 0)
+        self.z_pos = pos_z[self.z_nodes]
+
+    def values(self, W: np.ndarray) -> np.ndarray:
+        w = W[self.seg]
+        V = np.empty((6, self.T, W.shape[1]))
+        np.multiply(w, 12.0, out=V[0])
+        np.negative(V[0], out=V[1])
+        V[2], V[3] = 6.0, -6.0
+        np.divide(4.0, w, out=V[4])
+        np.multiply(V[4], 0.5, out=V[5])
+        return V
 
 
 def _term_values(st: _Structure, W: np.ndarray) -> np.ndarray:
@@ -224,7 +318,7 @@ def _assembled(st: _Structure, W: np.ndarray):
     the normal equations is ``rhs[cq_pos[q]] = -Σ_q C[q] Z_key[cq_key[q]]``.
     """
     c = W.shape[1]
-    R = st.assembly @ _term_values(st, W).reshape(6 * st.T, c)
+    R = st.assembly @ st.values(W).reshape(6 * st.T, c)
     nb = (st.p + 1) * st.n
     return R[:nb].reshape(st.p + 1, st.n, c), R[nb:]
 
@@ -445,7 +539,10 @@ class LTASpline:
         ``'discrete'`` (default): the paper's time-discrete spline. ``'continuous'``: the C²
         cubic spline in continuous time through the keyframe values
         (:func:`continuous_spline_matrix`), the limit of the discrete one as the time step
-        goes to 0; it needs weights constant in time (``None`` or ``(d,)``).
+        goes to 0. With weights that vary in time, the limit of the weighted discrete energy
+        (see :func:`lta_spline`, Notes): a cubic on every frame interval with the flux
+        ``w z'`` and ``z''`` continuous, solved as a banded system in the values and fluxes
+        of the frames (half bandwidth <= 3, 5 for periodic).
 
     Attributes
     ----------
@@ -557,15 +654,13 @@ class LTASpline:
             else:
                 self.batched = W.shape[1] > 1
         self._W = W
-        if self.spline == "continuous" and W is not None:
-            raise ShellsplineError(
-                "`spline='continuous'` needs weights constant in time (a constant reference), "
-                f"got `weights` of shape {np.shape(weights)} that vary over the {self.K + 1} "
-                "frames; use spline='discrete'")
+        if self.spline == "continuous" and W is not None:  # weights that vary in time
+            self._st = st = _HermiteStructure(self.frames, self.K, self.bc)
+            self.n_free, self.bandwidth = int(st.z_nodes.shape[0]), st.p
 
     def _interpolation_matrix(self, W) -> np.ndarray:
         """``P (K+1,J)`` with ``Z = P @ Z_key`` for one matrix shared by all columns."""
-        if self.spline == "continuous":  # _setup refused time-varying weights
+        if self.spline == "continuous" and W is None:
             return continuous_spline_matrix(self.frames, self.K, self.bc)
         st, J = self._st, self.frames.shape[0]
         W1 = np.ones((self.K + 1, 1)) if W is None else W
@@ -576,7 +671,7 @@ class LTASpline:
             np.add.at(B, (st.cq_pos, st.cq_key), -C[:, 0])
             with np.errstate(all="ignore"):
                 singular = _ldl_banded_inplace(S)[0]
-                P[st.free_nodes] = _ldl_solved(S, B)
+                P[st.z_nodes] = _ldl_solved(S, B)[st.z_pos]
             if W is not None and (singular or not np.all(np.isfinite(P))):
                 _warn_fallback("all descriptor columns (weights shared by all columns)")
                 return self._interpolation_matrix(None)
@@ -652,7 +747,7 @@ class LTASpline:
             singular = np.zeros(Zk.shape[1], dtype=bool)
             with np.errstate(all="ignore"):
                 for a, b, S, C, sing in self._factors:
-                    Z[st.free_nodes, a:b] = _ldl_solved(S, _coupled_rhs(st, C, Zk[:, a:b]))
+                    Z[st.z_nodes, a:b] = _ldl_solved(S, _coupled_rhs(st, C, Zk[:, a:b]))[st.z_pos]
                     singular[a:b] = sing
             Z = self._with_fallback_columns(Z, Zk, singular, stacklevel=4)
         else:
@@ -674,7 +769,7 @@ class LTASpline:
         for a, b in _chunks(st, Zk.shape[1]):
             _, _, S, C, singular[a:b] = self._factored_chunk(a, b)
             with np.errstate(all="ignore"):
-                Z[st.free_nodes, a:b] = _ldl_solved(S, _coupled_rhs(st, C, Zk[:, a:b]))
+                Z[st.z_nodes, a:b] = _ldl_solved(S, _coupled_rhs(st, C, Zk[:, a:b]))[st.z_pos]
         return self._finished(self._with_fallback_columns(Z, Zk, singular, 5), Zk, flat)
 
 
@@ -699,8 +794,8 @@ def lta_spline(Z_key, frames, K, bc="natural", weights=None, spline="discrete") 
         Reference-mesh weights ``w_k`` per frame and descriptor; see :class:`LTASpline`.
     spline : {'discrete', 'continuous'}, optional
         The paper's time-discrete spline (default), or the C² cubic spline in continuous time
-        through the keyframe values (:func:`continuous_spline_matrix`; weights constant in
-        time only); see :class:`LTASpline`.
+        through the keyframe values (:func:`continuous_spline_matrix`), or, with weights that
+        vary in time, the continuous limit of the weighted discrete spline; see Notes.
 
     Returns
     -------
@@ -738,8 +833,14 @@ def lta_spline(Z_key, frames, K, bc="natural", weights=None, spline="discrete") 
     minimiser is a cubic on each keyframe gap too, but its velocity jumps at every interior
     keyframe by ``O(1/K)`` (the kink costs 0.1–3.5 % of the error against the true frames of
     a skinned animation, ``benchmarks/bench_real.py``, row ``cubic-discrete``). With weights
-    that vary in time the limit is ``∫ ((w z')')² / w dt`` (from the Taylor expansion of
-    ``z_k - z̃_k = -((w z')')/(2w) / K² + …``): not a cubic spline, and refused.
+    that vary in time the residual is ``z_k - z̃_k = -(w_k z'_+ - w_{k-1} z'_-)/(w_{k-1} +
+    w_k) / K + …``, with ``w_k`` the weight of the frame interval ``[k, k+1]``: a jump of the
+    flux ``w z'`` costs ``O(K)``, so the limit is ``Σ_k w_k ∫_k^{k+1} z''² dt`` over curves
+    with a continuous flux (``∫ ((w z')')²/w dt`` for smooth weights). Its minimiser is a
+    cubic on every frame interval, with ``z``, ``w z'`` and ``z''`` continuous: where the
+    weights jump (``reference='keyframe'`` between two keyframes' references) the velocity
+    jumps in their ratio, as the discrete spline's does. The discrete spline on a grid ``m``
+    times finer (each interval's weight repeated) converges to it as ``O(1/m)``.
 
     Examples
     --------

@@ -1,7 +1,7 @@
 """The ``spline`` option end to end: the continuous-time spline of the descriptors reaches the
-solve (targets = scipy's cubic spline through the keyframe descriptors), keyframes stay
-exact, the discrete default is untouched, and the option reaches report.json, the CLI and the
-batch schema."""
+solve (targets = scipy's cubic spline through the keyframe descriptors; with the keyframe
+reference, the weighted continuous spline), keyframes stay exact, the discrete default is
+untouched, and the option reaches report.json, the CLI and the batch schema."""
 import json
 from pathlib import Path
 
@@ -72,17 +72,38 @@ def test_continuous_periodic_closes(ellipsoids):
     assert np.array_equal(res.V[12], res.V[0]) and np.array_equal(res.V[0], d["V"][0])
 
 
-@pytest.mark.parametrize("kwargs, got", [({"reference": "keyframe"}, "reference='keyframe'"),
-                                         ({"reference": "geodesic"}, "reference='geodesic'"),
-                                         ({"fixpoint": 1}, "fixpoint=1")])
-def test_continuous_refuses_weights_that_vary_in_time(kwargs, got):
-    with pytest.raises(ValueError, match=r"`spline='continuous'` needs weights constant in "
-                                         r"time .*got " + got) as e:
-        InterpolationOptions(spline="continuous", **kwargs)
-    assert "\n" not in str(e.value)
-    assert InterpolationOptions(spline=" Continuous", reference=1).spline == "continuous"
-    with pytest.raises(ValueError, match="`spline` must be one of 'discrete', 'continuous'"):
+def test_continuous_with_the_keyframe_reference(ellipsoids):
+    """Weights that vary in time (each frame weighted by its nearest keyframe): the targets
+    are the continuous limit of the weighted spline, computed here from the keyframes and
+    their weights by shells.lta_spline, and the discrete keyframe-reference run differs."""
+    from shellspline.timeline import keyframe_bracket
+
+    d = ellipsoids
+    fr = np.asarray(d["frames"])
+    res = ss.interpolate((d["V"], d["F"]), frames=fr, eta=0.1, reference="keyframe",
+                         spline="continuous")
+    K = res.K
+    T = ss.topology(d["F"])
+    V = np.asarray(d["V"], dtype=np.float64)
+    j0, j1, t = keyframe_bracket(fr, K)
+    W = ss.lta_weights(V, T, eta=0.1)[np.where(t <= 0.5, j0, j1)]
+    ref = ss.lta_spline(ss.lta_descriptors(V, T), fr, K, weights=W, spline="continuous")
+    assert np.abs(res.Z - ref).max() <= 1e-9 * np.abs(ref).max()
+    disc = ss.lta_spline(ss.lta_descriptors(V, T), fr, K, weights=W)
+    assert np.abs(disc - ref).max() > 1e-4 * np.abs(ref).max()
+    for j, f in enumerate(fr):
+        assert np.array_equal(res.V[f], d["V"][j])
+    assert res.report["parameters"]["reference"] == "keyframe"
+    assert res.report["parameters"]["spline"] == "continuous"
+    gn = res.report["gauss_newton"]
+    assert gn["converged"] == gn["frames"]
+
+
+def test_spline_option_is_checked():
+    assert InterpolationOptions(spline=" Continuous", reference="keyframe").spline == "continuous"
+    with pytest.raises(ValueError, match="`spline` must be one of 'discrete', 'continuous'") as e:
         InterpolationOptions(spline="cubic")
+    assert "\n" not in str(e.value)
 
 
 def test_cli_flag_reaches_the_report(tmp_path, capsys):
@@ -96,9 +117,9 @@ def test_cli_flag_reaches_the_report(tmp_path, capsys):
     assert json.loads((out / "report.json").read_text())["parameters"]["spline"] == "continuous"
     capsys.readouterr()
     rc = main(["interpolate", *poses, "--frames", str(d / "frames.txt"), "-o",
-               str(tmp_path / "o2"), "--spline", "continuous", "--reference", "keyframe"])
-    err = capsys.readouterr().err
-    assert rc == 2 and "spline='continuous'" in err and "reference='keyframe'" in err
+               str(tmp_path / "o2"), "--spline", "continuous", "--reference", "keyframe", "-q"])
+    rep = json.loads((tmp_path / "o2" / "report.json").read_text())["parameters"]
+    assert rc == 0 and rep["spline"] == "continuous" and rep["reference"] == "keyframe"
     with pytest.raises(SystemExit) as e:
         main(["interpolate", *poses, "-o", str(tmp_path / "o3"), "--spline", "cubic"])
     assert e.value.code == 2
@@ -118,10 +139,7 @@ def test_batch_key(tmp_path):
     assert summary.exit_code == 0
     rep = json.loads(next((tmp_path / "out").glob("*/report.json")).read_text())
     assert rep["parameters"]["spline"] == "continuous"
-    for extra, needle in [('spline = "cubic"\n', "key 'spline': must be one of discrete, "
-                                                 "continuous, got 'cubic'"),
-                          ('spline = "continuous"\nreference = "keyframe"\n',
-                           "key 'spline': 'continuous' needs weights constant in time")]:
-        p.write_text(base + extra)
-        with pytest.raises(ValueError, match=needle):
-            ss.load_job(p)
+    p.write_text(base + 'spline = "cubic"\n')
+    with pytest.raises(ValueError, match="key 'spline': must be one of discrete, continuous, "
+                                         "got 'cubic'"):
+        ss.load_job(p)
