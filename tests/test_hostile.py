@@ -543,6 +543,10 @@ _READER_CASES = {
     "poses-colmap": ("images.txt", "# Image list with two lines of data per image:\n"
                      "1 1 0 0 0 0 0 0 1 a.png\n\n", ["path", "{f}", "-o", "{o}.txt"],
                      ["COLMAP images.txt is not supported"]),
+    "poses-nerf-json": ("transforms.json", '{"camera_angle_x": 0.7, "frames": [{"file_path": '
+                        '"a.png", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, '
+                        '0], [0, 0, 0, 1]]}]}', ["path", "{f}", "-o", "{o}.json"],
+                        ["NeRF/instant-ngp transforms.json is not supported"]),
     "poses-quaternion-columns": ("q.txt", _TUM.replace("0 0 0 1", "0 0 5 1"),
                                  ["motion", "close", "{f}", "-o", "{o}.txt"],
                                  [":1:", "quaternion norm"]),

@@ -310,6 +310,10 @@ def _read_json(path, text):
         d = json.loads(text)
     except json.JSONDecodeError as exc:
         _fail(path, exc.lineno, f"invalid JSON: {exc.msg}")
+    if isinstance(d, dict) and isinstance(d.get("frames"), list) and \
+            any(isinstance(f, dict) and "transform_matrix" in f for f in d["frames"]):
+        _fail(path, 0, "a NeRF/instant-ngp transforms.json is not supported (camera-to-world "
+                       "OpenGL matrices without times: convert it to TUM or our JSON)")
     if not isinstance(d, dict) or not {"t", "position", "quaternion_xyzw"} <= set(d):
         _fail(path, 0, "JSON poses need the keys t, position, quaternion_xyzw")
     try:
