@@ -1,4 +1,4 @@
-"""Reading one mesh file: OBJ (own vectorised reader), PLY and OFF (trimesh).
+"""Reading one mesh file: OBJ and OFF (own readers), PLY (trimesh, ours where it fails).
 
 -------
 * **OBJ** is parsed by a small vectorised reader of our own: ``v`` and ``f`` lines only,
@@ -308,8 +308,8 @@ def _read_with_trimesh(p: Path, ext: str, name: str):
         # trimesh log a traceback to the user's terminal
         loaded = trimesh.load(str(p), file_type=ext[1:], process=False, skip_materials=True)
     except Exception:
-        # trimesh reads neither binary PLY nor OFF files that mix polygon sizes; and what it
-        # cannot read, ours says in words (its messages are about its own code)
+        # trimesh does not read binary PLY files that mix polygon sizes; and what it cannot
+        # read, ours says in words (its messages are about its own code)
         return _own_reader(own, p, declared)
     if isinstance(loaded, trimesh.Scene):
         geoms = list(loaded.geometry.values())
