@@ -81,6 +81,17 @@ SUBSPACE_GATE = 0.2
 #: frame, which Gauss–Newton solves exactly, stopped at energy 0.21 without this test).
 SUBSPACE_TAIL = 0.01
 
+#: ... or where the last two decreases of ``f`` shrank by less than this factor
+SUBSPACE_RATE = 0.25
+
+#: A Gauss–Newton step that decreased ``f`` by more than this fraction is a large step: it
+#: can move the pose so far that the cached factorization no longer preconditions CG (horse,
+#: 8.4k vertices: the next solve did not reach ``cg_tol`` in 40 iterations after a 37 %
+#: decrease, and needed 4–8 after 0.3–4 %). Where that happened after the last large step
+#: (or at the last frame's start), :class:`GaussNewton` refactors without trying the old
+#: factor (unrotated factors only).
+STALE_DECREASE = 0.1
+
 
 @dataclass(kw_only=True)
 class ReconstructionResult(SolverResult):
@@ -206,6 +217,7 @@ class GaussNewton:
         self.amortize_refresh = T.n_vertices > LARGE_MESH if amortize_refresh is None \
             else bool(amortize_refresh)
         self._cycle, self._last_cg = None, 0
+        self._stale_at = {}  # kinds of iterate where the cached factor failed (see solve)
         ordering = str(ordering).lower()
         if ordering not in ("auto", "amd", "nd"):
             raise ShellsplineError(f"`ordering` must be 'auto', 'amd' or 'nd', got {ordering!r}")
@@ -234,6 +246,7 @@ class GaussNewton:
         but those reach the converged frame by different paths)."""
         self._stale = True
         self._last_cg = 0
+        self._stale_at = {}
 
     def prepare(self, V) -> None:
         """Build what every later :meth:`solve` reuses, now: the assembly pattern and the DOF
@@ -402,10 +415,11 @@ class GaussNewton:
         Q[free] = Qf
         return Q
 
-    def _pcg(self, J, w, b, delta, precond):
+    def _pcg(self, J, w, b, delta, precond, max_iter=None):
         """Solve (JᵀWJ + δI) x = b on the free DOFs by CG preconditioned with ``precond``
         (from :meth:`_preconditioner`; without pins its range excludes the current rigid
-        motions, so CG runs on their complement). Returns ``(x, iterations, converged)``."""
+        motions, so CG runs on their complement), at most ``max_iter`` iterations (default
+        ``cg_max_iter``). Returns ``(x, iterations, converged)``."""
         free = self._free
         JT = J.T  # one transposed view per solve, not one per CG iteration
 
@@ -414,7 +428,8 @@ class GaussNewton:
             out[~free] = 0.0
             return out
 
-        res = pcg(matvec, b, precond=precond, rtol=self.cg_tol, max_iter=self.cg_max_iter)
+        res = pcg(matvec, b, precond=precond, rtol=self.cg_tol,
+                  max_iter=self.cg_max_iter if max_iter is None else max_iter)
         return res.x, res.iterations, res.status == "converged"
 
     def half_gradient(self, x, z_target, w) -> np.ndarray:
@@ -558,10 +573,16 @@ class GaussNewton:
         x_rot, R = None, None  # pose at which the preconditioner's rotations were fitted
         stall = 0
         s_prev = y_prev = None  # the last accepted step and the change of g along it
-        f_old = f
+        f_old = f_older = f
         # length scale of the finite-difference products in subspace_step
         h = _mean_edge_length(x, T.E) if self.subspace else 1.0
         for it in range(1, self.max_iter + 1):
+            # iterates where a cached factor is often too far (a frame's start, after a
+            # large step): where it was the last time, it is refreshed without a try
+            kind = "start" if it == 1 else "large step" if f_old - f > STALE_DECREASE * f_old \
+                else None
+            if kind is not None and self._stale_at.get(kind) and not self.rotate_preconditioner:
+                self._stale = True
             fresh = self._stale or self._chol is None
             if fresh:
                 self._refresh(J, w_eff, x)
@@ -569,9 +590,23 @@ class GaussNewton:
             elif x_rot is None or self._moved(x, x_rot):
                 x_rot, R = x, self._rotations(x)
             precond = self._preconditioner(x, R)
-            p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond)
+            # a cached factor gets refresh_cg CG iterations: one that needs more is too far
+            # from this iterate (after a large step, at a frame's start), and is refreshed
+            # here and the solve repeated, instead of finishing the solve with it
+            p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond,
+                                   self.cg_max_iter if fresh else
+                                   min(self.cg_max_iter, 2 * self.refresh_cg))
             res.cg_iterations += ncg
             self._cycle[0] += ncg
+            if kind is not None and not fresh:
+                self._stale_at[kind] = not ok
+            if not fresh and not ok:
+                self._refresh(J, w_eff, x)
+                x_rot, R, fresh = x, None, True
+                precond = self._preconditioner(x, R)
+                p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond, self.cg_max_iter)
+                res.cg_iterations += ncg
+                self._cycle[0] += ncg
             if not ok or ncg > self.refresh_cg:
                 self._stale = True
             # backtracking line search (Armijo); a step may not collapse a triangle
@@ -590,7 +625,8 @@ class GaussNewton:
                 break
             if self.subspace and s_prev is not None and \
                     f_old - f <= SUBSPACE_TAIL * f_old and \
-                    self._large_residual(J, w_eff, s_prev, y_prev):
+                    (f_old - f > SUBSPACE_RATE * (f_older - f_old) or
+                     self._large_residual(J, w_eff, s_prev, y_prev)):
                 p = self.subspace_step(x, g, p, s_prev, y_prev, z_target, w, h)
                 slope = float(g @ p)
 
@@ -621,7 +657,7 @@ class GaussNewton:
                 break
             s_prev, g_prev = xn - x, g
             x = xn
-            f_old, f = f, fn
+            f_older, f_old, f = f_old, f, fn
             J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
             f, r, w_eff = self.merit(z, z_target, w)
             g = J.T @ (w_eff * r)

@@ -133,19 +133,22 @@ def _blend_problem(case, t):
     return T, d["pinned"], z, lta_weights(V[0], T), (1 - t) * V[0] + t * V[1]
 
 
-@pytest.mark.parametrize("case,t,gn_iters,sub_iters", [(stress.joint, 0.7, 15, 7),
-                                                       (stress.slivers, 0.5, 38, 19)])
+@pytest.mark.parametrize("case,t,gn_iters,sub_iters", [(stress.joint, 0.7, 14, 7),
+                                                       (stress.slivers, 0.5, 33, 14)])
 def test_subspace_steps_converge_in_fewer_iterations_at_a_large_residual(case, t, gn_iters,
                                                                           sub_iters):
-    # a tube flexing 0 -> 150° at its joint, 70 % of the way: measured 15 Gauss–Newton
+    # a tube flexing 0 -> 150° at its joint, 70 % of the way: measured 14 Gauss–Newton
     # iterations against 7 with subspace steps; the same tube with sliver rings, halfway:
-    # 38 against 19; to the same energy (within the stopping tolerance)
+    # 33 against 14 (19 when only the secant-curvature test chose subspace steps, before
+    # SUBSPACE_RATE)
     T, pinned, z, w, V0 = _blend_problem(case, t)
     a = GaussNewton(T, pinned=pinned, subspace=False).solve(z, w, V0)
     b = GaussNewton(T, pinned=pinned, subspace=True).solve(z, w, V0)
     assert a.success and b.success, (a.message, b.message)
     assert a.nit >= gn_iters - 2 and b.nit <= sub_iters + 2
-    assert abs(b.energy - a.energy) <= 1e-5 * a.energy
+    # as low an energy (the slivers: 2e-5 lower; Gauss–Newton stops at its decrement
+    # test while its linear tail still has that much to go)
+    assert b.energy <= (1 + 1e-5) * a.energy and a.energy <= (1 + 1e-4) * b.energy
     assert a.energy > 1e-3 * a.energies[0]  # a large residual at the solution
 
 
