@@ -157,7 +157,11 @@ def test_flexing_joint_has_no_collapsed_triangle_and_no_fold(pinned):
     # the status is honest: a frame counts as converged only with the gradient criterion
     for rec in res.report["frames"]:
         assert rec["success"] == (rec["status"] == "converged")
-        if rec["status"] == "converged":
+        if rec["status"] == "converged" and "bridged" in rec:
+            # re-solved with its neighbours across a seam: the joint solve's criteria
+            assert rec["message"] in ("bridged: decrement below dtol",
+                                      "bridged: gradient norm reduced below gtol")
+        elif rec["status"] == "converged":
             assert rec["message"] in ("gradient norm reduced below gtol",
                                       "Gauss–Newton decrement below dtol",
                                       "initial guess is stationary",
