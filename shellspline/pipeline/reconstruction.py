@@ -370,12 +370,12 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         results[seam["frame"]][1]["seam_jump"] = seam["jump"]
     if bridge and seams:
         bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                     stage_prefix)
+                     stage_prefix, workers)
     return results
 
 
 def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                 stage_prefix=""):
+                 stage_prefix="", workers=1):
     """Re-solve the frames around each seam jointly (:func:`~.bridge.bridge_seam`) and
     replace them in ``results`` (in place) where that removes the jump without a new defect.
 
@@ -385,37 +385,42 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
     bridged frames' records get ``"bridged"`` (the seam's frame) and the joint solve's status,
     message and their own energies. The seam's frame record gets ``"bridge"``: the joint
     solve's summary, ``"kept"`` and the window's step ratio before and after (its
-    ``"seam_jump"`` is the jump before bridging).
+    ``"seam_jump"`` is the jump before bridging). Seams are bridged on ``workers`` forked
+    processes when there are several.
     """
-    from .bridge import bridge_seam
+    from ..parallel import process_pool, start_method
 
     def frame_of(k):
         return results[k][0] if k in results else Vinit[k]
 
+    tasks = []
+    for seam in seams:
+        s = seam["frame"]
+        a = s - 1
+        while a in results:
+            a -= 1
+        b = s
+        while b in results:
+            b += 1
+        tasks.append((s, a, b))
     stage = stage_prefix + "bridge seams"
-    with prog.stage(stage, total=len(seams)):
-        limiter = single_blas_thread()
-        try:
-            gn = GaussNewton(T, pinned=pinned, **gn_options)
-            for i, seam in enumerate(seams):
-                s = seam["frame"]
-                a = s - 1
-                while a in results:
-                    a -= 1
-                b = s
-                while b in results:
-                    b += 1
-                br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of)
+    _WORKER["bridge"] = (T, frame_of, K, Z, W_of, pinned, gn_options)
+    try:
+        with prog.stage(stage, total=len(tasks)):
+            if workers > 1 and len(tasks) > 1 and start_method() == "fork":
+                with process_pool(min(workers, len(tasks)), _blas_worker_init,
+                                  method="fork") as ex:
+                    done = list(ex.map(_bridge_one, tasks))
+            else:
+                limiter = single_blas_thread()
+                try:
+                    done = [_bridge_one(t) for t in tasks]
+                finally:
+                    if limiter is not None:
+                        limiter.restore_original_limits()
+            for i, (s, br, before, after) in enumerate(done):
                 if br is None:
                     continue
-                new = dict(zip(br.frames.tolist(), br.V))
-
-                def bridged(k):
-                    return new[k] if k in new else frame_of(k)
-
-                win = list(range(max(a, br.frames[0] - 2), min(b, br.frames[-1] + 2) + 1))
-                before = _window_check(T, win, a, b, frame_of, pinned)
-                after = _window_check(T, win, a, b, bridged, pinned)
                 keep = br.status != "failed" and after[0] < before[0] and \
                     np.all(after[1] <= before[1])
                 if keep:
@@ -428,13 +433,37 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
                 results[s][1]["bridge"] = dict(br.summary(), kept=bool(keep),
                                                step_ratio_before=before[0],
                                                step_ratio_after=after[0])
-                prog.advance(stage, i + 1, len(seams),
+                prog.advance(stage, i + 1, len(tasks),
                              text=f"seam at frame {s}: {br.status}, {br.iterations} it, "
                                   f"step ratio {before[0]:.2f} -> {after[0]:.2f}"
                                   f"{'' if keep else ' (not kept)'}")
-        finally:
-            if limiter is not None:
-                limiter.restore_original_limits()
+    finally:
+        _WORKER.pop("bridge", None)
+
+
+def _blas_worker_init():
+    _WORKER["blas"] = single_blas_thread()
+
+
+def _bridge_one(task):
+    """Bridge one seam ``(s, a, b)`` (the data in ``_WORKER["bridge"]``) and measure its
+    window before and after: ``(s, BridgeResult or None, before, after)``."""
+    from .bridge import bridge_seam
+
+    s, a, b = task
+    T, frame_of, K, Z, W_of, pinned, gn_options = _WORKER["bridge"]
+    gn = GaussNewton(T, pinned=pinned, **gn_options)
+    br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of)
+    if br is None:
+        return s, None, None, None
+    new = dict(zip(br.frames.tolist(), br.V))
+
+    def bridged(k):
+        return new[k] if k in new else frame_of(k)
+
+    win = list(range(max(a, int(br.frames[0]) - 2), min(b, int(br.frames[-1]) + 2) + 1))
+    return (s, br, _window_check(T, win, a, b, frame_of, pinned),
+            _window_check(T, win, a, b, bridged, pinned))
 
 
 def _window_check(T, win, a, b, frame_of, pinned):

@@ -76,3 +76,16 @@ def test_joint_seams_are_bridged_without_new_defects():
     bridged = [r for r in res.report["frames"] if "bridged" in r]
     assert len(bridged) == 4 * len(kept)
     assert all(r["message"].startswith("bridged: ") for r in bridged)
+
+
+def test_bridges_on_two_workers_equal_one():
+    from shellspline.parallel import start_method
+
+    if start_method() != "fork":
+        pytest.skip("seams are bridged in parallel only on forked workers")
+    d = stress.joint()
+    out = [ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=w) for w in (1, 2)]
+    b1 = [r.get("bridge") for r in out[0].report["frames"]]
+    b2 = [r.get("bridge") for r in out[1].report["frames"]]
+    assert any(b1) and b1 == b2
+    assert np.array_equal(out[0].V, out[1].V)
