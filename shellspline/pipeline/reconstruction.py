@@ -380,12 +380,12 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
     replace them in ``results`` (in place) where that removes the jump without a new defect.
 
     A bridge is kept when the window's largest step over its mean step drops and the window
-    has no more flipped faces, folded edges or collapsed faces than before
+    has no more defects (flipped faces, folded edges and collapsed faces together) than before
     (:class:`~shellspline.shells.defects.DefectRules`, with the gap's keyframes). Kept, the
     bridged frames' records get ``"bridged"`` (the seam's frame) and the joint solve's status,
     message and their own energies. The seam's frame record gets ``"bridge"``: the joint
-    solve's summary, ``"kept"`` and the window's step ratio before and after (its
-    ``"seam_jump"`` is the jump before bridging). Seams are bridged on ``workers`` forked
+    solve's summary, ``"kept"``, the window's step ratio and defect counts before and after
+    (its ``"seam_jump"`` is the jump before bridging). Seams are bridged on ``workers`` forked
     processes when there are several.
     """
     from ..parallel import process_pool, start_method
@@ -422,7 +422,7 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
                 if br is None:
                     continue
                 keep = br.status != "failed" and after[0] < before[0] and \
-                    np.all(after[1] <= before[1])
+                    after[1].sum() <= before[1].sum()
                 if keep:
                     for k, Vk, e in zip(br.frames, br.V, br.energies):
                         rec = dict(results[int(k)][1])
@@ -430,9 +430,13 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
                                    energy_final=float(e), bridged=int(s),
                                    message=f"bridged: {br.message}")
                         results[int(k)] = (Vk, rec)
-                results[s][1]["bridge"] = dict(br.summary(), kept=bool(keep),
-                                               step_ratio_before=before[0],
-                                               step_ratio_after=after[0])
+                results[s][1]["bridge"] = dict(
+                    br.summary(), kept=bool(keep), step_ratio_before=before[0],
+                    step_ratio_after=after[0],
+                    defects_before=dict(zip(("flipped", "folded", "collapsed"),
+                                            before[1].tolist())),
+                    defects_after=dict(zip(("flipped", "folded", "collapsed"),
+                                           after[1].tolist())))
                 prog.advance(stage, i + 1, len(tasks),
                              text=f"seam at frame {s}: {br.status}, {br.iterations} it, "
                                   f"step ratio {before[0]:.2f} -> {after[0]:.2f}"
