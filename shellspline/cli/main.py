@@ -402,6 +402,16 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
                 fr = gn[key]
                 line += f"; {what}: frames {fr[:8]}{' …' if len(fr) > 8 else ''}"
         lines.append(line)
+    seams = [r for r in rep.get("frames", []) if "seam_jump" in r]
+    if seams:
+        kept = [r for r in seams if r.get("bridge", {}).get("kept")]
+        line = (f"seams: {len(seams)} (the two runs of a gap meet in different minima: frames "
+                f"{[r['frame'] for r in seams][:8]}), {len(kept)} bridged")
+        if kept:
+            line += " (window step ratio " + ", ".join(
+                f"{r['bridge']['step_ratio_before']:.2f} -> {r['bridge']['step_ratio_after']:.2f}"
+                for r in kept[:4]) + ")"
+        lines.append(line)
     from ..pipeline.report import convergence_problems, quality_ok, start_frames_note
 
     note = start_frames_note(rep)

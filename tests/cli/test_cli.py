@@ -234,3 +234,29 @@ def test_progress_bar_on_a_terminal_draws_the_described_state():
     assert "eta" not in drawn and "\n" not in drawn  # redrawn in place, no log line
     bar({"kind": "stage_end", "stage": "nonlinear", "seconds": 2.0, "total": 1000})
     assert s.getvalue().endswith("nonlinear       2.000 s\n")
+
+
+def test_summary_names_the_seams_and_their_bridges(tmp_path, capsys):
+    # the flexing tube of data_synth.stress: each gap's two runs meet in different minima
+    import json
+
+    import trimesh
+
+    from data_synth import stress
+
+    d = stress.joint()
+    paths = []
+    for i, V in enumerate(d["V"]):
+        p = tmp_path / f"pose{i}.obj"
+        trimesh.Trimesh(V, d["F"], process=False).export(p)
+        paths.append(str(p))
+    out = tmp_path / "out"
+    rc = main(["interpolate", *paths, "--frames", "0,10,20", "-o", str(out)])
+    err = capsys.readouterr().err
+    rep = json.loads((out / "report.json").read_text())
+    seams = [r for r in rep["frames"] if "seam_jump" in r]
+    kept = [r for r in seams if r["bridge"]["kept"]]
+    assert rc in (0, 1) and seams and kept
+    line = next(ln for ln in err.splitlines() if ln.startswith("seams: "))
+    assert line.startswith(f"seams: {len(seams)} ") and f"{len(kept)} bridged" in line
+    assert f"{kept[0]['bridge']['step_ratio_before']:.2f} -> " in line
