@@ -368,7 +368,75 @@ def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Moti
 # ----------------------------------------------------------------------------------------
 # Up axis, feet, contacts
 # ----------------------------------------------------------------------------------------
-def _parse_up(up) -> tuple[int, float]:
+# A joint is static when its local rotation and translation change by less than this over the
+# clip (relative to the largest translation; channel values read from text are usually equal
+# to the last digit).
+STATIC_TOL = 1e-9
+
+
+def stage_joint(motion: Motion) -> int:
+    """The static joint above the body whose frame the clip is analysed in, or ``-1``.
+
+    A chain of joints from a root, each static (constant local rotation and translation
+    over the clip) and each with exactly one child joint, stopped before the first joint
+    that moves: a ground marker or an armature above the hips (``joint_Root`` in the Bandai
+    Namco files). Its world frame is the clip's *stage*: a file turned to Z-up (or moved,
+    or yawed) by a constant transform of such a root is the same motion on the same stage.
+    ``-1`` when the first root moves or branches (CMU: the hips are the root).
+    """
+    roots = np.flatnonzero(motion.parents < 0)
+    if roots.size != 1:
+        return -1
+    ch = _children(motion)
+    R, t = motion.local_transforms()
+    scale = max(float(np.abs(t).max()), 1.0)
+    out, j = -1, int(roots[0])
+    while len(ch[j]) == 1:
+        static = (np.abs(R[:, j] - R[0, j]).max() <= STATIC_TOL
+                  and np.abs(t[:, j] - t[0, j]).max() <= STATIC_TOL * scale)
+        if not static:
+            break
+        out, j = j, ch[j][0]
+    return out
+
+
+def stage_kinematics(motion: Motion) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Joint positions and rotations in the clip's stage frame (see :func:`stage_joint`).
+
+    Returns
+    -------
+    positions : (T,J,3) float64 numpy array
+        ``S^T (p - s)`` for world positions ``p`` and the stage's world pose ``(S, s)``
+        (the world positions when there is no static stage joint).
+    rotations : (T,J,3,3) float64 numpy array
+        ``S^T R`` for world rotations ``R``.
+    S : (3,3) float64 numpy array
+        The stage's world rotation (identity without a stage).
+    s : (3,) float64 numpy array
+        The stage's world position (zero without a stage).
+
+    Notes
+    -----
+    Everything :mod:`shellspline.animation` measures (up axis, feet, contacts, skate, seam
+    gaps, the horizontal travel) is measured here, so results do not change when a static
+    root is turned or moved: the same motion converted to Z-up by a 90 degree root rotation
+    closes, aligns and blends to the same channel values.
+    """
+    P, Rw = forward_kinematics(motion)
+    k = stage_joint(motion)
+    if k < 0:
+        return P, Rw, np.eye(3), np.zeros(3)
+    S, s = Rw[0, k].copy(), P[0, k].copy()
+    return (P - s) @ S, np.swapaxes(S, -1, -2) @ Rw, S, s
+
+
+def _positions(motion: Motion, positions=None) -> np.ndarray:
+    return stage_kinematics(motion)[0] if positions is None else np.asarray(positions)
+
+
+def _parse_up(up, motion: Motion | None = None) -> tuple[int, float]:
+    """``(axis, sign)`` in the stage frame. A tuple is taken as already in it; a string
+    (``"y"``, ``"-z"``) names a world axis, turned into the stage frame of ``motion``."""
     if isinstance(up, tuple) and len(up) == 2:
         return int(up[0]), float(up[1])
     s = str(up).strip().lower()
@@ -376,7 +444,17 @@ def _parse_up(up) -> tuple[int, float]:
     s = s.lstrip("+-")
     if s not in ("x", "y", "z"):
         raise ShellsplineError(f"up axis must be one of x, y, z, +y, -z, ..., got {up!r}")
-    return "xyz".index(s), sign
+    axis = "xyz".index(s)
+    k = -1 if motion is None else stage_joint(motion)
+    if k < 0:
+        return axis, sign
+    u = forward_kinematics(motion.frames(0, 1))[1][0, k][axis] * sign  # world axis in stage
+    a = int(np.argmax(np.abs(u)))
+    if abs(u[a]) < 1 - 1e-6:
+        raise ShellsplineError(
+            f"up axis {up!r}: the static root {motion.names[k]!r} turns it off the axes of "
+            f"its own frame ({np.round(u, 3).tolist()}); leave --up out to detect it")
+    return a, float(np.sign(u[a]))
 
 
 def _body(motion: Motion) -> np.ndarray:
@@ -393,7 +471,8 @@ def up_axis(motion: Motion, positions=None) -> tuple[int, float]:
     ----------
     motion : Motion
     positions : (T,J,3) array_like, optional
-        World joint positions (``forward_kinematics(motion)[0]``), when already computed.
+        Joint positions in the stage frame (``stage_kinematics(motion)[0]``), when already
+        computed.
 
     Returns
     -------
@@ -409,7 +488,7 @@ def up_axis(motion: Motion, positions=None) -> tuple[int, float]:
     A heuristic for humanoids standing or walking; pass ``up="y"``, ``"-z"``, ... to the
     functions that take it when it fails (lying, crawling, quadrupeds).
     """
-    P = forward_kinematics(motion)[0] if positions is None else np.asarray(positions)
+    P = _positions(motion, positions)
     B = P[:, _body(motion)]
     ext = np.median(B.max(axis=1) - B.min(axis=1), axis=0)
     axis = int(np.argmax(ext))
@@ -436,7 +515,7 @@ def find_feet(motion: Motion, up=None, positions=None, count: int = 2) -> tuple[
     up : str or (int, float), optional
         Up axis override (``"y"``, ``"-z"``, ...); detected by :func:`up_axis` otherwise.
     positions : (T,J,3) array_like, optional
-        World joint positions, when already computed.
+        Joint positions in the stage frame, when already computed.
     count : int
         Number of feet (2 for bipeds; fewer when the skeleton has fewer leaves).
 
@@ -446,8 +525,8 @@ def find_feet(motion: Motion, up=None, positions=None, count: int = 2) -> tuple[
         Leaf joint indices in file order (the same feet in the same order for every clip of
         one skeleton). Joint names are not used.
     """
-    P = forward_kinematics(motion)[0] if positions is None else np.asarray(positions)
-    ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
+    P = _positions(motion, positions)
+    ax, sign = up_axis(motion, P) if up is None else _parse_up(up, motion)
     ch = _children(motion)
     leaves = [j for j in range(motion.n_joints) if not ch[j] and motion.parents[j] >= 0]
     if not leaves:
@@ -489,7 +568,7 @@ class FootContacts:
         Rest length of the leg chain (file units): the mean over feet of the summed bone
         lengths from the leaf to the branch point (the hips).
     positions : (T,J,3) float64 numpy array
-        World joint positions.
+        Joint positions in the stage frame (:func:`stage_kinematics`).
     """
 
     feet: tuple
@@ -529,8 +608,8 @@ def foot_contacts(motion: Motion, *, feet=None, up=None, height: float = CONTACT
     -------
     FootContacts
     """
-    P, _ = forward_kinematics(motion)
-    ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
+    P = _positions(motion)
+    ax, sign = up_axis(motion, P) if up is None else _parse_up(up, motion)
     if feet is None:
         feet = find_feet(motion, (ax, sign), P)
     else:
@@ -614,7 +693,7 @@ def _planted_steps(motion: Motion, contacts: FootContacts):
     the foot's tested joints planted at both ends of the step, the one that moves least: a
     foot rolling over its toe pivots about the toe) and whether the foot is planted
     ``(T-1,k)``."""
-    P = forward_kinematics(motion)[0]
+    P = _positions(motion)
     ax = contacts.up[0]
     hor = [a for a in range(3) if a != ax]
     idx = np.array(contacts.joints, dtype=np.int64)
@@ -652,8 +731,8 @@ def seam_gap(motion: Motion, *, up=None, root_motion: str = "keep") -> dict:
         curve (radians; position channels over the body height), the seed's closing energy.
     """
     c = motion_curve(motion)
-    P = forward_kinematics(motion)[0]
-    ax, sign = up_axis(motion, P) if up is None else _parse_up(up)
+    P = _positions(motion)
+    ax, sign = up_axis(motion, P) if up is None else _parse_up(up, motion)
     H = body_height(motion, P, ax)
     ang = so3.angle(c.R[-1] @ np.swapaxes(c.R[0], -1, -2))
     body = _body(motion)  # a root may be a ground marker, not part of the body
@@ -675,7 +754,7 @@ def seam_gap(motion: Motion, *, up=None, root_motion: str = "keep") -> dict:
 def body_height(motion: Motion, positions=None, axis: int | None = None) -> float:
     """Median over frames of the body's extent along the up axis (roots excluded), the
     length scale that makes position channels comparable with angles."""
-    P = forward_kinematics(motion)[0] if positions is None else positions
+    P = _positions(motion, positions)
     if axis is None:
         axis = up_axis(motion, P)[0]
     h = P[:, _body(motion), axis]
@@ -696,10 +775,18 @@ def translation_root(motion: Motion) -> int:
 
 
 def _horizontal_cols(c: MotionCurve, ax: int) -> np.ndarray:
-    """Positions in ``X`` of the position channels along the horizontal axes."""
-    names = [c.template.channels[j][k] for j in range(c.template.n_joints)
-             for k in range(len(c.template.channels[j]))]
-    return np.array([i for i, col in enumerate(c.pos_cols) if names[col][0] != "XYZ"[ax]],
+    """Positions in ``X`` of the travel channels: the position channels along the stage's
+    horizontal axes (``ax`` the stage's up axis) of the joints whose channels are given in
+    the stage frame (the children of the static stage joint, or the roots without one).
+    Position channels of other joints live in moving frames: they are not travel."""
+    tpl = c.template
+    k = stage_joint(tpl)
+    names, owner = [], []
+    for j in range(tpl.n_joints):
+        names += list(tpl.channels[j])
+        owner += [j] * len(tpl.channels[j])
+    return np.array([i for i, col in enumerate(c.pos_cols)
+                     if tpl.parents[owner[col]] == k and names[col][0] != "XYZ"[ax]],
                     dtype=np.int64)
 
 
@@ -738,8 +825,9 @@ def plant_feet(motion: Motion, contacts: FootContacts, *, smooth: int = 0) -> Mo
     -------
     Motion
         The position channels of the body's carrier changed (per root, the first joint with
-        all three position channels: the root itself in CMU and game-studio files; the shift
-        is turned into the carrier's parent frame); exact for one planted foot (world
+        all three position channels below the static stage: the root itself in CMU files,
+        the hips under a static ``joint_Root``; the shift is turned into the carrier's
+        parent frame); exact for one planted foot (world
         positions are linear in that translation), a compromise in double support. The
         motion unchanged when no joint has three position channels.
     """
@@ -753,12 +841,12 @@ def plant_feet(motion: Motion, contacts: FootContacts, *, smooth: int = 0) -> Mo
     offset = np.vstack([np.zeros((1, 2)), np.cumsum(corr, axis=0)])
     delta = np.zeros((motion.n_frames, 3))
     delta[:, hor] = offset
-    Rw = forward_kinematics(motion)[1]
+    _, Rw, S, _ = stage_kinematics(motion)  # delta is in the stage frame, like Rw
     values = motion.values.copy()
     for j in _carriers(motion):
-        # p_j = p_parent + R_parent t_j: a world shift d is R_parent^T d in j's channels
+        # p_j = p_parent + R_parent t_j: a shift d is R_parent^T d in j's channels
         p = int(motion.parents[j])
-        local = delta if p < 0 else np.einsum("tba,tb->ta", Rw[:, p], delta)
+        local = delta @ S.T if p < 0 else np.einsum("tba,tb->ta", Rw[:, p], delta)
         names = motion.channels[j]
         cols = motion.channel_columns(j)
         for k, name in enumerate(names):
@@ -770,13 +858,21 @@ def plant_feet(motion: Motion, contacts: FootContacts, *, smooth: int = 0) -> Mo
 
 def _carriers(motion: Motion) -> list[int]:
     """Per root, the first joint of its subtree (file order) with all three position
-    channels: the joint whose translation moves the whole body."""
+    channels below the static stage (:func:`stage_joint`, which stays static): the joint
+    whose translation moves the whole body."""
     out = []
     tree = -np.ones(motion.n_joints, dtype=np.int64)
     for j, p in enumerate(motion.parents):
         tree[j] = j if p < 0 else tree[p]
+    stage = set()
+    k = stage_joint(motion)
+    while k >= 0:
+        stage.add(k)
+        k = int(motion.parents[k])
     for r in np.flatnonzero(motion.parents < 0):
         for j in np.flatnonzero(tree == r):
+            if int(j) in stage:
+                continue
             if sum(c.endswith("position") for c in motion.channels[j]) == 3:
                 out.append(int(j))
                 break
@@ -786,7 +882,7 @@ def _carriers(motion: Motion) -> list[int]:
 # ----------------------------------------------------------------------------------------
 # Operations: distance, alignment, blending, closing (seed 000 on SO(3)^d x R^m)
 # ----------------------------------------------------------------------------------------
-def _product_curve(c: MotionCurve, scale: float, X=None, cols=None):
+def _product_curve(c: MotionCurve, scale: float, X=None, cols=None, rots=None):
     """The analysis curve of seed 000: rotations, position channels over ``scale`` (the
     body height: lengths in body heights weigh like radians), on ``t = linspace(0, 1, N)``.
     ``cols``: the position channels kept (constant channels have a zero SRV: leaving them
@@ -796,12 +892,21 @@ def _product_curve(c: MotionCurve, scale: float, X=None, cols=None):
     X = c.X if X is None else X
     if cols is not None:
         X = X[:, cols]
-    return ProductCurve(c.R, X / scale, c.t)
+    R = c.R if rots is None else c.R[:, rots]
+    return ProductCurve(R, X / scale, c.t)
 
 
 def _varying(*Xs) -> np.ndarray:
     """Columns that change over time in any of the ``(N,m)`` arrays."""
     return np.flatnonzero(np.any([np.ptp(X, axis=0) > 0 for X in Xs], axis=0))
+
+
+def _turning(*Rs) -> np.ndarray:
+    """Joints whose rotation changes over time in any of the ``(N,d,3,3)`` arrays. The
+    others have a zero SRV in exact arithmetic, but the rounding of ``log(R R^T)`` of a
+    constant turned joint (a static root at 90 degrees: ~1e-16) becomes ~1e-8 in
+    ``eta / sqrt(|eta|)``: left out, a turned static root changes no distance or warp."""
+    return np.flatnonzero(np.any([np.any(R != R[:1], axis=(0, 2, 3)) for R in Rs], axis=0))
 
 
 def _pair(a: Motion, b: Motion, n_frames=None):
@@ -827,7 +932,7 @@ def contact_features(a: Motion, b: Motion, *, up=None) -> np.ndarray:
         ``(t_a, t_b)`` in normalised time ``[0, 1]`` of each clip, sorted by ``t_a``.
     """
     fa, fb = foot_contacts(a, up=up), foot_contacts(b, up=up)
-    fb = foot_contacts(b, up=fa.up, feet=fa.feet) if fb.feet != fa.feet else fb
+    fb = foot_contacts(b, up=up, feet=fa.feet) if fb.feet != fa.feet else fb  # own stage
     pairs = []
     for i in range(len(fa.feet)):
         ta = fa.onsets(i) / max(a.n_frames - 1, 1)
@@ -938,8 +1043,9 @@ def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
     from .curves.srv import reparametrize, srv_distance
 
     a2, b2, ca, cb, H = _pair(a, b, n_frames)
-    cols = _varying(ca.X, cb.X)
-    pa, pb = _product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols)
+    cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
+    pa, pb = (_product_curve(ca, H, cols=cols, rots=rots),
+              _product_curve(cb, H, cols=cols, rots=rots))
     F = _features(features, a, b, up)
     phi, res = _align_curves(pa, pb, F, kw)
     before = srv_distance(pa, pb)
@@ -978,8 +1084,9 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
     if align == "none":
         _, _, ca, cb, H = _pair(a, b, n_frames)
-        cols = _varying(ca.X, cb.X)
-        return srv_distance(_product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols))
+        cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
+        return srv_distance(_product_curve(ca, H, cols=cols, rots=rots),
+                            _product_curve(cb, H, cols=cols, rots=rots))
     d1 = _align_motions(a, b, features=features, n_frames=n_frames, up=up, **kw).distance_after
     F = _features(features, a, b, up)
     F2 = None if F is None else F[:, ::-1] * [(b.n_frames - 1) * b.frame_time,
@@ -1109,8 +1216,8 @@ def loop_range(motion: Motion, *, min_fraction: float = 0.5, up=None) -> tuple[i
     if T < 3:
         raise ShellsplineError(f"loop_range: need at least 3 frames, got {T}")
     c = motion_curve(motion)
-    P = forward_kinematics(motion)[0]
-    ax = (up_axis(motion, P) if up is None else _parse_up(up))[0]
+    P = _positions(motion)
+    ax = (up_axis(motion, P) if up is None else _parse_up(up, motion))[0]
     H = body_height(motion, P, ax)
     keep = np.setdiff1d(np.arange(c.X.shape[1]), _horizontal_cols(c, ax))
     Y = np.concatenate([c.R.reshape(T, -1), c.X[:, keep] / H], axis=1)

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .animation import FootContacts, body_height, foot_contacts
+from .animation import FootContacts, body_height, foot_contacts, stage_kinematics
 from .errors import ShellsplineError
-from .io.bvh import Motion, forward_kinematics
+from .io.bvh import Motion
 
 __all__ = ["render_strip", "render_gif", "plot_motion"]
 
@@ -85,7 +85,7 @@ def _prepare(motions, contacts, up):
         c = contacts[i] if isinstance(contacts, (list, tuple)) else contacts
         if c is None:
             c = foot_contacts(m, up=up)
-        P = forward_kinematics(m)[0]
+        P = stage_kinematics(m)[0]  # the frame the contacts' up axis is given in
         S = _view(m, P, c.up[0], c.up[1])
         ground = float(np.min(S[..., 1]))
         out.append((m, c, S, ground))

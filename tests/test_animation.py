@@ -313,9 +313,9 @@ def test_blend_with_planted_feet_slides_less():
     m, _ = A.blend(a, b, 0.5)
     p, _ = A.blend(a, b, 0.5, plant=True)
     assert A.foot_skate(p)["speed"] < 0.3 * A.foot_skate(m)["speed"]
-    # only the root's horizontal channels changed
+    # only the hips' horizontal channels changed (the static joint_Root above stays put)
     changed = np.flatnonzero(np.abs(p.values - m.values).max(axis=0) > 0)
-    assert set(changed) <= set(a.channel_columns(0)[:3].tolist())
+    assert set(changed) <= {6, 8}
 
 
 def test_blend_across_frame_rates_and_layouts():
@@ -773,3 +773,78 @@ def test_track_errors_are_one_line():
     # a track that does not move: positions are not scaled (length 1)
     still = PoseTrack(a.t, np.broadcast_to(a.T[0], a.T.shape).copy(), "tum")
     assert A.track_length(still) == 1.0
+
+
+# ----------------------------------------------------------------------------------------
+# A static root turned or moved (a file converted to Z-up by its root): the same results
+# ----------------------------------------------------------------------------------------
+STAGES = [((0.0, 90.0, 0.0), (0.0, 0.0, 0.0)),        # Y-up turned to Z-up by the root
+          ((37.0, -80.0, 20.0), (100.0, -5.0, 40.0))]  # any turn and shift
+
+
+def on_stage(m: Motion, zxy, pos) -> Motion:
+    """The clip with its static root (Bandai ``joint_Root``: Xpos Ypos Zpos Zrot Xrot Yrot)
+    set to a constant pose."""
+    v = m.values.copy()
+    v[:, :3], v[:, 3:6] = pos, zxy
+    return Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, v, m.end_sites)
+
+
+def stage_pose(zxy, pos):
+    return euler_matrices(np.array(zxy), "ZXY"), np.array(pos)
+
+
+@pytest.mark.parametrize("zxy,pos", STAGES)
+def test_close_does_not_depend_on_a_static_root_pose(zxy, pos):
+    """Oracle: the closed clip of the turned file is the closed clip of the original, turned
+    (the root's channels are the file's, every other channel equal; world positions
+    S p + s)."""
+    m = real()
+    turned = on_stage(m, zxy, pos)
+    assert A.stage_joint(m) == 0 == A.stage_joint(turned)
+    S, s = stage_pose(zxy, pos)
+    for kw in (dict(c1=True), dict(root_motion="close"), dict(trim=True)):
+        out, rep = A.close(m, **kw)
+        out_t, rep_t = A.close(turned, **kw)
+        assert rep_t.frames == rep.frames
+        assert np.abs(out_t.values[:, 6:] - out.values[:, 6:]).max() < 1e-8
+        assert np.array_equal(out_t.values[:, :6], turned.values[: out_t.n_frames, :6])
+        P, P_t = forward_kinematics(out)[0], forward_kinematics(out_t)[0]
+        assert np.abs(P_t - (P @ S.T + s)).max() < 1e-8
+        assert rep_t.gap_after["position_max"] < 1e-9  # was 0.661 units for the Z-up file
+        assert rep_t.skate_after["drift"] == pytest.approx(rep.skate_after["drift"], abs=1e-8)
+
+
+@pytest.mark.parametrize("zxy,pos", STAGES)
+def test_distance_align_blend_do_not_depend_on_a_static_root_pose(zxy, pos):
+    """Without alignment to rounding; with DP the lattice optimum is the same to rounding,
+    and the refinement (which stops at its iteration limit on these walks) ends within
+    0.1 % of the distance."""
+    a, b = real(), real("dataset-1_walk_tired_001.bvh")
+    at, bt = on_stage(a, zxy, pos), on_stage(b, zxy, pos)
+    assert A.distance(at, bt, align="none") == pytest.approx(A.distance(a, b, align="none"),
+                                                             rel=1e-12)
+    assert A.distance(at, bt, features="contacts") == pytest.approx(
+        A.distance(a, b, features="contacts"), rel=1e-3)
+    r, rt = A.align(a, b, features="contacts"), A.align(at, bt, features="contacts")
+    assert np.array_equal(r.features, rt.features)
+    assert rt.result.energy_dp == pytest.approx(r.result.energy_dp, rel=1e-12)
+    assert np.abs(rt.phi - r.phi).max() < 0.01
+    m, _ = A.blend(a, b, 0.4, align="none", plant=True)
+    mt, _ = A.blend(at, bt, 0.4, align="none", plant=True)
+    assert np.abs(mt.values[:, 6:] - m.values[:, 6:]).max() < 1e-7
+    assert np.abs(mt.values[:, :6] - at.values[0, :6]).max() < 1e-9  # the root stays put
+    S, s = stage_pose(zxy, pos)
+    m, _ = A.blend(a, b, 0.4, features="contacts")
+    mt, _ = A.blend(at, bt, 0.4, features="contacts")
+    P, P_t = forward_kinematics(m)[0], forward_kinematics(mt)[0]
+    assert np.abs(P_t - (P @ S.T + s)).max() < 0.01 * A.body_height(m)
+
+
+def test_up_override_is_a_world_axis_turned_into_the_stage():
+    m = real()
+    zup = on_stage(m, *STAGES[0])
+    assert A.foot_contacts(zup, up="z").up == A.foot_contacts(m, up="y").up == (1, 1.0)
+    assert A.up_axis(zup) == A.up_axis(m)
+    with pytest.raises(ShellsplineError, match="joint_Root"):
+        A.foot_contacts(on_stage(m, *STAGES[1]), up="z")
