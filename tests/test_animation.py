@@ -848,3 +848,92 @@ def test_up_override_is_a_world_axis_turned_into_the_stage():
     assert A.up_axis(zup) == A.up_axis(m)
     with pytest.raises(ShellsplineError, match="joint_Root"):
         A.foot_contacts(on_stage(m, *STAGES[1]), up="z")
+
+
+# ----------------------------------------------------------------------------------------
+# A joint that flips between two frames (gimbal flips of the data, marker swaps, fast spins)
+# ----------------------------------------------------------------------------------------
+def flipped(deg, frame=100, joint="UpperArm_L") -> Motion:
+    """The real walk with one joint's last Euler angle (Yrotation) turned by ``deg`` from
+    ``frame`` on: a step of about ``deg`` between ``frame - 1`` and ``frame``."""
+    m = real()
+    v = m.values.copy()
+    v[frame:, m.channel_columns(m.joint_index(joint))[5]] += deg
+    return Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, v, m.end_sites)
+
+
+def test_subdivision_keeps_the_curve_and_its_srv():
+    """Oracle: the inserted samples are scipy's Slerp between the two frames, and the SRV
+    of the split curve is the original SRV on every piece (piecewise constant)."""
+    from scipy.spatial.transform import Slerp
+
+    from shellspline.curves.srv import srv
+
+    c = A.motion_curve(flipped(178.0))
+    pc = A._product_curve(c, 100.0, cols=A._varying(c.X))
+    fine, keep = A._subdivided(pc)
+    assert np.array_equal(fine.R[keep], pc.R) and np.allclose(fine.t[keep], pc.t)
+    b = A.motion_curve(real()).rot_joints.tolist().index(real().joint_index("UpperArm_L"))
+    lo, hi = keep[99], keep[100]
+    assert hi - lo == 4  # a 178 degree step in pieces of at most CLOSE_MAX_STEP = 45
+    sl = Slerp([0.0, 1.0], Rotation.from_matrix(pc.R[99:101, b]))
+    ref = sl((fine.t[lo:hi + 1] - pc.t[99]) / (pc.t[100] - pc.t[99])).as_matrix()
+    assert np.abs(fine.R[lo:hi + 1, b] - ref).max() < 1e-12
+    q, qf = srv(pc), srv(fine)
+    piece = np.repeat(np.arange(keep.size - 1), np.diff(keep))
+    assert np.abs(qf - q[piece]).max() < 1e-9 * np.abs(q).max()
+
+
+@pytest.mark.parametrize("deg", [178.0, 200.0])
+def test_closing_a_clip_with_a_joint_flip(deg):
+    """A walk whose arm turns by 178 degrees (or 200: the short way, 160) in one frame
+    closed like any walk (it stopped with "srv_inverse: ... sample t more finely", or at
+    a 143 degree seam after 10 iterations)."""
+    m = flipped(deg)
+    for c1 in (False, True):
+        out, rep = A.close(m, c1=c1)
+        assert rep.status == "converged" and rep.iterations <= 4
+        assert rep.gap_before["rotation_max"] > 140 and rep.gap_after["rotation_max"] < 1e-6
+        c = A.motion_curve(out)
+        assert np.abs(c.R[-1] - c.R[0]).max() < 1e-8 and out.n_frames == m.n_frames
+
+
+def test_a_half_turn_in_one_frame_is_refused_in_one_line():
+    m = real()
+    v = m.values.copy()
+    j = m.joint_index("LowerArm_R")
+    cols = m.channel_columns(j)[3:]
+    R = euler_matrices(v[99, cols], "ZXY") @ euler_matrices([0.0, 0.0, 180.0], "ZXY")
+    v[100, cols] = A.euler_angles(R, "ZXY")
+    m = Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, v, m.end_sites)
+    with pytest.raises(ShellsplineError, match=r"close: joint 'LowerArm_R' turns by 180\.0000 "
+                       r"degrees between frames 99 and 100 \(3\.300 s\).*cut out") as e:
+        A.close(m)
+    assert "\n" not in str(e.value)
+
+
+def test_curve_closing_backtracks_where_a_trial_step_would_turn_a_joint_past_pi(monkeypatch):
+    """Without the split, the Gauss-Newton step of the flip clip's curve would turn the arm
+    past pi in one step (srv_inverse refuses such a trial); the line search now shortens
+    the step instead of stopping the run, and reports honestly that it did not close."""
+    from shellspline.curves import closing
+    from shellspline.curves.srv import srv, srv_inverse
+
+    c = A.motion_curve(flipped(178.0))
+    X = A._detrend(c, 1)
+    pc = A._product_curve(c, A.body_height(c.template), X, A._varying(X))
+    refused = []
+    inverse = closing.srv_inverse
+
+    def spy(*a, **k):
+        try:
+            return inverse(*a, **k)
+        except ShellsplineError:
+            refused.append(1)
+            raise
+    monkeypatch.setattr(closing, "srv_inverse", spy)
+    r = closing.close(pc)
+    assert refused and r.status == "limit"
+    assert np.all(np.diff(r.seam_gap) < 0)
+    back = srv_inverse(srv(r.curve), r.curve.t, R0=r.curve.R[0], X0=r.curve.X[0])
+    assert np.abs(back.R - r.curve.R).max() < 1e-9  # a valid piecewise-geodesic curve

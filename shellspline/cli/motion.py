@@ -565,8 +565,12 @@ def _close(args) -> int:
         return _close_track(args, m, length, say)
     if _is_mesh(m):
         return _close_meshes(args, m, say)
-    out, rep = close(m, iterations=args.iterations, c1=args.c1, root_motion=args.root_motion,
-                     plant=not args.no_plant, up=args.up, trim=args.trim)
+    try:
+        out, rep = close(m, iterations=args.iterations, c1=args.c1,
+                         root_motion=args.root_motion, plant=not args.no_plant, up=args.up,
+                         trim=args.trim)
+    except ShellsplineError as e:  # name the file (the message names joint and frame)
+        raise ShellsplineError(f"{args.a}: {e}") from None
     write_bvh(out, args.out)
     if args.trim:
         say(f"  trim        frames {rep.frames[0]}..{rep.frames[1]} of {m.n_frames} loop best")

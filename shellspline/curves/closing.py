@@ -335,7 +335,11 @@ def close(curve: ProductCurve, *, iterations: int = 10, c1: bool = False,
         step, accepted = 1.0, False
         for _ in range(30):
             qn = q + step * dq
-            cn, gapn, resn = residual(qn)
+            try:
+                cn, gapn, resn = residual(qn)
+            except ShellsplineError:  # a joint would turn by pi or more in one step: the
+                step *= 0.5           # trial left the piecewise geodesics, so it is shorter
+                continue
             if float(resn @ resn) < merit:
                 accepted = True
                 break

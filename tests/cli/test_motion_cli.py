@@ -347,3 +347,32 @@ def test_camera_track_errors_exit_2(capsys, tmp_path):
         assert code == 2 and msg in err, (argv, err)
         assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x.txt").exists()
+
+
+def test_close_a_clip_with_a_joint_flip_and_refuse_a_half_turn(capsys, tmp_path):
+    """A 178 degree turn of the arm in one frame closes (it exited 2 with "srv_inverse: ...
+    sample t more finely"); an exact half turn has no direction and is refused in one line
+    that names the file, the joint and the frame."""
+    from shellspline.io.bvh import euler_matrices
+
+    m = read_bvh(walk())
+    cols = m.channel_columns(m.joint_index("UpperArm_L"))[3:]
+    v = m.values.copy()
+    v[100:, cols[2]] += 178.0
+    write_bvh(type(m)(m.names, m.parents, m.offsets, m.channels, m.frame_time, v,
+                      m.end_sites), tmp_path / "flip.bvh")
+    code, _, err = run(capsys, "close", tmp_path / "flip.bvh", "-o", tmp_path / "loop.bvh",
+                       "--c1")
+    assert code == 0
+    loop = A.motion_curve(read_bvh(tmp_path / "loop.bvh"))
+    assert np.abs(loop.R[-1] - loop.R[0]).max() < 1e-6
+    v = m.values.copy()
+    R = euler_matrices(v[99, cols], "ZXY") @ euler_matrices([0.0, 0.0, 180.0], "ZXY")
+    v[100, cols] = A.euler_angles(R, "ZXY")
+    write_bvh(type(m)(m.names, m.parents, m.offsets, m.channels, m.frame_time, v,
+                      m.end_sites), tmp_path / "half.bvh")
+    code, _, err = run(capsys, "close", tmp_path / "half.bvh", "-o", tmp_path / "h.bvh")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "half.bvh" in err and "'UpperArm_L'" in err and "frames 99 and 100" in err
+    code, _, err = run(capsys, "distance", tmp_path / "half.bvh", walk())
+    assert code == 2 and "clip a: joint 'UpperArm_L'" in err
