@@ -29,6 +29,11 @@ What is measured (functions ``bench_dp``, ``bench_table1``, ``bench_close``)
    closed in LΘA space and reconstructed by Gauss-Newton; aligned and blended with another
    window of the clip. Plus the closing alone on a 125-vertex body: ``close_euclidean``
    against the generic ``curves.closing.close`` (why mesh animations use the former).
+7. **Long clips** (``bench_long_distance``, ``--long-only``): ``shellspline motion distance``
+   on ``walk_normal`` and ``walk_tired`` resampled to 120 Hz and repeated to 40 s (4,801
+   frames), wall time and peak memory of the command, for this tree and for the package at
+   ``--before`` (default ``fd9258c``, before the DP kept only a strip of its Gram matrix and
+   a ring of its rows).
 
 Run
 ---
@@ -393,6 +398,62 @@ def bench_mesh_animation(n_vertices=1000, repeat=1):
     return res, rows
 
 
+_LONG_CHILD = """
+import json, resource, sys, time
+sys.path.insert(0, sys.argv[1])
+from shellspline.cli.main import main
+t = time.perf_counter()
+code = main(["motion", "distance", sys.argv[2], sys.argv[3], "-q"])
+print(json.dumps({"seconds": time.perf_counter() - t, "code": code,
+                  "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def long_clips(folder, seconds=40.0, fps=120.0):
+    """Two long clips (``walk_normal`` and ``walk_tired`` resampled to ``fps`` and repeated
+    to ``seconds``) written to ``folder``: the paths."""
+    from shellspline.animation import resample
+    from shellspline.io.bvh import Motion, read_bvh, write_bvh
+
+    out = []
+    for name in ("walk_normal", "walk_tired"):
+        m = resample(read_bvh(MOTION / f"dataset-1_{name}_001.bvh"), frame_time=1.0 / fps)
+        n = int(round(seconds * fps)) + 1
+        v = np.concatenate([m.values] * int(np.ceil(n / m.n_frames)))[:n]
+        out.append(write_bvh(Motion(m.names, m.parents, m.offsets, m.channels,
+                                    m.frame_time, v, m.end_sites),
+                             Path(folder) / f"long_{name}.bvh"))
+    return out
+
+
+def bench_long_distance(before="fd9258c", repeat=1, seconds=40.0):
+    """``shellspline motion distance`` on two 40 s clips at 120 Hz (4,801 frames, 22 joints),
+    in a child process per run (wall seconds of the command, peak resident memory), for the
+    package at git revision ``before`` (extracted with ``git archive``) and for this tree."""
+    rows, out = [], {"seconds_of_clip": seconds, "before": before}
+    with tempfile.TemporaryDirectory() as tmp:
+        a, b = long_clips(tmp, seconds)
+        trees = [("this tree", str(REPO))]
+        if before:
+            old = Path(tmp) / "before"
+            old.mkdir()
+            arch = subprocess.run(["git", "-C", str(REPO), "archive", before, "shellspline"],
+                                  capture_output=True, check=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(old)], input=arch, check=True)
+            trees.insert(0, (f"before ({before})", str(old)))
+        for label, root in trees:
+            runs = []
+            for _ in range(repeat):
+                p = subprocess.run([sys.executable, "-c", _LONG_CHILD, root, str(a), str(b)],
+                                   capture_output=True, text=True, timeout=900)
+                lines = p.stdout.strip().splitlines()
+                runs.append({"distance": float(lines[0]), **json.loads(lines[-1])})
+            best = min(runs, key=lambda r: r["seconds"])
+            out[label] = best
+            rows.append([label, best["seconds"], best["peak_mb"], f"{best['distance']:.6f}"])
+    return out, rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
@@ -402,12 +463,18 @@ def main(argv=None):
     ap.add_argument("--fdasrsf-max", type=int, default=400,
                     help="largest size given to fdasrsf (1,600 frames take minutes)")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "bench_motion.json"))
+    ap.add_argument("--long-only", action="store_true",
+                    help="only section 7 (distance of two 40 s clips at 120 Hz)")
+    ap.add_argument("--before", default="fd9258c",
+                    help="git revision whose package section 7 also times (empty: none)")
     a = ap.parse_args(argv)
     if not MOTION.exists():
         print(f"{MOTION} not present: the walk clips live in ../shared/data")
         return 1
     res = {"machine": {"python": platform.python_version(), "numpy": np.__version__,
                        "cpus": os.cpu_count(), "load_before": os.getloadavg()}}
+    if a.long_only:
+        return _long_section(a, res)
     dp, rows = bench_dp(repeat=a.repeat, fdasrsf_python=a.fdasrsf_python,
                         fdasrsf_max=a.fdasrsf_max)
     res["dp"] = dp
@@ -444,10 +511,22 @@ def main(argv=None):
           f"{mesh['frames']} frames)")
     print(format_table(["operation", "seconds", "frames", "result", "descriptor error"],
                        rows))
+    return _long_section(a, res)
+
+
+def _long_section(a, res):
+    long, rows = bench_long_distance(a.before, repeat=a.repeat)
+    res["long_distance"] = long
+    print("\n7. motion distance, two 40 s clips at 120 Hz (4,801 frames, 22 joints; a child "
+          f"process per run, fastest of {a.repeat})")
+    print(format_table(["package", "seconds", "peak MB", "distance"], rows))
     res["machine"]["load_after"] = os.getloadavg()
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps(res, indent=1, default=float))
-    print(f"\nwrote {a.out}")
+    out = Path(a.out)
+    if a.long_only:  # leave the full run's file alone
+        out = out.with_name(out.stem + "_long.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=1, default=float))
+    print(f"\nwrote {out}")
     return 0
 
 
