@@ -270,14 +270,11 @@ def _energy(q0, q1, phi, feats, with_grad, cum=None):
     n0sq = h0 * float(np.einsum("ij,ij->", q0, q0))
     n1sq = h1 * float(np.einsum("ij,ij->", q1, q1))
     dphi = np.diff(phi)
-    lo = phi[:-1]
-    hi = phi[1:]
     # Q1 is continuous; its derivative q1 is taken from the right at samples of curve 1 (so
     # the gradient is the right derivative at the kinks there)
     cum = _cumulative(q1) if cum is None else cum
-    p_lo, Q_lo = _Q1(q1, lo, cum)
-    p_hi, Q_hi = _Q1(q1, hi, cum)
-    C = np.einsum("ij,ij->i", q0, Q_hi - Q_lo)
+    p_all, Q_all = _Q1(q1, phi, cum)  # once at every vertex: both ends of the segments
+    C = np.einsum("ij,ij->i", q0, Q_all[1:] - Q_all[:-1])
     pos = dphi > 0
     sq = np.sqrt(h0 / np.where(pos, dphi, 1.0))
     cross = np.where(pos, sq * C, 0.0)
@@ -285,8 +282,9 @@ def _energy(q0, q1, phi, feats, with_grad, cum=None):
     Ef, gf = _feature_terms(phi, feats, with_grad)
     if not with_grad:
         return (elastic + Ef, elastic), None
-    a_hi = np.einsum("ij,ij->i", q0, q1[p_hi])
-    a_lo = np.einsum("ij,ij->i", q0, q1[p_lo])
+    q1p = q1[p_all]
+    a_hi = np.einsum("ij,ij->i", q0, q1p[1:])
+    a_lo = np.einsum("ij,ij->i", q0, q1p[:-1])
     dC = np.where(pos, 0.5 * sq / np.where(pos, dphi, 1.0) * C, 0.0)
     g = np.zeros(N0)
     g[1:] += -2.0 * (np.where(pos, sq * a_hi, 0.0) - dC)
@@ -358,17 +356,22 @@ def _dp(q0, q1, steps, window, feats):
             Gs[x0 - (sr0 - P):, y0 - (sj0 - P):] = q0[x0:sr1 - 1] @ q1[y0:sj1 - 1].T
         G = Gs[r0 - sr0:r0 - sr0 + nr + P - 1, jlo - sj0:jlo - sj0 + nc + P - 1]
         C = np.empty((S, nr, nc))
+        outwin = ~inwin
+        # preallocated: a temporary of a block (~1 MB) is an mmap and its page faults
+        cross, tmp = np.empty((nr, nc)), np.empty((nr, nc))
         for s, (a, b) in enumerate(steps):
             a, b = int(a), int(b)
-            cross = np.zeros((nr, nc))
+            cross.fill(0.0)
             for n, p, wt in zip(*ovl[s]):
-                cross += wt * G[P - a + n:P - a + n + nr, P - b + p:P - b + p + nc]
+                np.multiply(G[P - a + n:P - a + n + nr, P - b + p:P - b + p + nc], wt, out=tmp)
+                cross += tmp
             Cs = C[s]
-            np.subtract((A0[P + rows] - A0[P + rows - a])[:, None], coef[s] * cross, out=Cs)
+            np.multiply(cross, coef[s], out=tmp)
+            np.subtract((A0[P + rows] - A0[P + rows - a])[:, None], tmp, out=Cs)
             Cs += (A1[P + cols] - A1[P + cols - b])[None, :]
-            Cs[~inwin] = np.inf
-            Cs[rows < a] = np.inf
-            Cs[:, cols < b] = np.inf
+            np.copyto(Cs, np.inf, where=outwin)
+            Cs[:max(a - r0, 0)] = np.inf                       # rows < a
+            Cs[:, :max(b - jlo, 0)] = np.inf                   # cols < b
             if feats is not None and feats.n:
                 _add_features(Cs, feats, a, b, rows, cols, h0, h1)
         colidx = (P + cols)[None, :] - steps[:, 1][:, None]

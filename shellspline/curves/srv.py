@@ -148,8 +148,16 @@ class ProductCurve:
         return 3 * self.d + self.m
 
     def with_times(self, t) -> "ProductCurve":
-        """The same samples at other times ``t (N,)``."""
-        return ProductCurve(self.R, self.X, t)
+        """The same samples at other times ``t (N,)`` (only ``t`` is checked: the samples
+        were, and checking N x d rotations again took 0.04 s per call on 4,801 frames)."""
+        t = np.asarray(t, dtype=np.float64)
+        N = self.n_frames
+        if t.shape != (N,) or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+            return ProductCurve(self.R, self.X, t)  # raises the full message
+        out = object.__new__(ProductCurve)
+        for name, value in (("R", self.R), ("X", self.X), ("t", t)):
+            object.__setattr__(out, name, value)
+        return out
 
     def right_translated(self, R=None, x=None) -> "ProductCurve":
         """``c(t) g`` for ``g = (R (d,3,3), x (m,))``: rotations multiplied on the right, ``x``
