@@ -1,15 +1,22 @@
-"""Gauss–Newton steps against subspace steps (``GaussNewton(subspace=...)``) on real keyframes.
+"""Speed of the Gauss–Newton reconstruction on real keyframes (issue 13: targets speed,
+iterations).
 
-Runs ``interpolate(coarse="none")`` on the same keyframes with ``subspace=False`` and
-``subspace=True`` (alternating, ``--repeat`` times, so both see the same machine load) and
-prints wall time, iterations (total, median, max), CG iterations, factorizations, frames
-converged and the defects of :func:`shellspline.metrics.sequence_defects`.
+Runs ``interpolate(coarse="none")`` on the same keyframes in fresh processes, alternating
+between configurations (``--repeat`` rounds, so all see the same machine load): this tree
+with subspace steps (the default) and, with ``--gauss-newton``, without them
+(``GaussNewton(subspace=False)``); with ``--baseline DIR``, the same run on another checkout
+of the package (e.g. ``git worktree add /tmp/old <rev>``: the old code in the same run).
+Prints wall time, the time of the reconstruction stages (first pass and continuation pass),
+Gauss–Newton iterations (total, median, max), CG iterations, factorizations, frames
+converged and the defects of :func:`shellspline.metrics.sequence_defects`; writes every run
+to ``benchmarks/results/bench_gn.json`` (``--json``).
 
 From the repository root::
 
     PYTHONPATH=. python3 benchmarks/bench_gn.py                        # horse pair, ~40 s
     PYTHONPATH=. python3 benchmarks/bench_gn.py --poses horse-reference,horse-03,horse-07 \\
         --frames 0,20,40
+    PYTHONPATH=. python3 benchmarks/bench_gn.py --baseline /tmp/old --repeat 2
     PYTHONPATH=. python3 benchmarks/bench_gn.py --data ../shared/data/cactus \\
         --poses cactus0.ply,cactus5.ply,cactus13.ply --frames 0,10,20 \\
         --pinned ../shared/data/cactus/cactusBottomMask_indices.txt
@@ -17,14 +24,69 @@ From the repository root::
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
 import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
 from _common import format_table  # noqa: E402
+
+COLUMNS = ["wall", "reconstruct", "continue", "iterations", "median", "max", "cg",
+           "factorizations", "converged", "frames", "flipped", "collapsed", "folded", "pop"]
+
+
+def measure(args, subspace: bool) -> dict:
+    """One ``interpolate`` run in this process; the record of one table row."""
+    import shellspline
+    from shellspline.metrics import sequence_defects
+
+    paths = [os.path.join(args.data, p if os.path.splitext(p)[1] else p + ".obj")
+             for p in args.poses.split(",")]
+    frames = [int(f) for f in args.frames.split(",")]
+    kf = shellspline.read_keyframes(paths, frames=frames)
+    pinned = np.loadtxt(args.pinned, dtype=np.int64) if args.pinned else None
+    t0 = time.perf_counter()
+    res = shellspline.interpolate(kf, coarse="none", workers=args.workers, pinned=pinned,
+                                  gn_options={"subspace": subspace})
+    wall = time.perf_counter() - t0
+    gn = res.report["gauss_newton"]
+    stages = res.report.get("timings") or res.report.get("stages") or {}
+    d = sequence_defects(res.V, shellspline.topology(res.F), res.frames)
+    return {"package": os.path.dirname(os.path.abspath(shellspline.__file__)),
+            "vertices": int(kf.n), "wall": wall,
+            "reconstruct": stages.get("reconstruct"),
+            "continue": stages.get("reconstruct (continue)"),
+            "iterations": gn["iterations_total"], "median": gn["iterations_median"],
+            "max": gn["iterations_max"], "cg": gn["cg_iterations_total"],
+            "factorizations": gn["factorizations_total"], "converged": gn["converged"],
+            "frames": gn["frames"], "flipped": d["flipped_faces"],
+            "collapsed": d["collapsed_faces"], "folded": d["folded_edges"], "pop": d["pop"]}
+
+
+def _child_argv(args, subspace: bool) -> list:
+    argv = [sys.executable, os.path.abspath(__file__), "--child", "--data", args.data,
+            "--poses", args.poses, "--frames", args.frames, "--workers", str(args.workers)]
+    if args.pinned:
+        argv += ["--pinned", args.pinned]
+    return argv + ([] if subspace else ["--gauss-newton"])
+
+
+def run_config(args, label: str, root: str, subspace: bool) -> dict:
+    """``measure`` in a fresh process whose ``shellspline`` is the one under ``root``."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    out = subprocess.run(_child_argv(args, subspace), env=env, capture_output=True, text=True,
+                         check=False)
+    if out.returncode != 0:
+        raise SystemExit(f"{label}: the run failed:\n{out.stderr[-2000:]}")
+    rec = json.loads(out.stdout.strip().splitlines()[-1])
+    rec["config"] = label
+    return rec
 
 
 def main(argv=None) -> int:
@@ -36,37 +98,39 @@ def main(argv=None) -> int:
     ap.add_argument("--pinned", default=None, help="file of pinned vertex indices")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--baseline", default=None,
+                    help="directory holding another checkout's `shellspline` package")
+    ap.add_argument("--gauss-newton", action="store_true",
+                    help="also run without subspace steps (child: only without them)")
+    ap.add_argument("--json", default=os.path.join(HERE, "results", "bench_gn.json"))
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-
-    import shellspline
-    from shellspline.metrics import sequence_defects
 
     if not os.path.isdir(args.data):
         print(f"skipped: {args.data} not found (shared data)")
         return 0
-    paths = [os.path.join(args.data, p if os.path.splitext(p)[1] else p + ".obj")
-             for p in args.poses.split(",")]
-    frames = [int(f) for f in args.frames.split(",")]
-    kf = shellspline.read_keyframes(paths, frames=frames)
-    pinned = np.loadtxt(args.pinned, dtype=np.int64) if args.pinned else None
-    rows = []
+    if args.child:
+        print(json.dumps(measure(args, subspace=not args.gauss_newton)))
+        return 0
+    this = os.path.dirname(HERE)
+    configs = [("subspace", this, True)]
+    if args.gauss_newton:
+        configs.append(("gauss-newton", this, False))
+    if args.baseline:
+        configs.append(("baseline", os.path.abspath(args.baseline), True))
+    runs = []
     for _ in range(args.repeat):
-        for subspace in (False, True):
-            t0 = time.perf_counter()
-            res = shellspline.interpolate(kf, coarse="none", workers=args.workers,
-                                          pinned=pinned, gn_options={"subspace": subspace})
-            wall = time.perf_counter() - t0
-            gn = res.report["gauss_newton"]
-            d = sequence_defects(res.V, shellspline.topology(res.F), res.frames)
-            rows.append(["subspace" if subspace else "gauss-newton", wall,
-                         gn["iterations_total"], gn["iterations_median"], gn["iterations_max"],
-                         gn["cg_iterations_total"], gn["factorizations_total"],
-                         f"{gn['converged']}/{gn['frames']}", d["flipped_faces"],
-                         d["collapsed_faces"], d["folded_edges"], d["pop"]])
-    print(f"{', '.join(os.path.basename(p) for p in paths)} at {frames}, "
-          f"workers={args.workers}, {kf.n} vertices")
-    print(format_table(["steps", "wall s", "iters", "median", "max", "CG", "facts",
-                        "converged", "flipped", "collapsed", "folded", "pop"], rows))
+        for label, root, subspace in configs:
+            runs.append(run_config(args, label, root, subspace))
+    rows = [[r["config"]] + [r[c] for c in COLUMNS] for r in runs]
+    print(f"{args.poses} at {args.frames}, workers={args.workers}, {runs[0]['vertices']} "
+          f"vertices")
+    print(format_table(["config"] + COLUMNS, rows))
+    os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+    with open(args.json, "w") as fh:
+        json.dump({"data": args.data, "poses": args.poses, "frames": args.frames,
+                   "workers": args.workers, "runs": runs}, fh, indent=1)
+    print(f"wrote {args.json}")
     return 0
 
 
