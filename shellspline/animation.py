@@ -35,7 +35,8 @@ from .groups import so3
 from .io.bvh import Motion, euler_matrices, forward_kinematics
 
 __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_grid",
-           "warp_motion", "up_axis", "body_height", "translation_root", "find_feet",
+           "warp_motion", "stage_joint", "stage_kinematics", "STATIC_TOL", "up_axis",
+           "body_height", "translation_root", "find_feet", "CLOSE_MAX_STEP", "FLIP_TOL",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
            "loop_range", "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
