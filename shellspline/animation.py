@@ -36,7 +36,7 @@ from .io.bvh import Motion, euler_matrices, forward_kinematics
 
 __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_grid",
            "warp_motion", "stage_joint", "stage_kinematics", "STATIC_TOL", "up_axis",
-           "body_height", "translation_root", "find_feet", "CLOSE_MAX_STEP", "FLIP_TOL",
+           "body_height", "body_joints", "translation_root", "find_feet", "CLOSE_MAX_STEP", "FLIP_TOL",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
            "loop_range", "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
@@ -369,18 +369,18 @@ def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Moti
 # ----------------------------------------------------------------------------------------
 # Up axis, feet, contacts
 # ----------------------------------------------------------------------------------------
-# A joint is static when its local rotation and translation change by less than this over the
-# clip (relative to the largest translation; channel values read from text are usually equal
-# to the last digit).
+# A joint is static when its channel values change by less than this over the clip (relative
+# to the largest of them, at least 1; values read from text are usually equal to the last
+# digit).
 STATIC_TOL = 1e-9
 
 
 def stage_joint(motion: Motion) -> int:
     """The static joint above the body whose frame the clip is analysed in, or ``-1``.
 
-    A chain of joints from a root, each static (constant local rotation and translation
-    over the clip) and each with exactly one child joint, stopped before the first joint
-    that moves: a ground marker or an armature above the hips (``joint_Root`` in the Bandai
+    A chain of joints from a root, each static (constant channel values over the clip,
+    ``STATIC_TOL``; a joint without channels is static) and each with exactly one child
+    joint, stopped before the first joint that moves: a ground marker or an armature above the hips (``joint_Root`` in the Bandai
     Namco files). Its world frame is the clip's *stage*: a file turned to Z-up (or moved,
     or yawed) by a constant transform of such a root is the same motion on the same stage.
     ``-1`` when the first root moves or branches (CMU: the hips are the root).
@@ -389,13 +389,10 @@ def stage_joint(motion: Motion) -> int:
     if roots.size != 1:
         return -1
     ch = _children(motion)
-    R, t = motion.local_transforms()
-    scale = max(float(np.abs(t).max()), 1.0)
     out, j = -1, int(roots[0])
     while len(ch[j]) == 1:
-        static = (np.abs(R[:, j] - R[0, j]).max() <= STATIC_TOL
-                  and np.abs(t[:, j] - t[0, j]).max() <= STATIC_TOL * scale)
-        if not static:
+        v = motion.values[:, motion.channel_columns(j)]  # static: constant channel values
+        if v.size and np.ptp(v, axis=0).max() > STATIC_TOL * max(float(np.abs(v).max()), 1.0):
             break
         out, j = j, ch[j][0]
     return out
@@ -458,10 +455,22 @@ def _parse_up(up, motion: Motion | None = None) -> tuple[int, float]:
     return a, float(np.sign(u[a]))
 
 
-def _body(motion: Motion) -> np.ndarray:
-    """The joints of the body ``(J,)`` bool: all but the roots (a root may be a ground
-    marker far from the body, as in the Bandai Namco files), unless that leaves < 2."""
-    body = motion.parents >= 0
+def body_joints(motion: Motion) -> np.ndarray:
+    """The joints of the body ``(J,)`` bool: all but the static stage (:func:`stage_joint`)
+    and the root below it (the root itself without a stage), unless that leaves fewer than
+    2. That root may be a ground marker far from the body (the Bandai Namco run's
+    ``joint_Root`` carries the travel while the hips move in place), and a static joint
+    added above a skeleton changes nothing."""
+    body = np.ones(motion.n_joints, dtype=bool)
+    k = stage_joint(motion)
+    if k >= 0:
+        top = _children(motion)[k][0]
+        while k >= 0:
+            body[k] = False
+            k = int(motion.parents[k])
+        body[top] = False
+    else:
+        body[motion.parents < 0] = False
     return body if body.sum() >= 2 else np.ones(motion.n_joints, dtype=bool)
 
 
@@ -490,7 +499,7 @@ def up_axis(motion: Motion, positions=None) -> tuple[int, float]:
     functions that take it when it fails (lying, crawling, quadrupeds).
     """
     P = _positions(motion, positions)
-    B = P[:, _body(motion)]
+    B = P[:, body_joints(motion)]
     ext = np.median(B.max(axis=1) - B.min(axis=1), axis=0)
     axis = int(np.argmax(ext))
     h = B[..., axis]
@@ -736,7 +745,7 @@ def seam_gap(motion: Motion, *, up=None, root_motion: str = "keep") -> dict:
     ax, sign = up_axis(motion, P) if up is None else _parse_up(up, motion)
     H = body_height(motion, P, ax)
     ang = so3.angle(c.R[-1] @ np.swapaxes(c.R[0], -1, -2))
-    body = _body(motion)  # a root may be a ground marker, not part of the body
+    body = body_joints(motion)  # a root may be a ground marker, not part of the body
     jump = (P[-1] - P[0])[body]
     if root_motion == "keep":  # poses compared up to the horizontal travel of the body
         travel = np.median(jump, axis=0)
@@ -758,7 +767,7 @@ def body_height(motion: Motion, positions=None, axis: int | None = None) -> floa
     P = _positions(motion, positions)
     if axis is None:
         axis = up_axis(motion, P)[0]
-    h = P[:, _body(motion), axis]
+    h = P[:, body_joints(motion), axis]
     H = float(np.median(h.max(axis=1) - h.min(axis=1)))
     return H if H > 0 else 1.0
 

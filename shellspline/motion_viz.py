@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .animation import FootContacts, body_height, foot_contacts, stage_kinematics
+from .animation import (FootContacts, body_height, body_joints, foot_contacts,
+                        stage_kinematics)
 from .errors import ShellsplineError
 from .io.bvh import Motion
 
@@ -45,17 +46,9 @@ def _atomic(path, write) -> Path:
     return path
 
 
-def _body_mask(motion: Motion) -> np.ndarray:
-    """The joints of the body ``(J,)`` bool: all but the roots (a root may be a ground
-    marker that stays put while the hips travel, or that only carries a foot-planting
-    correction), unless that leaves fewer than 2."""
-    body = motion.parents >= 0
-    return body if body.sum() >= 2 else np.ones(motion.n_joints, dtype=bool)
-
-
 def _centre(motion: Motion, S: np.ndarray) -> np.ndarray:
     """Along-travel coordinate ``(T,)`` of the body's centroid in side-view coordinates."""
-    return S[:, _body_mask(motion), 0].mean(axis=1)
+    return S[:, body_joints(motion), 0].mean(axis=1)
 
 
 def _view(motion: Motion, P: np.ndarray, ax_up: int, sign: float):
@@ -63,7 +56,7 @@ def _view(motion: Motion, P: np.ndarray, ax_up: int, sign: float):
     centroid, whichever joint's channels carry it) and up."""
     hor = [a for a in range(3) if a != ax_up]
     H = P[:, :, hor]
-    C = H[:, _body_mask(motion)].mean(axis=1)
+    C = H[:, body_joints(motion)].mean(axis=1)
     travel = C - C[0]
     if np.abs(travel).max() > 1e-9:
         _, _, vt = np.linalg.svd(travel - travel.mean(axis=0), full_matrices=False)

@@ -937,3 +937,32 @@ def test_curve_closing_backtracks_where_a_trial_step_would_turn_a_joint_past_pi(
     assert np.all(np.diff(r.seam_gap) < 0)
     back = srv_inverse(srv(r.curve), r.curve.t, R0=r.curve.R[0], X0=r.curve.X[0])
     assert np.abs(back.R - r.curve.R).max() < 1e-9  # a valid piecewise-geodesic curve
+
+
+def with_world(m: Motion, xyz=(90.0, 0.0, 30.0), offset=(5.0, 0.0, -3.0)) -> Motion:
+    """``m`` below an extra static root "World" (rotation channels only, turned and moved)."""
+    parents = np.r_[-1, m.parents + 1]
+    parents[1] = 0
+    v = np.hstack([np.tile(xyz, (m.n_frames, 1)), m.values])
+    return Motion(("World",) + m.names, parents, np.vstack([offset, m.offsets]),
+                  (("Xrotation", "Yrotation", "Zrotation"),) + m.channels, m.frame_time, v,
+                  tuple((p + 1, o) for p, o in m.end_sites))
+
+
+def test_an_extra_static_root_changes_nothing():
+    """Above the walk's static joint_Root, and above the run's joint_Root that carries the
+    travel (its hips move in place): the stage, the body, the travel channels and every
+    result are those of the file without it."""
+    walk, run = real(), real("dataset-1_run_normal_001.bvh")
+    assert (A.stage_joint(walk), A.stage_joint(run)) == (0, -1)
+    ww, wr = with_world(walk), with_world(run)
+    assert (A.stage_joint(ww), A.stage_joint(wr)) == (1, 0)
+    for m, w in ((walk, ww), (run, wr)):
+        assert np.array_equal(A.body_joints(w)[1:], A.body_joints(m))
+        assert A.body_height(w) == pytest.approx(A.body_height(m), rel=1e-12)
+        out, rep = A.close(m, c1=True)
+        out_w, rep_w = A.close(w, c1=True)
+        assert np.abs(out_w.values[:, 3:] - out.values).max() < 1e-8
+        assert rep_w.gap_after["position_max"] < 1e-9
+    assert A.distance(ww, wr, align="none") == pytest.approx(
+        A.distance(walk, run, align="none"), rel=1e-12)
