@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from ..shells.descriptors import face_normals
-from ..shells.reconstruct import GaussNewton, rigid_placement
+from ..shells.reconstruct import LARGE_MESH, GaussNewton, rigid_placement
 from ..timeline import keyframe_bracket
 
 __all__ = ["reconstruct_frames", "run_reconstruction", "reconstruction_runs", "continued_runs",
@@ -386,9 +386,14 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
     message and their own energies. The seam's frame record gets ``"bridge"``: the joint
     solve's summary, ``"kept"``, the window's step ratio and defect counts before and after
     (its ``"seam_jump"`` is the jump before bridging). Seams are bridged on ``workers`` forked
-    processes when there are several.
+    processes when there are several. Above
+    :data:`~shellspline.shells.reconstruct.LARGE_MESH` vertices a bridge holds one sparse
+    factor per window frame (about 1.6 GB each at 155k vertices), so large meshes bridge one
+    frame on each side of the seam, one seam at a time (horse, 1 instead of 2 frames a side:
+    pop 1.35 instead of 1.14).
     """
     from ..parallel import process_pool, start_method
+    from .bridge import BRIDGE_HALF
 
     def frame_of(k):
         return results[k][0] if k in results else Vinit[k]
@@ -404,7 +409,10 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
             b += 1
         tasks.append((s, a, b))
     stage = stage_prefix + "bridge seams"
-    _WORKER["bridge"] = (T, frame_of, K, Z, W_of, pinned, gn_options)
+    large = T.n_vertices > LARGE_MESH
+    workers = 1 if large else workers
+    _WORKER["bridge"] = (T, frame_of, K, Z, W_of, pinned, gn_options,
+                         1 if large else BRIDGE_HALF)
     try:
         with prog.stage(stage, total=len(tasks)):
             if workers > 1 and len(tasks) > 1 and start_method() == "fork":
@@ -455,9 +463,9 @@ def _bridge_one(task):
     from .bridge import bridge_seam
 
     s, a, b = task
-    T, frame_of, K, Z, W_of, pinned, gn_options = _WORKER["bridge"]
+    T, frame_of, K, Z, W_of, pinned, gn_options, half = _WORKER["bridge"]
     gn = GaussNewton(T, pinned=pinned, **gn_options)
-    br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of)
+    br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of, half=half)
     if br is None:
         return s, None, None, None
     new = dict(zip(br.frames.tolist(), br.V))

@@ -89,3 +89,19 @@ def test_bridges_on_two_workers_equal_one():
     b2 = [r.get("bridge") for r in out[1].report["frames"]]
     assert any(b1) and b1 == b2
     assert np.array_equal(out[0].V, out[1].V)
+
+
+def test_large_meshes_bridge_one_frame_a_side(monkeypatch):
+    # above LARGE_MESH vertices each window frame's factor is large: one frame each side of
+    # the seam, one seam at a time
+    import shellspline.pipeline.reconstruction as rc
+
+    monkeypatch.setattr(rc, "LARGE_MESH", 100)
+    d = stress.joint()
+    res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], workers=2)
+    bridges = [r["bridge"] for r in res.report["frames"] if "bridge" in r]
+    assert bridges and all(len(b["frames"]) == 2 for b in bridges)
+    assert all(b["frames"][0] == r["frame"] - 1 for b, r in
+               zip(bridges, [r for r in res.report["frames"] if "bridge" in r]))
+    q = res.report["quality"]
+    assert q["flipped_faces"] == 0 and q["folded_edges"] == 0
