@@ -332,6 +332,41 @@ def _read_json(path, text):
     return t, se3.from_rt(so3.matrix_from_quat(_quats(path, lines, q)), p), lines
 
 
+def _row(xs, sep=" ") -> str:
+    """Numbers in their shortest exact form (``repr``): a pose written and read back is the
+    same float64 (``%.12g`` kept 10 micrometres of a UTM coordinate of 5e6 m)."""
+    return sep.join(map(repr, xs))
+
+
+def _time_strings(t, origin_ns: int, fmt: str) -> list:
+    """Time stamps as written: EuRoC integer nanoseconds, otherwise seconds.
+
+    With ``origin_ns`` (a track read from EuRoC, ``t`` seconds since it) the seconds are the
+    exact decimal of ``origin_ns + round(t * 1e9)``, so a EuRoC file written as TUM keeps its
+    absolute times to the nanosecond. Without it, ``t`` is absolute seconds; EuRoC then gets
+    the nanoseconds of each time's shortest decimal (``1305031098.6659`` ->
+    ``1305031098665900000``; ``t * 1e9`` in float64 is 32 ns off there).
+    """
+    if origin_ns:
+        ns = origin_ns + np.round(t * 1e9).astype(np.int64)
+        if fmt == "euroc":
+            return [str(int(n)) for n in ns]
+        return [_decimal_seconds(int(n)) for n in ns]
+    if fmt == "euroc":
+        from decimal import ROUND_HALF_EVEN, Decimal
+
+        return [str(int((Decimal(repr(x)) * 1_000_000_000).to_integral_value(ROUND_HALF_EVEN)))
+                for x in t.tolist()]
+    return [repr(x) for x in t.tolist()]
+
+
+def _decimal_seconds(ns: int) -> str:
+    """``1305031098665900032`` -> ``"1305031098.665900032"`` (trailing zeros dropped)."""
+    sign, ns = ("-" if ns < 0 else ""), abs(ns)
+    frac = f"{ns % 1_000_000_000:09d}".rstrip("0") or "0"
+    return f"{sign}{ns // 1_000_000_000}.{frac}"
+
+
 def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:
     """Write poses in one of :data:`FORMATS` (atomically).
 
@@ -339,12 +374,20 @@ def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:
     ----------
     path : str or Path
     t : (n,) array_like
-        Times in seconds (ignored by KITTI; EuRoC writes ``origin_ns + round(t * 1e9)``).
+        Times in seconds (ignored by KITTI): since ``origin_ns`` when it is given, else
+        absolute. EuRoC writes ``origin_ns + round(t * 1e9)``; the other formats write the
+        seconds of that same instant exactly, so a EuRoC track converted keeps its times.
     T : (n, 4, 4) array_like
         Rigid motions body -> world.
     format : str
     origin_ns : int
-        EuRoC only (see :class:`PoseTrack`).
+        The integer nanosecond time of ``t == 0`` (see :class:`PoseTrack`; 0: ``t`` is
+        absolute).
+
+    Notes
+    -----
+    Numbers are written in their shortest exact form, so reading a written file gives the
+    same times and positions bit for bit and rotations to rounding (1e-16).
     """
     fmt = str(format).lower()
     if fmt not in FORMATS:
@@ -356,25 +399,24 @@ def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:
                                f"{T.shape}")
     p = T[:, :3, 3]
     q = so3.quat_continuous(so3.quat_from_matrix(T[:, :3, :3]))
+    stamps = _time_strings(t, int(origin_ns), fmt)
+    P, Q = p.tolist(), q.tolist()
     out = []
     if fmt == "tum":
         out.append("# timestamp tx ty tz qx qy qz qw")
-        out += [f"{float(ti)!r} " + " ".join(f"{x:.12g}" for x in (*pi, *qi))
-                for ti, pi, qi in zip(t, p, q)]
+        out += [f"{ti} {_row(pi)} {_row(qi)}" for ti, pi, qi in zip(stamps, P, Q)]
     elif fmt == "kitti":
-        out += [" ".join(f"{x:.12e}" for x in Ti[:3].ravel()) for Ti in T]
+        out += [_row(Ti) for Ti in T[:, :3].reshape(-1, 12).tolist()]
     elif fmt == "euroc":
         out.append(_EUROC_HEADER)
-        ns = origin_ns + np.round(t * 1e9).astype(np.int64)
-        out += [f"{n}," + ",".join(f"{x:.12g}" for x in (*pi, qi[3], *qi[:3]))
-                for n, pi, qi in zip(ns, p, q)]
+        out += [f"{n},{_row(pi, ',')},{qi[3]!r},{_row(qi[:3], ',')}"
+                for n, pi, qi in zip(stamps, P, Q)]
     elif fmt == "csv":
         out.append("t,tx,ty,tz,qx,qy,qz,qw")
-        out += [f"{float(ti)!r}," + ",".join(f"{x:.12g}" for x in (*pi, *qi))
-                for ti, pi, qi in zip(t, p, q)]
+        out += [f"{ti},{_row(pi, ',')},{_row(qi, ',')}" for ti, pi, qi in zip(stamps, P, Q)]
     else:
-        doc = {"format": "shellspline-poses", "version": 1, "t": t.tolist(),
-               "position": p.tolist(), "quaternion_xyzw": q.tolist()}
+        doc = {"format": "shellspline-poses", "version": 1,
+               "t": [float(x) for x in stamps], "position": P, "quaternion_xyzw": Q}
         write_text_atomic(path, json.dumps(doc) + "\n")
         return
     write_text_atomic(path, "\n".join(out) + "\n")
