@@ -34,7 +34,8 @@ from .errors import ShellsplineError
 from .groups import so3
 from .io.bvh import Motion, euler_matrices, forward_kinematics
 
-__all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "common_grid",
+__all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "skeleton_mismatch",
+           "with_channel_layout", "common_grid",
            "warp_motion", "stage_joint", "stage_kinematics", "STATIC_TOL", "up_axis",
            "body_height", "body_joints", "translation_root", "find_feet", "CLOSE_MAX_STEP", "FLIP_TOL",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
@@ -327,31 +328,120 @@ def resample(motion: Motion, *, frame_time: float | None = None,
     return c.with_samples(R, X, frame_time, ref).to_motion()
 
 
-def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Motion, Motion]:
-    """Two motions of one skeleton brought to the same number of frames.
+def _rotation_axes(chans) -> str:
+    return "".join(c[0] for c in chans if c.endswith("rotation"))
 
-    Each clip is stretched over ``[0, 1]`` to ``n_frames`` samples (default: enough for the
-    longer clip at the finer frame time), so their curves share one parameter grid.
+
+def _position_axes(chans) -> str:
+    return "".join(c[0] for c in chans if c.endswith("position"))
+
+
+def skeleton_mismatch(a: Motion, b: Motion) -> str | None:
+    """Why two motions are not clips of one skeleton, or None when they are.
+
+    One skeleton: the same joint count and parents, and on every joint the same position
+    channels (in any order) and rotation channels that give the same rotations: the same
+    axes in the same order, or three distinct axes in each (any Euler order: ZXY and XYZ
+    files of one rig are one skeleton, see :func:`with_channel_layout`). Names and offsets
+    may differ (another performer, another naming convention).
+    """
+    why = None
+    if a.n_joints != b.n_joints or not np.array_equal(a.parents, b.parents):
+        why = ""
+        if a.n_joints == b.n_joints:
+            j = int(np.flatnonzero(np.asarray(a.parents) != np.asarray(b.parents))[0])
+            why = f"; joint {j} ({a.names[j]}): parent {a.parents[j]} against {b.parents[j]}"
+    else:
+        for j in range(a.n_joints):
+            ra, rb = _rotation_axes(a.channels[j]), _rotation_axes(b.channels[j])
+            pa, pb = _position_axes(a.channels[j]), _position_axes(b.channels[j])
+            rot_ok = ra == rb or (len(set(ra)) == len(ra) == 3 and len(set(rb)) == len(rb) == 3)
+            if not rot_ok or sorted(pa) != sorted(pb) or len(a.channels[j]) != len(b.channels[j]):
+                why = (f"; joint {j} ({a.names[j]}): channels {' '.join(a.channels[j])} "
+                       f"against {' '.join(b.channels[j])}")
+                break
+    if why is None:
+        return None
+    return (f"the two motions have different skeletons: {a.n_joints} joints "
+            f"({sum(map(len, a.channels))} channels) against {b.n_joints} joints "
+            f"({sum(map(len, b.channels))} channels){why}")
+
+
+def with_channel_layout(motion: Motion, template: Motion) -> Motion:
+    """``motion`` with the channel layout of ``template`` (another clip of its skeleton).
+
+    Parameters
+    ----------
+    motion, template : Motion
+        One skeleton (:func:`skeleton_mismatch` is None); the Euler orders and the order of
+        the position channels may differ per joint.
+
+    Returns
+    -------
+    Motion
+        ``motion``'s names, offsets, frames and poses, written in ``template``'s channels:
+        every joint's rotation converted to the template's Euler order (angles continuous
+        along the clip), position channels reordered. Unchanged when the layouts agree.
 
     Raises
     ------
     ShellsplineError
-        When the two skeletons differ (joint count, parents or channel layout).
+        When the skeletons differ.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from shellspline.io.bvh import Motion, euler_matrices
+    >>> zxy = Motion(("root",), [-1], np.zeros((1, 3)), (("Zrotation", "Xrotation",
+    ...              "Yrotation"),), 0.1, [[10.0, 20.0, 30.0], [15.0, 25.0, 35.0]])
+    >>> xyz = Motion(("root",), [-1], np.zeros((1, 3)), (("Xrotation", "Yrotation",
+    ...              "Zrotation"),), 0.1, [[0.0, 0.0, 0.0]])
+    >>> m = with_channel_layout(zxy, xyz)
+    >>> m.channels[0]
+    ('Xrotation', 'Yrotation', 'Zrotation')
+    >>> bool(np.allclose(euler_matrices(m.values, "XYZ"), euler_matrices(zxy.values, "ZXY")))
+    True
     """
-    same = (a.n_joints == b.n_joints and np.array_equal(a.parents, b.parents)
-            and a.channels == b.channels)
-    if not same:
-        why = ""
-        if a.n_joints == b.n_joints:  # name the first joint that differs
-            j = next(j for j in range(a.n_joints) if a.parents[j] != b.parents[j]
-                     or a.channels[j] != b.channels[j])
-            why = (f"; joint {j} ({a.names[j]}): parent {a.parents[j]}, channels "
-                   f"{' '.join(a.channels[j])} against parent {b.parents[j]}, channels "
-                   f"{' '.join(b.channels[j])}")
-        raise ShellsplineError(
-            f"the two motions have different skeletons: {a.n_joints} joints "
-            f"({sum(map(len, a.channels))} channels) against {b.n_joints} joints "
-            f"({sum(map(len, b.channels))} channels){why}")
+    why = skeleton_mismatch(template, motion)
+    if why is not None:
+        raise ShellsplineError(why)
+    if tuple(motion.channels) == tuple(template.channels):
+        return motion
+    values = np.zeros((motion.n_frames, template.values.shape[1]))
+    for j in range(motion.n_joints):
+        src, dst = motion.channel_columns(j), template.channel_columns(j)
+        names = list(motion.channels[j])
+        for c, name in zip(dst, template.channels[j]):
+            if name.endswith("position"):
+                values[:, c] = motion.values[:, src[names.index(name)]]
+        ra, rt = _rotation_axes(motion.channels[j]), _rotation_axes(template.channels[j])
+        if not rt:
+            continue
+        rsrc = [c for c, n in zip(src, names) if n.endswith("rotation")]
+        rdst = [c for c, n in zip(dst, template.channels[j]) if n.endswith("rotation")]
+        if ra == rt:
+            values[:, rdst] = motion.values[:, rsrc]
+        else:
+            ang = euler_angles(euler_matrices(motion.values[:, rsrc], ra), rt)
+            values[:, rdst] = np.unwrap(ang, period=360.0, axis=0)
+    return Motion(motion.names, motion.parents, motion.offsets, template.channels,
+                  motion.frame_time, values, motion.end_sites)
+
+
+def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Motion, Motion]:
+    """Two motions of one skeleton brought to the same number of frames.
+
+    Each clip is stretched over ``[0, 1]`` to ``n_frames`` samples (default: enough for the
+    longer clip at the finer frame time), so their curves share one parameter grid; ``b``
+    is written in ``a``'s channel layout (:func:`with_channel_layout`) when its Euler orders
+    differ.
+
+    Raises
+    ------
+    ShellsplineError
+        When the two skeletons differ (:func:`skeleton_mismatch`).
+    """
+    b = with_channel_layout(b, a)
     if n_frames is None:
         ft = min(a.frame_time, b.frame_time)
         dur = max((a.n_frames - 1) * a.frame_time, (b.n_frames - 1) * b.frame_time)

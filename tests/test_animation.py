@@ -136,6 +136,37 @@ def test_common_grid_rejects_other_skeletons():
         A.common_grid(a, b)
 
 
+def test_clips_of_one_rig_in_other_euler_orders_are_one_skeleton():
+    # the same rig exported with ZXY (CMU) and YXZ/XYZ (another tool) rotation channels was
+    # refused as "different skeletons"; the rotations are the same, so distance, alignment and
+    # blend must be those of the clip written in the first clip's order
+    a = synth.motion(fps=60, seconds=1.2, channels=3, order="ZXY")
+    b_same = synth.motion(fps=30, seconds=1.4, channels=3, order="ZXY", cadence=0.9)
+    b_other = synth.motion(fps=30, seconds=1.4, channels=3, order="YXZ", cadence=0.9)
+    assert A.skeleton_mismatch(a, b_other) is None
+    conv = A.with_channel_layout(b_other, a)
+    assert conv.channels == a.channels
+    np.testing.assert_allclose(A.motion_curve(conv).R, A.motion_curve(b_other).R, atol=1e-12)
+    np.testing.assert_allclose(conv.values, b_same.values, atol=1e-9)  # same angles as ZXY
+    assert A.distance(a, b_other, align="none") == pytest.approx(
+        A.distance(a, b_same, align="none"), rel=1e-12)
+    # the DP warp's refinement ends apart from rounding-level differences (README: to 0.1 %)
+    assert A.distance(a, b_other) == pytest.approx(A.distance(a, b_same), rel=5e-3)
+    m_other, _ = A.blend(a, b_other, 0.5, align="none")
+    m_same, _ = A.blend(a, b_same, 0.5, align="none")
+    assert m_other.channels == a.channels
+    np.testing.assert_allclose(A.motion_curve(m_other).R, A.motion_curve(m_same).R, atol=1e-9)
+    # fewer rotation channels, or other position channels, stay another skeleton
+    two = Motion(("r",), [-1], np.zeros((1, 3)), (("Zrotation", "Xrotation"),), 0.1,
+                 np.zeros((2, 2)))
+    two_b = Motion(("r",), [-1], np.zeros((1, 3)), (("Xrotation", "Zrotation"),), 0.1,
+                   np.zeros((2, 2)))
+    assert "channels Zrotation Xrotation against Xrotation Zrotation" in \
+        A.skeleton_mismatch(two, two_b)
+    with pytest.raises(ShellsplineError, match="different skeletons"):
+        A.with_channel_layout(two_b, two)
+
+
 # ----------------------------------------------------------------------------------------
 # Up axis, feet, contacts, skate
 # ----------------------------------------------------------------------------------------

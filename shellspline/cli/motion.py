@@ -246,6 +246,12 @@ def _read_pair(args):
         if _kind(x) == "bvh" and x.n_frames < 2:
             raise ShellsplineError(f"{path}: {x.n_frames} frame; distance, align and blend "
                                    "need at least 2")
+    if _kind(a) == "bvh":
+        from ..animation import skeleton_mismatch
+
+        why = skeleton_mismatch(a, b)
+        if why is not None:
+            raise ShellsplineError(f"{args.a} and {args.b}: {why}")
     if _is_mesh(a):
         if args.render:
             raise ShellsplineError("--render draws skeletons: BVH clips only")

@@ -124,7 +124,8 @@ def test_errors_are_one_line_with_exit_code_2(capsys, tmp_path):
         code, out_s, err = run(capsys, *argv)
         assert code == 2, argv
         assert err.strip() and len(err.strip().splitlines()) == 1, (argv, err)
-    assert "different skeletons" in run(capsys, *cases[-1])[2]
+    err = run(capsys, *cases[-1])[2]
+    assert "different skeletons" in err and "other.bvh" in err   # names the files
 
 
 def test_outputs_are_not_replaced_without_overwrite(capsys, tmp_path):
@@ -221,9 +222,11 @@ def test_held_out_layouts_through_the_cli(tmp_path, capsys):
     assert np.abs(c.R[-1] - c.R[0]).max() <= 1e-6
 
 
-def test_same_joints_other_rotation_order_names_the_joint(tmp_path, capsys):
-    """Two exports of one skeleton that differ only in a joint's rotation order: the error
-    says which joint and how (the counts alone are equal)."""
+def test_same_joints_other_rotation_order_is_one_skeleton_other_channels_name_the_joint(
+        tmp_path, capsys):
+    """Two exports of one skeleton that differ only in a joint's Euler order are one skeleton
+    (the rotations are converted); a joint with other channels is refused in one line that
+    says which joint and how (the joint counts alone are equal)."""
     a = read_bvh(walk())
     chans = list(a.channels)
     j = 3
@@ -231,9 +234,17 @@ def test_same_joints_other_rotation_order_names_the_joint(tmp_path, capsys):
     b = type(a)(a.names, a.parents, a.offsets, tuple(chans), a.frame_time, a.values,
                 a.end_sites)
     write_bvh(b, tmp_path / "xyz.bvh")
-    code, _, err = run(capsys, "distance", walk(), tmp_path / "xyz.bvh")
+    code, out, _ = run(capsys, "distance", walk(), tmp_path / "xyz.bvh", "--align", "none")
+    assert code == 0 and float(out.split()[0]) > 0
+    chans[j] = ("Xrotation", "Yrotation")
+    cols = a.channel_columns(j)[:-2]
+    c = type(a)(a.names, a.parents, a.offsets, tuple(chans), a.frame_time,
+                np.delete(a.values, cols, axis=1), a.end_sites)
+    write_bvh(c, tmp_path / "xy.bvh")
+    code, _, err = run(capsys, "distance", walk(), tmp_path / "xy.bvh")
     assert code == 2 and len(err.strip().splitlines()) == 1
-    assert f"joint {j} ({a.names[j]})" in err and "Xrotation Yrotation Zrotation" in err
+    assert f"joint {j} ({a.names[j]})" in err and "Xrotation Yrotation" in err
+    assert "xy.bvh" in err
 
 
 def test_side_view_follows_the_body_not_the_root_marker():
