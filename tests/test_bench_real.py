@@ -62,7 +62,7 @@ def test_gt_case_small_clip(bench):
     assert c["K"] == 12 and c["vertices"] == 400
     rec = c["steps"]["6"]
     assert rec["keyframes"] == [0, 6, 12]
-    for name in ("lta", "lta-keyref", "lta-continuous", "lta-cont-keyref", "linear", "cubic"):
+    for name in ("lta", "lta-keyref", "lta-discrete", "lta-disc-keyref", "linear", "cubic"):
         m = rec["methods"][name]
         at_keys = [m["err_per_frame"][k] for k in (0, 6, 12)]
         if name == "cubic":  # the spline's evaluation at its knots: round-off
@@ -75,7 +75,7 @@ def test_gt_case_small_clip(bench):
     # the paper's time-discrete spline per vertex is a spline too: near the cubic
     assert rec["methods"]["cubic-discrete"]["err"] == pytest.approx(
         rec["methods"]["cubic"]["err"], rel=0.1)
-    assert set(rec["where"]) == {"lta", "lta-keyref", "lta-continuous", "lta-cont-keyref"}
+    assert set(rec["where"]) == {"lta", "lta-keyref", "lta-discrete", "lta-disc-keyref"}
     # the joints named as carrying LΘA's excess have skin (child3, the chain's end, owns none)
     joints = rec["where"]["lta"]["joints"]
     assert joints and all(j["vertices"] > 0 and np.isfinite(j["lta"]) for j in joints)

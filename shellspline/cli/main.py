@@ -18,7 +18,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import ShellsplineError
-from ..pipeline.options import AUTO_COARSE_ABOVE, AUTO_COARSE_VERTICES, AUTO_NONLINEAR_ABOVE
+from ..pipeline.options import (AUTO_COARSE_ABOVE, AUTO_COARSE_VERTICES, AUTO_NONLINEAR_ABOVE,
+                                DEFAULT_SPLINE, SPLINES)
 from ..version import __version__
 
 __all__ = ["main"]
@@ -162,12 +163,13 @@ def _build_parser() -> argparse.ArgumentParser:
                         "keyframes of a gap keeps 1%% of its bending weight there (skin "
                         "folding at joints: removes jumps between local minima); 0 = the "
                         "paper's weights (default 0.5)")
-    q.add_argument("--spline", choices=("discrete", "continuous"), default="discrete",
-                   help="time spline of the LΘA descriptors: the paper's time-discrete spline "
-                        "(discrete, default) or the C² cubic spline in continuous time through "
-                        "the keyframe descriptors (continuous: no velocity kink at the "
-                        "keyframes; with --reference keyframe/geodesic or --fixpoint the "
-                        "continuous limit of the weighted discrete spline)")
+    q.add_argument("--spline", choices=SPLINES, default=DEFAULT_SPLINE,
+                   help="time spline of the LΘA descriptors: the C² cubic spline in continuous "
+                        "time through the keyframe descriptors (continuous, default: no "
+                        "velocity kink at the keyframes; with --reference keyframe/geodesic or "
+                        "--fixpoint the continuous limit of the weighted discrete spline) or "
+                        "the paper's time-discrete spline (discrete: to reproduce the paper; "
+                        "--method nonlinear: the LΘA start only)")
     q.add_argument("--rigid-subset", metavar="FILE",
                    help="file of vertex indices (like --pinned) that carry the rigid pose, "
                         "e.g. the torso: each keyframe's pose is their Kabsch fit and the "

@@ -18,8 +18,8 @@ from ..io.keyframes import Keyframes, keyframes_from_arrays, read_keyframes
 from ..io.sequences import jsonable
 from ..progress import Progress
 from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
-from .options import (METHODS, REFERENCES, RIGID_TRACKS, SPLINES, InterpolationOptions,
-                      interpolation_problem, notices)
+from .options import (DEFAULT_SPLINE, METHODS, REFERENCES, RIGID_TRACKS, SPLINES,
+                      InterpolationOptions, interpolation_problem, notices)
 from .placement import placement_track
 from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
                      start_report)
@@ -27,7 +27,7 @@ from .stages import in_input_units, run_method
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
            "canonical_frames", "linear_blend", "placement_track", "sequence_quality",
-           "quality_ok", "POP_LIMIT", "RIGID_TRACKS", "SPLINES"]
+           "quality_ok", "POP_LIMIT", "RIGID_TRACKS", "SPLINES", "DEFAULT_SPLINE"]
 
 
 @dataclass
@@ -70,7 +70,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 warm_start: bool = True, solver_options: dict | None = None,
                 coarse="auto", fine: bool = False, fixpoint: int = 0,
                 rigid_track: str = "fit", rigid_subset=None, fade_angle: float = 0.5,
-                spline: str = "discrete", progress=None) -> InterpolationResult:
+                spline: str = DEFAULT_SPLINE, progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
     Parameters
@@ -146,17 +146,21 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         (smoothly from half this turn; :func:`shellspline.pipeline.describe.bending_fade`):
         skin that folds or unfolds at a joint otherwise makes the frames jump between two
         local minima (pops, flipped faces). ``0`` keeps the paper's weights everywhere.
-    spline : {"discrete", "continuous"}
+    spline : {"continuous", "discrete"}
         The time spline of the LΘA descriptors (lengths, unwrapped dihedral angles, areas).
-        ``"discrete"``: the paper's time-discrete spline (eqs. 7, 11), piecewise cubic with a
-        small velocity kink at every interior keyframe. ``"continuous"``: the C² cubic spline
-        in continuous time through the keyframe descriptors, the limit of the discrete one
-        (same end conditions; :func:`shellspline.shells.lta_spline.continuous_spline_matrix`):
-        no kink, closer to smooth true motion (README "In-betweens against ground truth").
-        With a reference that varies in time (``"keyframe"``, ``"geodesic"``, ``fixpoint``)
-        it is the continuous limit of the weighted discrete spline (a cubic on every frame
-        interval, the flux ``w z'`` continuous). For ``method="nonlinear"`` it shapes the LΘA
-        start; ``"linear"`` and ``"geodesic"`` do not use it.
+        ``"continuous"`` (default, :data:`~shellspline.pipeline.options.DEFAULT_SPLINE`): the
+        C² cubic spline in continuous time through the keyframe descriptors, with the same
+        end conditions (:func:`shellspline.shells.lta_spline.continuous_spline_matrix`): no
+        velocity kink at the keyframes, closer to smooth true motion (README "In-betweens
+        against ground truth"). ``"discrete"``: the paper's time-discrete spline (eqs. 7, 11),
+        which converges to the continuous one as the time step shrinks; piecewise cubic with
+        a small velocity kink at every interior keyframe; use it to reproduce the paper's
+        figures. With two keyframes and natural ends both give the same path (for a constant
+        reference the linear path of the descriptors). With a reference that varies in time (``"keyframe"``, ``"geodesic"``, ``fixpoint``) the
+        continuous spline is the continuous limit of the weighted discrete spline (a cubic on
+        every frame interval, the flux ``w z'`` continuous). For ``method="nonlinear"`` it
+        only shapes the LΘA start: the nonlinear spline itself minimises the paper's
+        time-discrete energy (eqs. 7–8). ``"linear"`` and ``"geodesic"`` do not use it.
     rigid_subset : (s,) int array, optional
         Vertices that carry the rigid pose (e.g. the torso; at least 3, not on a line): each
         keyframe's pose for the ``"spline"`` track is the Kabsch fit of these vertices, and

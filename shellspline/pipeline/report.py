@@ -24,7 +24,7 @@ from ..version import __version__
 
 __all__ = ["start_report", "energies_record", "finish_report", "sequence_quality", "quality_record", "quality_ok",
            "sequence_energies", "gauss_newton_summary", "nonlinear_record", "fixpoint_change",
-           "convergence_problems", "start_frames_note", "POP_LIMIT"]
+           "convergence_problems", "start_frames_note", "POP_LIMIT", "ENERGY_TERMS"]
 
 
 def sequence_quality(V, T: Topology, frames) -> dict:
@@ -212,10 +212,30 @@ def start_report(opts, prob) -> dict:
     }
 
 
+#: ``report["energies"]["per_frame_terms"]``: what the per-frame LΘA energies are, for each
+#: time spline of the targets (``None``: a method without targets; see :func:`energies_record`).
+ENERGY_TERMS = {
+    None: "paper eq. 11 terms w_k (z_k - z~_k)^2",  # no spline targets (linear, geodesic)
+    "discrete": "paper eq. 11 terms w_k (z_k - z~_k)^2; the spline targets minimise their sum",
+    "continuous": "paper eq. 11 terms w_k (z_k - z~_k)^2; the continuous spline minimises "
+                  "the integral of w z''^2 instead, and on its targets these terms are "
+                  "w z''(k)^2 / 4 (frame units; exact between keyframes for a constant "
+                  "reference)",
+}
+
+
 def energies_record(seq, prob, opts, prog) -> dict:
     """``report["energies"]`` of the method stage's result ``seq`` (a
     :class:`~shellspline.pipeline.stages.StageResult`), in the stages' units (lengths in
-    units of ``prob.scale``: the energies do not depend on the input's unit)."""
+    units of ``prob.scale``: the energies do not depend on the input's unit).
+
+    The per-frame energies of the output and of the spline targets are the same measure,
+    the terms of the paper's time-discrete energy (eq. 11, paper Figs. 11–12), whichever
+    time spline made the targets, so the two stay comparable. The discrete spline's targets
+    minimise their sum; the continuous spline (``opts.spline="continuous"``) minimises
+    ``∫ w z''² dt`` instead, whose density these terms sample: on its targets a term is
+    ``w z''(k)² / 4`` in frame units, exactly at frames between keyframes for a constant
+    reference. ``per_frame_terms`` says which (:data:`ENERGY_TERMS`)."""
     with prog.stage("energies"):
         if seq.energy_source is not None:
             Ve, Ze, Te, We, resolution = (*seq.energy_source, "coarse")
@@ -228,6 +248,7 @@ def energies_record(seq, prob, opts, prog) -> dict:
         else:  # a failed frame: keep the report (the quality check flags the sequence)
             out = {"error": "the sequence has non-finite coordinates"}
         out["resolution"] = resolution
+        out["per_frame_terms"] = ENERGY_TERMS[opts.spline if Ze is not None else None]
     return out
 
 

@@ -34,7 +34,10 @@ __all__ = ["LTASpline", "lta_spline", "lta_energy_per_frame", "spline_energy",
            "continuous_spline_matrix", "canonical_spline", "SPLINES"]
 
 #: Time splines of the descriptors: the paper's time-discrete spline, or the C² cubic spline
-#: in continuous time that it approximates (see :func:`continuous_spline_matrix`).
+#: in continuous time that it approximates (see :func:`continuous_spline_matrix`). This
+#: module's functions default to the paper's spline; :func:`shellspline.interpolate` defaults
+#: to the continuous one (:data:`shellspline.pipeline.options.DEFAULT_SPLINE`: no velocity
+#: kink at the keyframes).
 SPLINES = ("discrete", "continuous")
 
 #: Weights below this fraction of their column's maximum are raised to it.
@@ -536,7 +539,8 @@ class LTASpline:
         Only ratios within a column matter: scaling a column's weights leaves its spline
         unchanged.
     spline : {'discrete', 'continuous'}, optional
-        ``'discrete'`` (default): the paper's time-discrete spline. ``'continuous'``: the C²
+        ``'discrete'`` (default here; :func:`shellspline.interpolate` defaults to
+        ``'continuous'``): the paper's time-discrete spline. ``'continuous'``: the C²
         cubic spline in continuous time through the keyframe values
         (:func:`continuous_spline_matrix`), the limit of the discrete one as the time step
         goes to 0. With weights that vary in time, the limit of the weighted discrete energy
@@ -553,7 +557,8 @@ class LTASpline:
     n_free : int
         Number of unknown frames per descriptor.
     bandwidth : int
-        Half bandwidth of the (reordered) normal matrix: at most 2 (4 for periodic).
+        Half bandwidth of the (reordered) normal matrix: at most 2 (4 for periodic); for
+        ``spline='continuous'`` with weights that vary in time, at most 3 (5 for periodic).
     batched : bool
         ``True`` when every column has its own matrix (weights vary in time and across
         columns); ``False`` when one factorization serves all columns.
@@ -566,8 +571,8 @@ class LTASpline:
     ------
     ValueError
         (a :class:`~shellspline.errors.ShellsplineError`) on invalid ``frames``, ``K``,
-        ``bc``, ``weights`` or ``spline``, or weights that vary in time with
-        ``spline='continuous'``; the message names the argument and shows what was got.
+        ``bc``, ``weights`` or ``spline``; the message names the argument and shows what was
+        got.
 
     Warns
     -----
@@ -793,7 +798,8 @@ def lta_spline(Z_key, frames, K, bc="natural", weights=None, spline="discrete") 
     weights : None or (K+1,d) or (K+1,1) or (d,) float array_like, optional
         Reference-mesh weights ``w_k`` per frame and descriptor; see :class:`LTASpline`.
     spline : {'discrete', 'continuous'}, optional
-        The paper's time-discrete spline (default), or the C² cubic spline in continuous time
+        The paper's time-discrete spline (default here; :func:`shellspline.interpolate`
+        defaults to ``'continuous'``), or the C² cubic spline in continuous time
         through the keyframe values (:func:`continuous_spline_matrix`), or, with weights that
         vary in time, the continuous limit of the weighted discrete spline; see Notes.
 
