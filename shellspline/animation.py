@@ -43,7 +43,8 @@ __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "skeleton_
            "loop_range", "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
            "mesh_close", "close_euclidean", "MESH_C1_MAX_DIMS", "mesh_align", "mesh_distance",
            "mesh_blend", "reparametrize_vertices", "track_length", "track_curve",
-           "TrackReport", "track_close", "track_align", "track_distance", "track_blend"]
+           "TRACK_DP_SAMPLES", "TrackReport", "track_close", "track_align", "track_distance",
+           "track_blend"]
 
 # Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
 # a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
@@ -1954,6 +1955,14 @@ def track_curve(track, length: float = 1.0):
                         t=track.t)
 
 
+# Most evenly spaced samples of a pose track on the DP lattice of track_align /
+# track_distance. The DP costs O(N^2) (a band of 1/4 of the duration): 1.3 / 4.2 / 20 s
+# for 2,000 / 4,000 / 8,000 poses (benchmarks/bench_motion.py, 2-core VM), so a 50,000-pose
+# EuRoC or TUM track ran for more than 10 minutes at 2.3 GB; a longer track is resampled to
+# this many times over its span for the alignment (the warp is smooth at that scale).
+TRACK_DP_SAMPLES = 4000
+
+
 def _track_like(curve, length, like):
     from .groups import se3
     from .io.posefiles import PoseTrack
@@ -2069,7 +2078,8 @@ def track_align(a, b, *, length=None, features=None, **kw):
     Returns
     -------
     AlignResult
-        ``t``: ``N_a`` evenly spaced times over ``a``'s span; ``phi``: times of ``b``.
+        ``t``: ``min(N_a, TRACK_DP_SAMPLES)`` evenly spaced times over ``a``'s span;
+        ``phi``: times of ``b``.
     """
     from .curves.align import align as align_curves
 
@@ -2077,7 +2087,8 @@ def track_align(a, b, *, length=None, features=None, **kw):
     feats = _features_pairs(features, kw)
     if feats is not None:
         feats = (feats[0] - ca.t[0], feats[1] - cb.t[0])
-    r = align_curves(_uniform(ca), _uniform(cb), features=feats, **kw)
+    r = align_curves(_uniform(ca, min(ca.n_frames, TRACK_DP_SAMPLES)),
+                     _uniform(cb, min(cb.n_frames, TRACK_DP_SAMPLES)), features=feats, **kw)
     r.t = r.t + ca.t[0]
     r.phi = r.phi + cb.t[0]
     r.shift = r.shift + float(cb.t[0])
@@ -2088,7 +2099,8 @@ def track_distance(a, b, *, align: str = "dp", length=None, **kw) -> float:
     """SRV distance of two pose tracks (normalised time; positions divided by ``length``,
     default :func:`track_length` of both).
 
-    Both tracks are resampled to ``max(N_a, N_b)`` evenly spaced times over their own spans;
+    Both tracks are resampled to ``max(N_a, N_b)`` evenly spaced times over their own spans
+    (at most ``TRACK_DP_SAMPLES``);
     ``align="none"`` compares them on that grid, ``"dp"`` is the mean of the aligned
     distances both ways. Both are symmetric in ``a`` and ``b``.
     """
@@ -2098,7 +2110,7 @@ def track_distance(a, b, *, align: str = "dp", length=None, **kw) -> float:
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
     a, b, L, ca, cb = _track_pair(a, b, length)
-    n = max(ca.n_frames, cb.n_frames)
+    n = min(max(ca.n_frames, cb.n_frames), TRACK_DP_SAMPLES)
     ua, ub = _uniform(ca, n), _uniform(cb, n)
     if align == "none":
         return srv_distance(ua, ub.with_times(ua.t))
