@@ -35,7 +35,7 @@ from .groups import so3
 from .io.bvh import Motion, euler_matrices, forward_kinematics
 
 __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "skeleton_mismatch",
-           "with_channel_layout", "common_grid",
+           "with_channel_layout", "common_grid", "MOTION_DP_FRAMES",
            "warp_motion", "stage_joint", "stage_kinematics", "STATIC_TOL", "up_axis",
            "body_height", "body_joints", "translation_root", "find_feet", "CLOSE_MAX_STEP", "FLIP_TOL",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
@@ -429,6 +429,21 @@ def with_channel_layout(motion: Motion, template: Motion) -> Motion:
                   motion.frame_time, values, motion.end_sites)
 
 
+def _grid_frames(a: Motion, b: Motion) -> int:
+    """Frames of the common grid: the longer clip at the finer frame time."""
+    ft = min(a.frame_time, b.frame_time)
+    dur = max((a.n_frames - 1) * a.frame_time, (b.n_frames - 1) * b.frame_time)
+    return int(round(dur / ft)) + 1
+
+
+# Most frames of the grid the DP alignment runs on (align, distance, blend). The DP costs
+# O(N^2) (a band of 1/4 of the duration): two 40 s clips at 120 Hz (4,801 frames) take
+# 14.4 s (README, benchmarks/bench_motion.py --long-only); two 5-minute clips at 120 Hz
+# (36,001 frames) would take hours. Longer clips are aligned on this many frames (the warp
+# is then interpolated: blend still runs on the full grid).
+MOTION_DP_FRAMES = 4801
+
+
 def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Motion, Motion]:
     """Two motions of one skeleton brought to the same number of frames.
 
@@ -444,9 +459,7 @@ def common_grid(a: Motion, b: Motion, n_frames: int | None = None) -> tuple[Moti
     """
     b = with_channel_layout(b, a)
     if n_frames is None:
-        ft = min(a.frame_time, b.frame_time)
-        dur = max((a.n_frames - 1) * a.frame_time, (b.n_frames - 1) * b.frame_time)
-        n_frames = int(round(dur / ft)) + 1
+        n_frames = _grid_frames(a, b)
     out = []
     for m in (a, b):
         if m.n_frames == n_frames:
@@ -1133,7 +1146,7 @@ def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
         touch-downs (:func:`contact_features`); an array gives ``(t_a, t_b)`` pairs in
         seconds.
     n_frames : int, optional
-        Grid size (default: :func:`common_grid`'s).
+        Grid size (default: :func:`common_grid`'s, at most ``MOTION_DP_FRAMES``).
     up : str, optional
         Up axis override (for contacts).
     **kw
@@ -1145,6 +1158,8 @@ def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
     """
     from .curves.srv import reparametrize, srv_distance
 
+    if n_frames is None:
+        n_frames = min(_grid_frames(a, b), MOTION_DP_FRAMES)
     a2, b2, ca, cb, H = _pair(a, b, n_frames)
     cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
     pa, pb = (_product_curve(ca, H, cols=cols, rots=rots),
@@ -1240,8 +1255,9 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     rep = None
     phi = pa.t.copy()
     if align == "dp":
-        rep = _align_motions(a, b, features=features, n_frames=ca.n_frames, up=up, **kw)
-        phi = rep.phi
+        rep = _align_motions(a, b, features=features, up=up, **kw,
+                             n_frames=min(ca.n_frames, MOTION_DP_FRAMES))
+        phi = rep.phi if rep.t.size == pa.t.size else np.interp(pa.t, rep.t, rep.phi)
     # blend on a grid fine enough that b o phi keeps every frame of b where phi is steep
     # (on the grid of a alone, s = 1 lost up to 8 % of the body height there)
     N = pa.t.size
@@ -1957,8 +1973,9 @@ def track_curve(track, length: float = 1.0):
 
 # Most evenly spaced samples of a pose track on the DP lattice of track_align /
 # track_distance. The DP costs O(N^2) (a band of 1/4 of the duration): 1.3 / 4.2 / 20 s
-# for 2,000 / 4,000 / 8,000 poses (benchmarks/bench_motion.py, 2-core VM), so a 50,000-pose
-# EuRoC or TUM track ran for more than 10 minutes at 2.3 GB; a longer track is resampled to
+# for 2,000 / 4,000 / 8,000 poses (track_align on windows of a 100 Hz random-walk track,
+# 2-core VM at load ~4), so a 50,000-pose EuRoC or TUM track against a 3,000-pose one ran
+# for more than 10 minutes at 2.3 GB (now 10 s, 170 MB); a longer track is resampled to
 # this many times over its span for the alignment (the warp is smooth at that scale).
 TRACK_DP_SAMPLES = 4000
 

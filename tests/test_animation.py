@@ -788,6 +788,23 @@ def test_track_align_recovers_a_known_warp():
     assert abs(np.interp(tf, r2.t, r2.phi) - (a.t[0] + 0.8 * span)) <= 0.01 * span
 
 
+def test_long_clips_are_aligned_on_a_capped_grid(monkeypatch):
+    """The DP costs O(N^2): two 5-minute clips at 120 Hz would take hours. Clips whose common
+    grid is longer than MOTION_DP_FRAMES are aligned on that many frames; a known re-timing
+    is still recovered, and blend interpolates the warp onto its full grid."""
+    monkeypatch.setattr(A, "MOTION_DP_FRAMES", 61)
+    a = synth.motion(fps=60, seconds=3.0, channels=3)         # 181 frames
+    b = A.warp_motion(a, np.linspace(0.0, 1.0, 181) ** 1.3)   # b(t) = a(t^1.3)
+    r = A.align(a, b)
+    assert r.t.size == 61
+    # b(phi(t)) = a(t): phi = t^(1/1.3)
+    assert np.abs(r.phi - r.t ** (1 / 1.3)).max() < 0.03
+    assert r.distance_after < 0.3 * r.distance_before
+    m, rep = A.blend(a, b, 0.0)                               # s = 0: a, on the full grid
+    assert rep.t.size == 61 and m.n_frames == a.n_frames
+    assert np.abs(A.motion_curve(m).R - A.motion_curve(a).R).max() < 1e-9
+
+
 def test_long_tracks_are_aligned_on_a_capped_lattice(monkeypatch):
     """The DP costs O(N^2): a 50,000-pose track ran for more than 10 minutes at 2.3 GB. Tracks
     longer than TRACK_DP_SAMPLES are aligned on that many evenly spaced times; the known
