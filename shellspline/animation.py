@@ -35,7 +35,7 @@ from .groups import so3
 from .io.bvh import Motion, euler_matrices, forward_kinematics
 
 __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "skeleton_mismatch",
-           "with_channel_layout", "common_grid", "MOTION_DP_FRAMES",
+           "with_channel_layout", "common_grid", "MOTION_DP_FRAMES", "heading_aligned",
            "warp_motion", "stage_joint", "stage_kinematics", "STATIC_TOL", "up_axis",
            "body_height", "body_joints", "translation_root", "find_feet", "CLOSE_MAX_STEP", "FLIP_TOL",
            "FootContacts", "foot_contacts", "foot_skate", "seam_gap", "plant_feet",
@@ -439,8 +439,9 @@ def _grid_frames(a: Motion, b: Motion) -> int:
 # Most frames of the grid the DP alignment runs on (align, distance, blend). The DP costs
 # O(N^2) (a band of 1/4 of the duration): two 40 s clips at 120 Hz (4,801 frames) take
 # 14.4 s (README, benchmarks/bench_motion.py --long-only); two 5-minute clips at 120 Hz
-# (36,001 frames) would take hours. Longer clips are aligned on this many frames (the warp
-# is then interpolated: blend still runs on the full grid).
+# (36,001 frames) would take ~56x that per warp (distance: two). Longer clips are aligned
+# on this many frames (the warp is then interpolated: blend still runs on the full grid):
+# distance 17 s / 300 MB, blend 22 s / 1.1 GB for two 5-minute clips.
 MOTION_DP_FRAMES = 4801
 
 
@@ -1023,11 +1024,95 @@ def _turning(*Rs) -> np.ndarray:
     return np.flatnonzero(np.any([np.any(R != R[:1], axis=(0, 2, 3)) for R in Rs], axis=0))
 
 
-def _pair(a: Motion, b: Motion, n_frames=None):
+def _top_joints(motion: Motion) -> list[int]:
+    """The joints whose channels are given in the stage frame: the child of the static stage
+    joint, or the roots without one."""
+    k = stage_joint(motion)
+    return [int(j) for j in np.flatnonzero(motion.parents == k)] if k >= 0 else \
+        [int(j) for j in np.flatnonzero(motion.parents < 0)]
+
+
+def heading_aligned(b: Motion, a: Motion, *, up=None) -> tuple[Motion, float]:
+    """``b`` turned about the up axis and moved on the ground to face and start like ``a``.
+
+    Clips of one skeleton recorded in different directions of the capture volume (CMU
+    takes start anywhere, facing anywhere) are the same motion: compared or blended as
+    they are, a walk to the north and one to the east differ by their heading alone, and
+    their blend walks diagonally; facing opposite ways, the blend's travel cancels (a
+    moonwalk on the spot).
+
+    Parameters
+    ----------
+    b, a : Motion
+        One skeleton on one frame grid (:func:`common_grid`).
+    up : str, optional
+        Up axis override (default: :func:`up_axis` of ``a``).
+
+    Returns
+    -------
+    Motion
+        ``b`` with the joints whose channels are given in the stage frame (the child of the
+        static stage joint, or the root) turned about the up axis and moved on the ground so
+        that the travel joint (:func:`translation_root`) starts where ``a``'s does. The turn
+        takes ``b``'s horizontal travel (first to last frame) to ``a``'s direction when both
+        travel more than a body height; otherwise it best maps ``b``'s body onto ``a``'s
+        (2-D Kabsch of the horizontal joint positions relative to the travel joint, over
+        all frames: in-place motions). Unchanged when those joints do not have
+        three rotation channels and the two horizontal position channels.
+    float
+        The turn in degrees (0 when unchanged).
+    """
+    ax = _parse_up(up, a)[0] if up is not None else up_axis(a)[0]
+    h0, h1 = (ax + 1) % 3, (ax + 2) % 3       # the ground plane; h0 -> h1 turns about +up
+    tops = _top_joints(b)
+    hz = {"XYZ"[h0], "XYZ"[h1]}
+    ok = all(len(set(_rotation_axes(b.channels[j]))) == 3 and
+             hz <= set(_position_axes(b.channels[j])) for j in tops)
+    if not ok or a.n_frames != b.n_frames:
+        return b, 0.0
+    Pa, Pb = stage_kinematics(a)[0], stage_kinematics(b)[0]
+    body = body_joints(a)
+    ra, rb = translation_root(a), translation_root(b)
+    da = Pa[-1, ra, [h0, h1]] - Pa[0, ra, [h0, h1]]
+    db = Pb[-1, rb, [h0, h1]] - Pb[0, rb, [h0, h1]]
+    H = body_height(a, Pa, ax)
+    if min(np.linalg.norm(da), np.linalg.norm(db)) > H:   # both travel: their directions
+        Qa, Qb = da[None, None], db[None, None]
+    else:  # the bodies' horizontal layout about the travel joint, over all frames
+        Qa = Pa[:, body][..., [h0, h1]] - Pa[:, ra, None][..., [h0, h1]]
+        Qb = Pb[:, body][..., [h0, h1]] - Pb[:, rb, None][..., [h0, h1]]
+    th = float(np.arctan2(np.sum(Qa[..., 1] * Qb[..., 0] - Qa[..., 0] * Qb[..., 1]),
+                          np.sum(Qa * Qb)))
+    G = np.eye(3)
+    G[[h0, h0, h1, h1], [h0, h1, h0, h1]] = [np.cos(th), -np.sin(th), np.sin(th), np.cos(th)]
+    shift = Pa[0, ra] - G @ Pb[0, rb]
+    shift[ax] = 0.0
+    if th == 0.0 and not shift.any():
+        return b, 0.0
+    values = b.values.copy()
+    R, t = b.local_transforms()
+    for j in tops:
+        cols, chans = b.channel_columns(j), b.channels[j]
+        rcols = [c for c, n in zip(cols, chans) if n.endswith("rotation")]
+        axes = _rotation_axes(chans)
+        values[:, rcols] = euler_angles(G @ R[:, j], axes, reference=values[:, rcols])
+        tj = t[:, j] @ G.T + shift
+        for c, n in zip(cols, chans):
+            if n.endswith("position"):
+                values[:, c] = tj[:, "XYZ".index(n[0])]
+    out = Motion(b.names, b.parents, b.offsets, b.channels, b.frame_time, values, b.end_sites)
+    return out, float(np.degrees(th))
+
+
+def _pair(a: Motion, b: Motion, n_frames=None, heading="align", up=None):
     if min(a.n_frames, b.n_frames) < 2:
         raise ShellsplineError(f"the clips have {a.n_frames} and {b.n_frames} frames: "
                                "distance, align and blend need at least 2 per clip")
+    if heading not in ("align", "keep"):
+        raise ShellsplineError(f"heading must be 'align' or 'keep', got {heading!r}")
     a2, b2 = common_grid(a, b, n_frames)
+    if heading == "align":
+        b2 = heading_aligned(b2, a2, up=up)[0]
     ca, cb = motion_curve(a2), motion_curve(b2)
     for which, m, c in (("a", a, ca), ("b", b, cb)):  # on the clip's own frames
         _check_steps(c if c.template is m else motion_curve(m), f"clip {which}")
@@ -1133,7 +1218,7 @@ def _align_curves(pa, pb, features, kw):
 
 
 def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
-          **kw) -> AlignReport:
+          heading: str = "align", **kw) -> AlignReport:
     """The time warp that aligns ``b`` to ``a`` (elastic SRV metric on SO(3)^d x R^m).
 
     Parameters
@@ -1148,7 +1233,11 @@ def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
     n_frames : int, optional
         Grid size (default: :func:`common_grid`'s, at most ``MOTION_DP_FRAMES``).
     up : str, optional
-        Up axis override (for contacts).
+        Up axis override (for contacts and the heading).
+    heading : {"align", "keep"}
+        ``"align"``: ``b`` is first turned about the up axis and moved on the ground to face
+        and start like ``a`` (:func:`heading_aligned`: clips recorded in other directions
+        are the same motion); ``"keep"``: compared where they are.
     **kw
         Passed to :func:`shellspline.curves.align.align` (``lam``, ``window``, ...).
 
@@ -1160,7 +1249,7 @@ def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
 
     if n_frames is None:
         n_frames = min(_grid_frames(a, b), MOTION_DP_FRAMES)
-    a2, b2, ca, cb, H = _pair(a, b, n_frames)
+    a2, b2, ca, cb, H = _pair(a, b, n_frames, heading, up)
     cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
     pa, pb = (_product_curve(ca, H, cols=cols, rots=rots),
               _product_curve(cb, H, cols=cols, rots=rots))
@@ -1178,7 +1267,7 @@ _align_motions = align  # the parameters called ``align`` below shadow the funct
 
 
 def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames=None,
-             up=None, **kw) -> float:
+             up=None, heading: str = "align", **kw) -> float:
     """SRV distance of two motions of one skeleton (seed 000 eq. 7).
 
     Parameters
@@ -1190,6 +1279,9 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
         found by dynamic programming.
     features : None, "contacts" or (k,2) array_like
         As in :func:`align`.
+    heading : {"align", "keep"}
+        As in :func:`align` (default: independent of where and which way each clip was
+        recorded).
 
     Returns
     -------
@@ -1201,20 +1293,22 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
     if align == "none":
-        _, _, ca, cb, H = _pair(a, b, n_frames)
+        _, _, ca, cb, H = _pair(a, b, n_frames, heading, up)
         cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
         return srv_distance(_product_curve(ca, H, cols=cols, rots=rots),
                             _product_curve(cb, H, cols=cols, rots=rots))
-    d1 = _align_motions(a, b, features=features, n_frames=n_frames, up=up, **kw).distance_after
+    d1 = _align_motions(a, b, features=features, n_frames=n_frames, up=up, heading=heading,
+                        **kw).distance_after
     F = _features(features, a, b, up)
     F2 = None if F is None else F[:, ::-1] * [(b.n_frames - 1) * b.frame_time,
                                               (a.n_frames - 1) * a.frame_time]
-    d2 = _align_motions(b, a, features=F2, n_frames=n_frames, up=up, **kw).distance_after
+    d2 = _align_motions(b, a, features=F2, n_frames=n_frames, up=up, heading=heading,
+                        **kw).distance_after
     return 0.5 * (d1 + d2)
 
 
 def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=None,
-          n_frames=None, up=None, plant: bool = False,
+          n_frames=None, up=None, plant: bool = False, heading: str = "align",
           **kw) -> tuple[Motion, AlignReport | None]:
     """A new motion between two takes: the SRV geodesic ``R^-1((1-s) q_a + s q_b o phi)``.
 
@@ -1232,6 +1326,12 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     plant : bool
         Detect the blend's foot contacts and correct its root where planted feet slide
         (:func:`plant_feet`).
+    heading : {"align", "keep"}
+        ``"align"`` (default): ``b`` is first turned about the up axis and moved on the
+        ground to face and start like ``a`` (:func:`heading_aligned`), so that takes
+        recorded in other directions blend into one walk in ``a``'s direction (two walks
+        facing opposite ways blended as they are cancel their travel); ``"keep"``: blended
+        where they are.
 
     Returns
     -------
@@ -1249,13 +1349,13 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     s = float(s)
     if not np.isfinite(s):
         raise ShellsplineError(f"s must be a finite number, got {s!r}")
-    a2, b2, ca, cb, H = _pair(a, b, n_frames)
+    a2, b2, ca, cb, H = _pair(a, b, n_frames, heading, up)
     cols = _varying(ca.X, cb.X)
     pa, pb = _product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols)
     rep = None
     phi = pa.t.copy()
     if align == "dp":
-        rep = _align_motions(a, b, features=features, up=up, **kw,
+        rep = _align_motions(a, b, features=features, up=up, heading=heading, **kw,
                              n_frames=min(ca.n_frames, MOTION_DP_FRAMES))
         phi = rep.phi if rep.t.size == pa.t.size else np.interp(pa.t, rep.t, rep.phi)
     # blend on a grid fine enough that b o phi keeps every frame of b where phi is steep

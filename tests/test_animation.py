@@ -295,7 +295,9 @@ def test_contact_features_pair_touchdowns():
 
     def miss(rep, F=F, n=b.n_frames):  # mean distance of paired touch-downs, in frames
         return np.abs(np.interp(F[:, 0], rep.t, rep.phi) - F[:, 1]).mean() * (n - 1)
-    assert miss(r) <= miss(free) + 1e-9
+    # both within 0.7 frames here: the features may not pull it farther (0.05 frame: the
+    # refinement's rounding-level ends, e.g. with or without a 0.5 degree heading turn)
+    assert miss(r) <= miss(free) + 0.05
     # seed 003 Fig. 3 on real data: without features the DP matches a step of walk_happy
     # with the next one; the touch-downs (default weight) pull it back to within ~1 frame
     h = real("dataset-1_walk_happy_001.bvh")
@@ -325,12 +327,16 @@ def test_blend_ends_and_timing():
     # s = 0 is a (resampled to the common grid and back)
     Pa, P0 = forward_kinematics(a)[0], forward_kinematics(m0)[0]
     assert np.abs(Pa - P0).max() < 0.02 * A.body_height(a)
-    m1, _ = A.blend(a, b, 1.0, align="dp")
+    m1, _ = A.blend(a, b, 1.0, align="dp", heading="keep")
     assert m1.n_frames == b.n_frames
     # s = 1 plays b: every joint within 1 % of the body height (where the DP warp is steep,
     # blending on a's grid alone skipped frames of b: 8 % off)
     assert np.abs(forward_kinematics(m1)[0] - forward_kinematics(b)[0]).max() \
         <= 0.01 * A.body_height(b)
+    # by default b is moved to start where a starts (on the ground), facing a's way
+    m1, _ = A.blend(a, b, 1.0, align="dp")
+    Pa, P1 = forward_kinematics(a)[0], forward_kinematics(m1)[0]
+    assert np.abs(P1[0, 1, [0, 2]] - Pa[0, 1, [0, 2]]).max() < 1e-9   # the hips, x and z
     mh, rep = A.blend(a, b, 0.5)
     dur = (mh.n_frames - 1) * mh.frame_time
     da, db = ((x.n_frames - 1) * x.frame_time for x in (a, b))
@@ -788,6 +794,41 @@ def test_track_align_recovers_a_known_warp():
     assert abs(np.interp(tf, r2.t, r2.phi) - (a.t[0] + 0.8 * span)) <= 0.01 * span
 
 
+def turned_on_ground(m: Motion, deg: float, shift) -> Motion:
+    """``m`` (root with 6 channels, Y up) turned by ``deg`` about Y and moved by ``shift`` on
+    the ground: the same take recorded facing another way elsewhere in the volume."""
+    G = Rotation.from_euler("y", deg, degrees=True).as_matrix()
+    v = m.values.copy()
+    cols = m.channel_columns(0)
+    axes = "".join(c[0] for c in m.channels[0][3:])
+    v[:, cols[:3]] = v[:, cols[:3]] @ G.T + np.asarray(shift, dtype=float)
+    v[:, cols[3:]] = A.euler_angles(G @ euler_matrices(v[:, cols[3:]], axes), axes)
+    return Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, v, m.end_sites)
+
+
+@pytest.mark.parametrize("deg", [90.0, 180.0])
+def test_takes_recorded_facing_other_ways_are_one_motion(deg):
+    """Oracle: the clip itself. Blended as recorded, a walk and the same walk facing the other
+    way cancelled their travel (the blend walked on the spot, turned 90 degrees from both);
+    by default b is first turned and moved on the ground to face and start like a."""
+    a = synth.motion(fps=60, seconds=2.0, channels=3, order="ZXY")
+    b = turned_on_ground(a, deg, [300.0, 0.0, -120.0])
+    assert A.distance(a, b, align="none") < 1e-9
+    assert A.distance(a, b) < 1e-6
+    m, _ = A.blend(a, b, 0.5, align="none")
+    Pa, Pm = forward_kinematics(a)[0], forward_kinematics(m)[0]
+    assert np.abs(Pm - Pa).max() < 1e-6 * A.body_height(a)
+    b2, turn = A.heading_aligned(b, a)
+    assert abs((turn + deg + 180.0) % 360.0 - 180.0) < 1e-9          # b turned back by deg
+    # as recorded (heading="keep"): the travel of the 180 degree blend cancels
+    k, _ = A.blend(a, b, 0.5, align="none", heading="keep")
+    travel = np.linalg.norm(np.ptp(forward_kinematics(k)[0][:, 0, [0, 2]], axis=0))
+    if deg == 180.0:
+        assert travel < 0.05 * np.linalg.norm(np.ptp(Pa[:, 0, [0, 2]], axis=0))
+    with pytest.raises(ShellsplineError, match="heading must be"):
+        A.distance(a, b, heading="north")
+
+
 def test_long_clips_are_aligned_on_a_capped_grid(monkeypatch):
     """The DP costs O(N^2): two 5-minute clips at 120 Hz would take hours. Clips whose common
     grid is longer than MOTION_DP_FRAMES are aligned on that many frames; a known re-timing
@@ -895,13 +936,14 @@ def test_close_does_not_depend_on_a_static_root_pose(zxy, pos):
 def test_distance_align_blend_do_not_depend_on_a_static_root_pose(zxy, pos):
     """Without alignment to rounding; with DP the lattice optimum is the same to rounding,
     and the refinement (which stops at its iteration limit on these walks) ends within
-    0.1 % of the distance."""
+    0.5 % of the distance (0.1 % before the heading alignment turned b by its -0.5 degrees
+    of travel direction: another rounding-level start of the refinement)."""
     a, b = real(), real("dataset-1_walk_tired_001.bvh")
     at, bt = on_stage(a, zxy, pos), on_stage(b, zxy, pos)
     assert A.distance(at, bt, align="none") == pytest.approx(A.distance(a, b, align="none"),
                                                              rel=1e-12)
     assert A.distance(at, bt, features="contacts") == pytest.approx(
-        A.distance(a, b, features="contacts"), rel=1e-3)
+        A.distance(a, b, features="contacts"), rel=5e-3)
     r, rt = A.align(a, b, features="contacts"), A.align(at, bt, features="contacts")
     assert np.array_equal(r.features, rt.features)
     assert rt.result.energy_dp == pytest.approx(r.result.energy_dp, rel=1e-12)

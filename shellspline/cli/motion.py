@@ -76,7 +76,14 @@ def add_parsers(sub) -> None:
                        help="replace output files that exist")
         q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
 
+    def heading(q):
+        q.add_argument("--heading", choices=["align", "keep"], default=None,
+                       help="BVH: align (default) turns B about the up axis and moves it on "
+                            "the ground to face and start like A (takes recorded facing "
+                            "other ways are one motion); keep: as recorded")
+
     def aligning(q, default="dp"):
+        heading(q)
         q.add_argument("--align", choices=["dp", "none"], default=default,
                        help=f"time alignment by dynamic programming or none (default {default})")
         q.add_argument("--features", metavar="F", default="none",
@@ -100,6 +107,7 @@ def add_parsers(sub) -> None:
                       description="Write the warp phi aligning B to A as CSV: time_a,time_b "
                                   "in seconds, one row per frame of the common grid.")
     common(q, out="warp CSV file")
+    heading(q)
     q.add_argument("--features", metavar="F", default="none",
                    help="feature points: contacts, none, or a CSV of time pairs (seconds)")
     weight(q)
@@ -246,6 +254,8 @@ def _read_pair(args):
         if _kind(x) == "bvh" and x.n_frames < 2:
             raise ShellsplineError(f"{path}: {x.n_frames} frame; distance, align and blend "
                                    "need at least 2")
+    if _kind(a) != "bvh" and getattr(args, "heading", None) is not None:
+        raise ShellsplineError("--heading: BVH clips only")
     if _kind(a) == "bvh":
         from ..animation import skeleton_mismatch
 
@@ -351,7 +361,7 @@ def _distance(args) -> int:
         say(f"  distance    SRV of the LΘA curves, align {args.align}: {d:.6g}")
         return EXIT_OK
     d = distance(a, b, align=args.align, features=_read_features(args.features), up=args.up,
-                 **fkw)
+                 heading=args.heading or "align", **fkw)
     print(f"{d:.9g}")
     say(f"  distance    SRV, align {args.align}, features {args.features}: {d:.6g}")
     if args.render or args.plot:
@@ -388,7 +398,8 @@ def _align(args) -> int:
             plot_motion(args.plot, warp=(r.t, r.phi))
             say(f"  plot        {args.plot}")
         return EXIT_OK
-    rep = align(a, b, features=_read_features(args.features), up=args.up, **fkw)
+    rep = align(a, b, features=_read_features(args.features), up=args.up,
+                heading=args.heading or "align", **fkw)
     lines = ["time_a,time_b"] + [f"{x!r},{y!r}" for x, y in rep.seconds.tolist()]
     write_text_atomic(args.out, "\n".join(lines) + "\n")
     nf = 0 if rep.features is None else rep.features.shape[0]
@@ -447,7 +458,7 @@ def _blend(args) -> int:
     if _is_mesh(a):
         return _blend_meshes(args, a, b, say)
     m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args.features),
-                   up=args.up, plant=args.plant, **fkw)
+                   up=args.up, plant=args.plant, heading=args.heading or "align", **fkw)
     write_bvh(m, args.out)
     sk = foot_skate(m, up=args.up)
     say(f"  blend       s = {args.s:g}, align {args.align}: {m.n_frames} frames at "

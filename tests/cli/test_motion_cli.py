@@ -387,3 +387,33 @@ def test_close_a_clip_with_a_joint_flip_and_refuse_a_half_turn(capsys, tmp_path)
     assert "half.bvh" in err and "'UpperArm_L'" in err and "frames 99 and 100" in err
     code, _, err = run(capsys, "distance", tmp_path / "half.bvh", walk())
     assert code == 2 and "clip a: joint 'UpperArm_L'" in err
+
+
+def test_heading_option(capsys, tmp_path):
+    """--heading align (default) compares takes recorded facing other ways as one motion;
+    keep compares them as recorded; pose tracks refuse it in one line."""
+    from shellspline.io.bvh import Motion, euler_matrices
+
+    a = synth.motion(fps=30, seconds=1.5, channels=3, order="ZXY")
+    write_bvh(a, tmp_path / "a.bvh")
+    v = a.values.copy()                      # the take facing the other way, elsewhere
+    G = np.diag([-1.0, 1.0, -1.0])           # 180 degrees about Y
+    v[:, :3] = v[:, :3] @ G.T + [50.0, 0.0, 20.0]
+    v[:, 3:6] = A.euler_angles(G @ euler_matrices(v[:, 3:6], "ZXY"), "ZXY")
+    assert a.channels[0][3:] == ("Zrotation", "Xrotation", "Yrotation")
+    write_bvh(Motion(a.names, a.parents, a.offsets, a.channels, a.frame_time, v, a.end_sites),
+              tmp_path / "b.bvh")
+    code, out, _ = run(capsys, "distance", tmp_path / "a.bvh", tmp_path / "b.bvh", "--align",
+                       "none", "-q")
+    assert code == 0 and float(out) < 1e-9
+    code, out, _ = run(capsys, "distance", tmp_path / "a.bvh", tmp_path / "b.bvh", "--align",
+                       "none", "--heading", "keep", "-q")
+    assert code == 0 and float(out) > 0.1
+    code, _, _ = run(capsys, "blend", tmp_path / "a.bvh", tmp_path / "b.bvh", "-o",
+                     tmp_path / "m.bvh", "--align", "none", "-q")
+    P, Pa = forward_kinematics(read_bvh(tmp_path / "m.bvh"))[0], forward_kinematics(a)[0]
+    assert code == 0 and np.abs(P - Pa).max() < 1e-3
+    track = tmp_path / "t.txt"
+    track.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n")
+    code, _, err = run(capsys, "distance", track, track, "--heading", "keep")
+    assert code == 2 and "--heading: BVH clips only" in err
