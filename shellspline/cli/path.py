@@ -69,10 +69,43 @@ def add_parsers(sub) -> None:
     p.set_defaults(func=_path)
 
 
-def keyframe_indices(n: int, every: int) -> np.ndarray:
-    """Every ``every``-th index of ``range(n)``, always with the first and the last."""
+# Keyframe intervals in which a pose is turned this much from the interval's first pose get
+# more keyframes: the curve between two keyframes turns the short way (the principal
+# logarithm), so where the dropped poses turn 180 degrees or more it went backwards (a
+# camera spinning 20 degrees per pose, every 10th kept: angle errors up to 180 degrees,
+# exit 0). The extra keyframes are the poses where the path's turn since the interval's
+# start (the sum of its steps' angles) passes a multiple of KEY_TURN / 2, so no interval
+# turns 180 degrees. Detection uses the angle from the first pose, not the sum of steps,
+# so that the noise of a jittery track does not add up to a turn.
+KEY_TURN = 2 * np.pi / 3
+
+
+def keyframe_indices(n: int, every: int, R=None) -> np.ndarray:
+    """Every ``every``-th index of ``range(n)``, always with the first and the last.
+
+    With the rotations ``R (n, 3, 3)`` of the poses, an interval between two such indices
+    in which a pose is turned by ``KEY_TURN`` or more from its first pose also gets the
+    poses where the turn of the path since its start passes a multiple of ``KEY_TURN / 2``
+    (see ``KEY_TURN``).
+    """
     idx = np.arange(0, n, every)
-    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+    idx = idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+    if R is None or idx.size == n:
+        return idx
+    from ..groups import so3
+
+    R = np.asarray(R, dtype=np.float64)
+    C = np.concatenate([[0.0], np.cumsum(so3.angle(np.swapaxes(R[:-1], -1, -2) @ R[1:]))])
+    k = np.searchsorted(idx, np.arange(n), side="right") - 1     # interval of every pose
+    k = np.minimum(k, idx.size - 2)
+    Rt = np.swapaxes(R[idx], -1, -2)
+    far = so3.angle(Rt[k] @ R)                                   # from the interval's start
+    turn = np.maximum(np.maximum.reduceat(far, idx[:-1]),
+                      so3.angle(Rt[:-1] @ R[idx[1:]]))           # per interval
+    level = np.floor((C - C[idx[k]]) / (0.5 * KEY_TURN))
+    cross = np.flatnonzero((level[1:] > level[:-1]) & (k[1:] == k[:-1])) + 1
+    cross = cross[turn[k[cross]] >= KEY_TURN]
+    return np.union1d(idx, cross)
 
 
 def _read_times(path, nanoseconds=False):
@@ -157,7 +190,8 @@ def _path(args) -> int:
     n = track.t.size
     if n < 2:
         raise ShellsplineError(f"{args.poses}: a path needs at least 2 poses, got {n}")
-    keys = keyframe_indices(n, args.keep_every)
+    keys = keyframe_indices(n, args.keep_every, track.T[:, :3, :3])
+    added = keys.size - keyframe_indices(n, args.keep_every).size
     tk, Tk = track.t[keys], track.T[keys]
     curve = build_curve(tk, Tk, args.kind, args.group, args.bc)
     if args.rate is not None:
@@ -178,7 +212,10 @@ def _path(args) -> int:
     fmt = args.format or track.format
     write_poses(args.out, tq, Tq, fmt, origin_ns=track.origin_ns)
     solve = getattr(curve, "solve", None)
-    say(f"  path        {n} poses, {keys.size} keyframes, {args.kind} on {args.group}"
+    say(f"  path        {n} poses, {keys.size} keyframes"
+        + (f" ({added} added where the poses turn {np.degrees(KEY_TURN):.0f}° or more "
+           "between keyframes)" if added else "")
+        + f", {args.kind} on {args.group}"
         + (f" ({args.bc})" if args.kind == "interp" else "")
         + (f", {solve.message}" if solve is not None and solve.message else ""))
     if tq is track.t and keys.size < n:

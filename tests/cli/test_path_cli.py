@@ -346,3 +346,30 @@ def test_path_plot_without_matplotlib_fails_before_writing(tmp_path, monkeypatch
     assert main(["path", str(src), "-o", str(out), "--plot", str(tmp_path / "p.png")]) == 2
     assert "pip install 'shellspline[viz]'" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("group", ["so3xr3", "se3"])
+def test_keyframes_are_added_where_the_dropped_poses_turn_half_a_turn(tmp_path, capsys, group):
+    """A camera circling at 20 degrees per pose, every 10th pose kept: 200 degrees between
+    keyframes, which the curve took the short way round (-160 degrees: angle errors up to
+    180 degrees, exit 0). Keyframes are added where the poses turn 120 degrees or more from
+    the interval's start; the spin about one axis at a constant rate is then followed to
+    rounding (oracle: the input poses)."""
+    n = 61
+    a = np.radians(20.0) * np.arange(n)
+    R = Rotation.from_rotvec(np.c_[0 * a, 0 * a, a]).as_matrix()
+    T = se3.from_rt(R, np.c_[np.cos(a), np.sin(a), 0.1 * a])
+    write_poses(tmp_path / "spin.txt", 0.1 * np.arange(n), T, "tum")
+    code = main(["path", str(tmp_path / "spin.txt"), "-o", str(tmp_path / "out.txt"),
+                 "--keep-every", "10", "--group", group])
+    err = capsys.readouterr().err
+    assert code == 0 and "added where the poses turn 120° or more between keyframes" in err
+    out = read_poses(tmp_path / "out.txt")
+    turn = so3.angle(np.swapaxes(out.T[:, :3, :3], -1, -2) @ R)
+    assert np.degrees(turn).max() < 1e-9
+    keys = keyframe_indices(n, 10, R)
+    steps = so3.angle(np.swapaxes(R[keys[:-1]], -1, -2) @ R[keys[1:]])
+    assert np.degrees(steps).max() <= 80.0 + 1e-9        # 60 degrees + one step
+    # a track that turns less (2 degrees per pose) keeps exactly every 10th pose
+    slow = Rotation.from_rotvec(np.c_[0 * a, 0 * a, a / 10]).as_matrix()
+    assert np.array_equal(keyframe_indices(n, 10, slow), keyframe_indices(n, 10))
