@@ -111,7 +111,7 @@ class SparseCholesky:
 
     @classmethod
     def from_lower_pattern(cls, indptr, indices, n: int, data, backend: str = "auto",
-                           perm=None):
+                           perm=None, numeric: bool = True):
         """Factor a matrix given by its lower triangle in CSC form on a fixed pattern.
 
         Later calls to :meth:`refactor_lower` pass new values for the same pattern (explicit
@@ -119,6 +119,9 @@ class SparseCholesky:
         optional): fill-reducing elimination order for the ``cholmod`` backend (e.g. from
         :func:`nested_dissection`); CHOLMOD compares it with its AMD order and keeps the one
         with less fill (default: AMD only). The ``splu`` backend ignores it.
+        ``numeric=False`` only analyses the pattern (``cholmod``): the first
+        :meth:`refactor_lower` factors, and a matrix that turns out not to be positive
+        definite there does not cost the analysis (a damping search tries several shifts).
         """
         indptr, indices = np.asarray(indptr), np.asarray(indices)
         backend = str(backend).lower()
@@ -139,7 +142,10 @@ class SparseCholesky:
         elif backend != "splu":
             raise ShellsplineError(f"`backend` must be 'auto', 'cholmod' or 'splu', got "
                                    f"{backend!r}")
-        obj.refactor_lower(data)
+        if numeric or backend != "cholmod":
+            obj.refactor_lower(data)
+        else:
+            obj._analyse(np.asarray(data, dtype=np.float64))
         return obj
 
     def refactor_lower(self, data) -> None:
@@ -151,27 +157,36 @@ class SparseCholesky:
             import cvxopt
             import cvxopt.cholmod
 
-            # the pattern's CSC order equals the sorted key order used at construction, so
-            # later refactorizations only swap the values (building from triplets sorts)
-            M = getattr(self, "_M", None)
-            if M is None:
-                M = self._M = cvxopt.spmatrix(cvxopt.matrix(data), self._I, self._J,
-                                              size=(n, n))
-                # M holds its own copy of the pattern: the triplet indices (int64, 16 bytes
-                # per entry, ~150 MB at 150k vertices) are not needed any more
-                self._I = self._J = None
-            else:
-                M.V = cvxopt.matrix(data)
-            if self._symbolic is None:
-                cvxopt.cholmod.options["supernodal"] = 2
-                perm = getattr(self, "_perm", None)
-                self._symbolic = cvxopt.cholmod.symbolic(M, uplo="L") if perm is None else \
-                    cvxopt.cholmod.symbolic(M, p=cvxopt.matrix(perm), uplo="L")
+            M = self._analyse(data)
             cvxopt.cholmod.numeric(M, self._symbolic)
             self.n_factorizations += 1
         else:
             L = sp.csc_matrix((data, indices, indptr), shape=(n, n))
             self.refactor(L + sp.tril(L, -1).T)
+
+    def _analyse(self, data):
+        """The CHOLMOD matrix of the lower pattern holding ``data``, and the symbolic
+        analysis of its pattern (once)."""
+        import cvxopt
+        import cvxopt.cholmod
+
+        n = self._lower[2]
+        # the pattern's CSC order equals the sorted key order used at construction, so
+        # later refactorizations only swap the values (building from triplets sorts)
+        M = getattr(self, "_M", None)
+        if M is None:
+            M = self._M = cvxopt.spmatrix(cvxopt.matrix(data), self._I, self._J, size=(n, n))
+            # M holds its own copy of the pattern: the triplet indices (int64, 16 bytes
+            # per entry, ~150 MB at 150k vertices) are not needed any more
+            self._I = self._J = None
+        else:
+            M.V = cvxopt.matrix(data)
+        if self._symbolic is None:
+            cvxopt.cholmod.options["supernodal"] = 2
+            perm = getattr(self, "_perm", None)
+            self._symbolic = cvxopt.cholmod.symbolic(M, uplo="L") if perm is None else \
+                cvxopt.cholmod.symbolic(M, p=cvxopt.matrix(perm), uplo="L")
+        return M
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """Solve ``A x = b`` for a vector or a column block ``b``."""

@@ -44,7 +44,9 @@ AUTO_COARSE_ABOVE = LARGE_MESH
 AUTO_COARSE_VERTICES = 1000
 #: ``coarse="auto"`` with ``method="nonlinear"`` decimates above this many vertices (to
 #: :data:`AUTO_COARSE_VERTICES`): the nonlinear spline takes ~4 min at 1000 vertices (cactus,
-#: K = 20) and its cost grows faster than the vertex count.
+#: K = 20) and its cost grows faster than the vertex count. The same for ``method="geodesic"``
+#: (one Newton solve on all inner shells of a segment: the 8.4k-vertex horse, 20 frames
+#: apart, had not finished its first step after 4.5 min, at 4 GB).
 AUTO_NONLINEAR_ABOVE = 2000
 #: A full-resolution Gauss–Newton run above this many vertices gets a note on its cost.
 FULL_RESOLUTION_WARN = 50_000
@@ -208,7 +210,11 @@ def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=N
         raise ShellsplineError(f"`reference` keyframe index must lie in [0, {J}), got "
                                f"{opts.reference}")
     n_coarse = None
-    if opts.method in ("lta", "nonlinear"):
+    if opts.method == "geodesic" and opts.fine:
+        raise ShellsplineError("`fine=True` refines the LΘA reconstruction at full resolution; "
+                               "method='geodesic' has none (with `coarse` its coarse "
+                               "geodesics are prolonged by detail transfer)")
+    if opts.method in ("lta", "nonlinear", "geodesic"):
         n_coarse = coarse_target(opts.coarse, n, opts.method)
         if opts.fine and n_coarse is None:
             raise ShellsplineError("`fine=True` refines a multiresolution run: it needs `coarse` "
@@ -251,9 +257,17 @@ def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]
         if spread > 0:
             out.append(f"pinned vertices move between keyframes (max {spread:.3g}); "
                        "each frame pins them at their blended position")
+    n_coarse = prob.n_coarse
+    if opts.method == "geodesic":
+        if n_coarse is not None and coarse_target(opts.coarse, n) is None:
+            out.append(f"geodesic: solving on {n_coarse} coarse vertices and prolonging to {n} "
+                       f"(--coarse none: all {n}, far slower)")
+        elif n_coarse is None and n > AUTO_NONLINEAR_ABOVE:
+            out.append(f"piecewise geodesics on all {n} vertices: one Newton solve with "
+                       f"3 x {n} x (frames per gap - 1) unknowns per keyframe gap, minutes per "
+                       f"step (--coarse {AUTO_COARSE_VERTICES} solves there and prolongs)")
     if opts.method not in ("lta", "nonlinear"):
         return out
-    n_coarse = prob.n_coarse
     if opts.method == "nonlinear" and not opts.fine:
         if n_coarse is not None and coarse_target(opts.coarse, n) is None:
             out.append(f"nonlinear: solving on {n_coarse} coarse vertices and prolonging "
@@ -280,7 +294,7 @@ def coarse_target(coarse, n: int, method: str = "lta"):
     ----------
     coarse : "auto", "none", int, float in (0, 1), or such a string
         ``"auto"``: :data:`AUTO_COARSE_VERTICES` above :data:`AUTO_COARSE_ABOVE` vertices
-        (above :data:`AUTO_NONLINEAR_ABOVE` with ``method="nonlinear"``).
+        (above :data:`AUTO_NONLINEAR_ABOVE` with ``method="nonlinear"`` or ``"geodesic"``).
     n : int
     method : str
 
@@ -290,7 +304,8 @@ def coarse_target(coarse, n: int, method: str = "lta"):
     (500, 700, None)
     """
     if coarse is None or (isinstance(coarse, str) and coarse.strip().lower() == "auto"):
-        above = AUTO_NONLINEAR_ABOVE if method == "nonlinear" else AUTO_COARSE_ABOVE
+        above = AUTO_NONLINEAR_ABOVE if method in ("nonlinear", "geodesic") \
+            else AUTO_COARSE_ABOVE
         return AUTO_COARSE_VERTICES if n > above else None
     if isinstance(coarse, str):
         c = coarse.strip().lower()

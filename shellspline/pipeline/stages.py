@@ -21,7 +21,7 @@ from .report import fixpoint_change, nonlinear_record
 
 __all__ = ["StageResult", "run_method", "in_input_units", "linear_stage", "geodesic_stage", "lta_stage",
            "lta_sequence", "given_starts", "fixpoint_iterations", "multires_sequence",
-           "nonlinear_solve"]
+           "decimated", "prolonged", "nonlinear_solve"]
 
 
 @dataclass
@@ -107,22 +107,52 @@ def linear_stage(prob, opts, prog) -> StageResult:
 
 
 def geodesic_stage(prob, opts, prog) -> StageResult:
-    """Piecewise discrete geodesics in shell space between consecutive keyframes (paper §3)."""
+    """Piecewise discrete geodesics in shell space between consecutive keyframes (paper §3),
+    at full resolution or, with ``prob.n_coarse``, on the decimated keyframes and prolonged
+    by detail transfer like the LΘA spline (:func:`multires_sequence`).
+
+    Each segment is one Newton solve on all its inner shells at once (``3 n (K_j − 1)``
+    unknowns): on the 8.4k-vertex horse, 20 frames apart, that is 480k unknowns, 30 s of
+    symbolic analysis and more than four minutes and 4 GB for the first Newton step, so
+    ``coarse="auto"`` decimates above :data:`~.options.AUTO_NONLINEAR_ABOVE` vertices as for
+    the nonlinear spline."""
     from ..shells.geodesic import geodesic_interpolation
 
     frames = prob.frames
-    with prog.stage("geodesic", total=len(frames) - (0 if opts.periodic else 1)):
-        g = geodesic_interpolation(prob.Vkey, frames, prob.K, prob.T, mu=opts.mu, lam=opts.lam,
-                                   eta=opts.eta, pinned=prob.pinned, bc=opts.bc,
-                                   callback=lambda s, r: prog.advance("geodesic", s + 1,
-                                                                      len(frames)),
-                                   **opts.solver_options)
+    n_seg = len(frames) - (0 if opts.periodic else 1)
+    if prob.n_coarse is None:
+        Vkey, T, pinned, dec, multires = prob.Vkey, prob.T, prob.pinned, None, None
+    else:
+        dec, Tc, multires = decimated(prob, prog)
+        Vkey, T, pinned = dec.V, Tc, dec.pinned
+    prefix = "coarse " if dec is not None else ""
+    stage = prefix + "geodesic"
+    # each segment starts from the LΘA spline (near-isometric shells): from the keyframe
+    # blend the coarse horse's first Newton step needed a damping shift of 0.3 × the
+    # Hessian's largest entry (a gradient step) and 17 factorizations to find it
+    start = lta_sequence(Vkey, T, pinned, prob, opts, prog, stage_prefix=prefix + "start ")
+
+    def progress(s, it, e, g):
+        prog.advance(stage, s, n_seg, text=f"segment {s + 1}/{n_seg}  it {it:3d}  "
+                                            f"E {e:.6g}  |g| {g:.2e}")
+
+    with prog.stage(stage, total=n_seg):
+        g = geodesic_interpolation(Vkey, frames, prob.K, T, mu=opts.mu, lam=opts.lam,
+                                   eta=opts.eta, pinned=pinned, bc=opts.bc,
+                                   callback=lambda s, r: prog.advance(stage, s + 1, n_seg),
+                                   progress=progress, init=start.V, **opts.solver_options)
     if not g.success:
         prog.message(f"geodesic: {g.message}")
     rec = {"success": bool(g.success), "nit": int(g.nit), "message": g.message,
-           "segment_energies": [float(e) for e in g.segment_energies]}
-    return StageResult(V=_placed(g.V, prob.Vkey, prob.T, prob.pinned, prob, opts),
-                       report={"geodesic": rec})
+           "segment_energies": [float(e) for e in g.segment_energies], "start": "lta",
+           "start_frames": start.frame_records}
+    out = StageResult(V=g.V, report={"geodesic": rec})
+    if dec is not None:
+        rec["resolution"] = "coarse"
+        out.V = prolonged(prob, opts, prog, dec, g.V, multires)
+        out.report["multires"] = multires
+    out.V = _placed(out.V, prob.Vkey, prob.T, prob.pinned, prob, opts)
+    return out
 
 
 def lta_stage(prob, opts, prog) -> StageResult:
@@ -286,16 +316,10 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
     """Multiresolution (paper §8): decimate all keyframes at once, run the LΘA spline (and,
     for ``method="nonlinear"`` without ``fine``, the nonlinear spline) on the coarse meshes,
     prolong by detail transfer, optionally refine at full resolution (``fine``), place."""
-    from ..mesh.decimate import decimate
-    from ..shells.prolong import Prolongation, fade_new_defects
+    from ..shells.prolong import fade_new_defects
 
     Vkey, T, pinned, frames, K, bc = prob.Vkey, prob.T, prob.pinned, prob.frames, prob.K, opts.bc
-    with prog.stage("decimate"):
-        dec = decimate(Vkey, T, prob.n_coarse, pinned=pinned)
-        Tc = topology(dec.F, dec.V.shape[1], name="coarse mesh")
-    multires = {"coarse_vertices": int(dec.V.shape[1]), "coarse_faces": int(dec.F.shape[0]),
-                "decimation": {k: v for k, v in dec.stats.items()
-                               if isinstance(v, (int, float, str, bool))}}
+    dec, Tc, multires = decimated(prob, prog)
     coarse = lta_sequence(dec.V, Tc, dec.pinned, prob, opts, prog, stage_prefix="coarse ",
                           fixpoint_log=fixpoint_log)
     out = StageResult(V=coarse.V, report={"multires": multires})
@@ -308,15 +332,7 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
                                                             prob, opts, prog, "coarse ")
         out.report["nonlinear"]["resolution"] = "coarse"
         coarse.Z = None
-    with prog.stage("prolong"):
-        moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
-        P = Prolongation.encode(Vkey, T, dec, frames, pinned=None if moving else pinned)
-        V = parallel_decode(P, coarse.V, frames, K, bc, opts.workers)
-        # no defect that the coarse frames do not have: the detail fades where it adds one
-        V, multires["guard"] = P.guard(V, coarse.V, K, bc=bc)
-        del P  # its factorization is not needed any more (memory of a fine run)
-        if moving:  # same semantics as full resolution: pins follow the blend
-            V[:, pinned] = linear_blend(Vkey[:, pinned], frames, K, bc)
+    V = prolonged(prob, opts, prog, dec, coarse.V, multires)
     multires["coarse_frames"] = coarse.frame_records
     if opts.fine:
         multires["fine_starts"] = {}
@@ -336,6 +352,40 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
         out.V = V
     out.V = _placed(out.V, Vkey, T, pinned, prob, opts)
     return out
+
+
+def decimated(prob, prog):
+    """All keyframes decimated at once to ``prob.n_coarse`` vertices (paper §8): the
+    :class:`~shellspline.mesh.decimate.Decimation`, the coarse topology and the start of the
+    report's ``multires`` section."""
+    from ..mesh.decimate import decimate
+
+    with prog.stage("decimate"):
+        dec = decimate(prob.Vkey, prob.T, prob.n_coarse, pinned=prob.pinned)
+        Tc = topology(dec.F, dec.V.shape[1], name="coarse mesh")
+    multires = {"coarse_vertices": int(dec.V.shape[1]), "coarse_faces": int(dec.F.shape[0]),
+                "decimation": {k: v for k, v in dec.stats.items()
+                               if isinstance(v, (int, float, str, bool))}}
+    return dec, Tc, multires
+
+
+def prolonged(prob, opts, prog, dec, Vc, multires):
+    """The coarse sequence ``Vc (K+1,nc,3)`` prolonged to the full mesh by detail transfer
+    (paper §8), with no defect that the coarse frames do not have (the guard's record goes
+    into ``multires["guard"]``); pins that move between keyframes follow their blend."""
+    from ..shells.prolong import Prolongation
+
+    Vkey, T, pinned, frames, K, bc = prob.Vkey, prob.T, prob.pinned, prob.frames, prob.K, opts.bc
+    with prog.stage("prolong"):
+        moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
+        P = Prolongation.encode(Vkey, T, dec, frames, pinned=None if moving else pinned)
+        V = parallel_decode(P, Vc, frames, K, bc, opts.workers)
+        # no defect that the coarse frames do not have: the detail fades where it adds one
+        V, multires["guard"] = P.guard(V, Vc, K, bc=bc)
+        del P  # its factorization is not needed any more (memory of a fine run)
+        if moving:  # same semantics as full resolution: pins follow the blend
+            V[:, pinned] = linear_blend(Vkey[:, pinned], frames, K, bc)
+    return V
 
 
 def nonlinear_solve(Vkey, T, pinned, Vinit, prob, opts, prog, stage_prefix=""):

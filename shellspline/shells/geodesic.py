@@ -195,10 +195,11 @@ class PathSolver:
         low = data[sel] + shift * self._diag_mask
         try:
             if self._chol is None:
+                # the analysis once, even when this shift is not positive definite
                 self._chol = SparseCholesky.from_lower_pattern(indptr, indices, self.N, low,
-                                                               backend=self.backend)
-            else:
-                self._chol.refactor_lower(low)
+                                                               backend=self.backend,
+                                                               numeric=False)
+            self._chol.refactor_lower(low)
         except (ArithmeticError, RuntimeError, ValueError):
             return False
         return True
@@ -280,7 +281,7 @@ class PathSolver:
 
     # -- Newton --------------------------------------------------------------------------
     def solve(self, A, B, X0, *, tol: float = 1e-9, max_iter: int = 50,
-              check=None, deadline: float | None = None) -> GeodesicResult:
+              check=None, deadline: float | None = None, progress=None) -> GeodesicResult:
         """Minimise the path energy over the inner shells, starting from ``X0``.
 
         Parameters
@@ -298,6 +299,9 @@ class PathSolver:
         deadline : float, optional
             A ``time.perf_counter()`` value: no Newton iteration starts after it; the path
             reached so far is returned, unconverged, message ``"time limit reached"``.
+        progress : callable, optional
+            ``progress(iteration, path energy, gradient max-norm)`` at every iterate (a
+            Newton step of a fine path takes seconds: logs get a line per step).
 
         Returns
         -------
@@ -324,6 +328,8 @@ class PathSolver:
             res.record(grad_norm=gn)
             if nit:
                 res.record(energy=K * E)
+            if progress is not None:
+                progress(nit, K * E, gn)
             norms = res.grad_norms
             if gn <= gscale:
                 res.stop("converged", "converged")
@@ -496,7 +502,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                            lam: float = 1.0, eta: float = 1e-3, pinned=None,
                            bc: str = "natural", energy=None, tol: float = 1e-9,
                            max_iter: int = 50, backend: str = "auto",
-                           callback=None,
+                           callback=None, progress=None, init=None,
                            max_time_s: float | None = None) -> GeodesicInterpolationResult:
     """Piecewise discrete geodesic interpolation of keyframes (the paper's baseline, §3).
 
@@ -523,6 +529,16 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     tol, max_iter, backend : see :func:`discrete_geodesic`.
     callback : callable, optional
         ``callback(segment_index, GeodesicResult)`` after each segment.
+    progress : callable, optional
+        ``progress(segment_index, iteration, path energy, gradient max-norm)`` at every
+        Newton iterate of a segment.
+    init : (K+1,n,3) float array, optional
+        Initial sequence: each segment starts from its frames there (the pipeline passes its
+        LΘA spline: a path of near-isometric shells, where the Hessian is close to positive
+        definite); default the per-vertex linear blend of each segment's keyframes, whose
+        compressed and folded triangles make the Hessian strongly indefinite on real meshes
+        (the coarse horse: a damping shift of 0.3 × its largest entry in the first step, 17
+        factorizations to find it).
     max_time_s : float, optional
         Wall-clock limit in seconds for all segments together: no Newton iteration starts
         after it, a segment stopped by it keeps the path reached so far, later segments keep
@@ -552,6 +568,11 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     deadline = None if max_time_s is None else t0 + float(max_time_s)
     W = make_energy(T, energy, mu, lam, eta)
     Vkey = checked_poses(Vkey, W.n_vertices)
+    if init is not None:
+        init = np.asarray(init, dtype=np.float64)
+        if init.shape != (K + 1, W.n_vertices, 3) or not np.all(np.isfinite(init)):
+            raise ShellsplineError(f"`init` must be a finite (K+1,n,3) = ({K + 1},"
+                                   f"{W.n_vertices},3) array, got shape {init.shape}")
     J = len(frames)
     V = np.zeros((K + 1, Vkey.shape[1], 3))
     segs = [(j, j + 1, frames[j], frames[j + 1]) for j in range(J - 1)]
@@ -564,7 +585,8 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
         if steps >= 2:
             if steps not in solvers:
                 solvers[steps] = PathSolver(W, steps - 1, pinned=pinned, backend=backend)
-            X0 = lerp_inner_shells(Vkey[ja], Vkey[jb], steps)
+            X0 = lerp_inner_shells(Vkey[ja], Vkey[jb], steps) if init is None else \
+                init[fa + 1:fb]
             if deadline is not None and time.perf_counter() > deadline:
                 E0 = solvers[steps].path_energy(Vkey[ja], X0, Vkey[jb])
                 res = GeodesicResult(V=np.concatenate([Vkey[ja][None], X0, Vkey[jb][None]]),
@@ -572,8 +594,10 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                                      message="time limit reached before the segment started "
                                              "(linear blend)")
             else:
-                res = solvers[steps].solve(Vkey[ja], Vkey[jb], X0, tol=tol,
-                                           max_iter=max_iter, deadline=deadline)
+                res = solvers[steps].solve(
+                    Vkey[ja], Vkey[jb], X0, tol=tol, max_iter=max_iter, deadline=deadline,
+                    progress=None if progress is None else
+                    (lambda it, e, g, s=s: progress(s, it, e, g)))
             V[fa + 1:fb] = res.V[1:-1]
         else:
             res = GeodesicResult(V=np.stack([Vkey[ja], Vkey[jb]]), status="converged",
@@ -590,8 +614,9 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     else:
         V[frames[-1]:] = Vkey[-1]
     message = "all segments converged" if ok else \
-        "segments not converged: " + ", ".join(f"{i} ({r.message})"
-                                               for i, r in enumerate(results) if not r.success)
+        "not converged: " + "; ".join(
+            f"segment {i + 1} of {len(segs)} (frames {segs[i][2]}-{segs[i][3]}): {r.message} "
+            f"after {r.nit} Newton iterations" for i, r in enumerate(results) if not r.success)
     if not ok:
         warnings.warn(f"geodesic_interpolation: {message}", RuntimeWarning, stacklevel=2)
     status = next((r.status for r in results if not r.success), "converged")

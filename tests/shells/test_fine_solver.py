@@ -214,3 +214,32 @@ def test_spline_rows_equal_the_spline():
         assert np.allclose(rows[np.array([1, 2])], Z[[1, 2]], rtol=0,
                            atol=1e-13 * np.abs(Z).max())
         assert np.array_equal(rows[np.array(frames)], Zk)  # keyframes exact
+
+
+@needs_cholmod
+def test_analysis_survives_a_matrix_that_is_not_positive_definite():
+    """``numeric=False`` analyses the pattern only; a shift that is not positive definite
+    raises in :meth:`refactor_lower` and the next shift reuses the same analysis (the
+    geodesic's damping search repeated the analysis on every failed try: 17 analyses in
+    the coarse horse's first Newton step)."""
+    rng = np.random.default_rng(3)
+    n = 40
+    B = sp.random(n, n, density=0.1, random_state=4) + sp.eye(n)
+    A = (B + B.T).tocsc()                                  # symmetric, indefinite
+    L = sp.tril(A, format="csc")
+    L.sort_indices()
+    diag = np.flatnonzero(L.indices == np.repeat(np.arange(n), np.diff(L.indptr)))
+    C = SparseCholesky.from_lower_pattern(L.indptr, L.indices, n, L.data, backend="cholmod",
+                                          numeric=False)
+    sym = C._symbolic
+    assert C.n_factorizations == 0 and sym is not None
+    with pytest.raises(ArithmeticError):
+        C.refactor_lower(L.data)
+    shift = 1.0 + float(np.abs(np.linalg.eigvalsh(A.toarray())).max())
+    data = L.data.copy()
+    data[diag] += shift
+    C.refactor_lower(data)
+    assert C._symbolic is sym and C.n_factorizations == 1
+    b = rng.standard_normal(n)
+    assert np.allclose(C.solve(b), np.linalg.solve(A.toarray() + shift * np.eye(n), b),
+                       rtol=1e-10, atol=1e-12)

@@ -236,3 +236,36 @@ def test_time_limit_keeps_the_path_so_far_and_reports_it_unconverged(ellipsoids,
     for bad in (0, -1.0, True, float("inf"), "10"):
         with pytest.raises(ValueError, match="max_time_s"):
             geodesic_interpolation(V, [0, 3, 6], 6, T, max_time_s=bad)
+
+
+def test_init_and_progress(ellipsoids):
+    """``init`` starts each segment from the given frames (a converged path restarts
+    converged) and ``progress`` sees every Newton iterate with a decreasing path energy."""
+    d = ellipsoids
+    T = topology(d["F"])
+    seen = []
+    first = geodesic_interpolation(d["V"], [0, 3, 6], 6, T, eta=0.1,
+                                   progress=lambda s, it, e, g: seen.append((s, it, e, g)))
+    assert first.success
+    assert sorted({s for s, *_ in seen}) == [0, 1]
+    for s in (0, 1):
+        its = [(it, e) for ss_, it, e, _ in seen if ss_ == s]
+        assert [it for it, _ in its] == list(range(first.segments[s].nit + 1))
+        es = [e for _, e in its]
+        assert all(b <= a * (1 + 1e-12) for a, b in zip(es, es[1:]))
+        assert es[-1] == pytest.approx(first.segments[s].energy, rel=1e-12)
+    again = geodesic_interpolation(d["V"], [0, 3, 6], 6, T, eta=0.1, init=first.V)
+    assert again.success and again.nit <= 2 < first.nit
+    assert np.abs(again.V - first.V).max() < 1e-6
+    with pytest.raises(ValueError, match="`init`"):
+        geodesic_interpolation(d["V"], [0, 3, 6], 6, T, init=first.V[:-1])
+
+
+def test_not_converged_message_names_the_segment_and_its_frames(ellipsoids):
+    d = ellipsoids
+    T = topology(d["F"])
+    with pytest.warns(RuntimeWarning):
+        res = geodesic_interpolation(d["V"], [0, 3, 6], 6, T, eta=0.1, max_iter=1)
+    assert not res.success
+    assert "segment 1 of 2 (frames 0-3)" in res.message and "segment 2 of 2 (frames 3-6)" \
+        in res.message and "after 1 Newton iterations" in res.message
