@@ -80,7 +80,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     K : int, optional
         Last frame index; the result has ``K+1`` frames. Default from the keyframe frames.
     method : {"lta", "linear", "geodesic", "nonlinear"}
-        ``"lta"``: LΘA spline (paper §7): descriptors, time-discrete spline, Gauss–Newton
+        ``"lta"``: LΘA spline (paper §7): descriptors, time spline (``spline``), Gauss–Newton
         reconstruction. ``"linear"``: per-vertex linear blending (baseline). ``"geodesic"``:
         piecewise discrete geodesics in shell space (paper §3, the paper's baseline).
         ``"nonlinear"``: the nonlinear spline on the Discrete Shells energy (paper eqs. 7–8,
