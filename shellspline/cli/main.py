@@ -169,7 +169,7 @@ def _build_parser() -> argparse.ArgumentParser:
                         "velocity kink at the keyframes; with --reference keyframe/geodesic or "
                         "--fixpoint the continuous limit of the weighted discrete spline) or "
                         "the paper's time-discrete spline (discrete: to reproduce the paper; "
-                        "--method nonlinear: the LΘA start only)")
+                        "--method nonlinear/geodesic: their LΘA start only)")
     q.add_argument("--rigid-subset", metavar="FILE",
                    help="file of vertex indices (like --pinned) that carry the rigid pose, "
                         "e.g. the torso: each keyframe's pose is their Kabsch fit and the "

@@ -158,9 +158,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         figures. With two keyframes and natural ends both give the same path (for a constant
         reference the linear path of the descriptors). With a reference that varies in time (``"keyframe"``, ``"geodesic"``, ``fixpoint``) the
         continuous spline is the continuous limit of the weighted discrete spline (a cubic on
-        every frame interval, the flux ``w z'`` continuous). For ``method="nonlinear"`` it
-        only shapes the LΘA start: the nonlinear spline itself minimises the paper's
-        time-discrete energy (eqs. 7–8). ``"linear"`` and ``"geodesic"`` do not use it.
+        every frame interval, the flux ``w z'`` continuous). For ``method="nonlinear"`` and
+        ``"geodesic"`` it only shapes their LΘA start: the nonlinear spline minimises the
+        paper's time-discrete energy (eqs. 7–8), the geodesics their path energy.
+        ``"linear"`` does not use it.
     rigid_subset : (s,) int array, optional
         Vertices that carry the rigid pose (e.g. the torso; at least 3, not on a line): each
         keyframe's pose for the ``"spline"`` track is the Kabsch fit of these vertices, and
