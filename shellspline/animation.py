@@ -2086,7 +2086,7 @@ def _track_like(curve, length, like):
 
     T = se3.from_rt(curve.R[:, 0], curve.X * length)
     return PoseTrack(np.asarray(curve.t, dtype=np.float64).copy(), T, like.format,
-                     like.origin_ns)
+                     like.origin_ns, like.time_unit)
 
 
 def _uniform(curve, n=None):

@@ -484,7 +484,8 @@ def _blend_tracks(args, a, b, length, fkw, say) -> int:
         raise ShellsplineError("--features needs --align dp")
     out, rep = track_blend(a, b, args.s, align=args.align, length=length, features=feats,
                            **fkw)
-    write_poses(args.out, out.t, out.T, out.format, origin_ns=out.origin_ns)
+    write_poses(args.out, out.t, out.T, out.format, origin_ns=out.origin_ns,
+                time_unit=out.time_unit)
     r = rep.result
     say(f"  blend       s = {args.s:g}, align {args.align}: {out.t.size} poses ({out.format}), "
         f"position scale {rep.length:.6g} units/rad" + ("" if r is None else
@@ -550,7 +551,8 @@ def _close_track(args, track, length, say) -> int:
     if track.t.size < 3:
         raise ShellsplineError(f"{args.a}: {track.t.size} poses; closing needs at least 3")
     out, rep = track_close(track, iterations=args.iterations, c1=args.c1, length=length)
-    write_poses(args.out, out.t, out.T, out.format, origin_ns=out.origin_ns)
+    write_poses(args.out, out.t, out.T, out.format, origin_ns=out.origin_ns,
+                time_unit=out.time_unit)
     res = rep.result
     say(f"  seam gap    {np.degrees(rep.rotation_gap[0]):.3g} -> "
         f"{np.degrees(rep.rotation_gap[1]):.3g} deg, {rep.position_gap[0]:.3g} -> "

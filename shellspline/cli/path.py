@@ -61,7 +61,8 @@ def add_parsers(sub) -> None:
     when.add_argument("--times", metavar="FILE",
                       help="output poses at these times: the first field of every line "
                            "('#' comments; a TUM or EuRoC file gives its timestamps), in the "
-                           "input's unit (seconds; EuRoC: nanoseconds; KITTI: pose index)")
+                           "input's unit (seconds; EuRoC and integer stamps of 13 digits or "
+                           "more: nanoseconds; KITTI: pose index)")
     p.add_argument("--plot", metavar="PNG",
                    help="plot positions, rotation angles and angular rate (needs matplotlib: "
                         "pip install 'shellspline[viz]')")
@@ -198,7 +199,7 @@ def _path(args) -> int:
         m = int(np.floor((tk[-1] - tk[0]) * args.rate + 1e-9)) + 1
         tq = tk[0] + np.arange(m) / args.rate
     elif args.times is not None:
-        if track.format == "euroc":  # the file's unit: integer nanoseconds
+        if track.time_unit == "ns":  # the file's unit: integer nanoseconds (EuRoC, ROS)
             tq = (_read_times(args.times, nanoseconds=True) - track.origin_ns) * 1e-9
         else:
             tq = _read_times(args.times)
@@ -210,7 +211,8 @@ def _path(args) -> int:
         tq = track.t
     Tq = curve(tq)
     fmt = args.format or track.format
-    write_poses(args.out, tq, Tq, fmt, origin_ns=track.origin_ns)
+    write_poses(args.out, tq, Tq, fmt, origin_ns=track.origin_ns,
+                time_unit=track.time_unit if fmt == track.format else "s")
     solve = getattr(curve, "solve", None)
     say(f"  path        {n} poses, {keys.size} keyframes"
         + (f" ({added} added where the poses turn {np.degrees(KEY_TURN):.0f}° or more "

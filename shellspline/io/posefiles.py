@@ -58,20 +58,25 @@ class PoseTrack:
     Attributes
     ----------
     t : (n,) ndarray
-        Times in seconds (KITTI: the pose index; EuRoC: seconds since ``origin_ns``).
+        Times in seconds (KITTI: the pose index; with integer nanosecond stamps: seconds
+        since ``origin_ns``).
     T : (n, 4, 4) ndarray
         Rigid motions body -> world.
     format : str
         One of :data:`FORMATS`.
     origin_ns : int
-        EuRoC only: the integer nanosecond timestamp of ``t == 0`` (keeps nanosecond
-        timestamps exact through float seconds).
+        The integer nanosecond timestamp of ``t == 0`` (keeps nanosecond timestamps exact
+        through float seconds); 0 when the file's times are seconds.
+    time_unit : str
+        The unit of the file's time stamps: ``"ns"`` (EuRoC; TUM or CSV files whose stamps
+        are integers of 13 digits or more, as ROS tools write them) or ``"s"``.
     """
 
     t: np.ndarray
     T: np.ndarray
     format: str
     origin_ns: int = 0
+    time_unit: str = "s"
 
 
 def _fail(path, line, msg):
@@ -257,6 +262,11 @@ def read_poses(path, format=None) -> PoseTrack:
             if not f[0].lstrip("-").isdigit():
                 _fail(path, k, f"EuRoC timestamps are integer nanoseconds, got {f[0]!r}")
             tns.append(int(f[0]))
+        elif fmt != "kitti" and (tns or not rows) and _is_nanoseconds(f[0]):
+            tns.append(int(f[0]))  # integer nanosecond stamps (ROS): kept exact, as EuRoC
+        elif tns:
+            _fail(path, k, f"the first time stamps are integer nanoseconds, this one is "
+                           f"{f[0]!r}")
         rows.append(_numbers(path, k, f, n, what))
         lines.append(k)
     if not rows:
@@ -274,21 +284,28 @@ def read_poses(path, format=None) -> PoseTrack:
     finite = np.all(np.isfinite(V), axis=1)
     if not np.all(finite):
         _fail(path, lines[int(np.argmin(finite))], f"non-finite number (expected {what})")
-    origin = 0
+    origin, unit = 0, "s"
     if fmt == "kitti":
         M = V.reshape(-1, 3, 4)
         t = np.arange(len(rows), dtype=np.float64)
         R, p = _rotations(path, lines, M[:, :, :3]), M[:, :, 3]
     else:
-        if fmt == "euroc":
-            origin = tns[0]
+        if tns:
+            origin, unit = tns[0], "ns"
             t = (np.array(tns, dtype=np.int64) - origin).astype(np.float64) * 1e-9
-            q = V[:, [5, 6, 7, 4]]
         else:
-            t, q = V[:, 0], V[:, 4:8]
+            t = V[:, 0]
+        q = V[:, [5, 6, 7, 4]] if fmt == "euroc" else V[:, 4:8]
         R, p = so3.matrix_from_quat(_quats(path, lines, q)), V[:, 1:4]
     _check_times(path, t, lines)
-    return PoseTrack(t, se3.from_rt(R, p), fmt, origin)
+    return PoseTrack(t, se3.from_rt(R, p), fmt, origin, unit)
+
+
+def _is_nanoseconds(x: str) -> bool:
+    """An integer time stamp of 13 digits or more: nanoseconds since an epoch (seconds
+    since 1970 have 10 digits; EuRoC's format detection uses the same length)."""
+    d = x[1:] if x[:1] == "-" else x
+    return d.isdigit() and len(d) >= 13
 
 
 def _rotations(path, lines, M):
@@ -338,7 +355,7 @@ def _row(xs, sep=" ") -> str:
     return sep.join(map(repr, xs))
 
 
-def _time_strings(t, origin_ns: int, fmt: str) -> list:
+def _time_strings(t, origin_ns: int, fmt: str, unit: str = "s") -> list:
     """Time stamps as written: EuRoC integer nanoseconds, otherwise seconds.
 
     With ``origin_ns`` (a track read from EuRoC, ``t`` seconds since it) the seconds are the
@@ -349,10 +366,10 @@ def _time_strings(t, origin_ns: int, fmt: str) -> list:
     """
     if origin_ns:
         ns = origin_ns + np.round(t * 1e9).astype(np.int64)
-        if fmt == "euroc":
+        if fmt == "euroc" or unit == "ns":
             return [str(int(n)) for n in ns]
         return [_decimal_seconds(int(n)) for n in ns]
-    if fmt == "euroc":
+    if fmt == "euroc" or unit == "ns":
         from decimal import ROUND_HALF_EVEN, Decimal
 
         return [str(int((Decimal(repr(x)) * 1_000_000_000).to_integral_value(ROUND_HALF_EVEN)))
@@ -367,7 +384,7 @@ def _decimal_seconds(ns: int) -> str:
     return f"{sign}{ns // 1_000_000_000}.{frac}"
 
 
-def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:
+def write_poses(path, t, T, format, *, origin_ns: int = 0, time_unit: str = "s") -> None:
     """Write poses in one of :data:`FORMATS` (atomically).
 
     Parameters
@@ -383,6 +400,10 @@ def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:
     origin_ns : int
         The integer nanosecond time of ``t == 0`` (see :class:`PoseTrack`; 0: ``t`` is
         absolute).
+    time_unit : {"s", "ns"}
+        TUM and CSV: ``"ns"`` writes integer nanosecond stamps ``origin_ns + round(t *
+        1e9)`` (a file read with such stamps is written back with them:
+        :attr:`PoseTrack.time_unit`). EuRoC always writes nanoseconds, JSON seconds.
 
     Notes
     -----
@@ -399,7 +420,9 @@ def write_poses(path, t, T, format, *, origin_ns: int = 0) -> None:
                                f"{T.shape}")
     p = T[:, :3, 3]
     q = so3.quat_continuous(so3.quat_from_matrix(T[:, :3, :3]))
-    stamps = _time_strings(t, int(origin_ns), fmt)
+    if time_unit not in ("s", "ns"):
+        raise ShellsplineError(f"time_unit must be 's' or 'ns', got {time_unit!r}")
+    stamps = _time_strings(t, int(origin_ns), fmt, time_unit if fmt != "json" else "s")
     P, Q = p.tolist(), q.tolist()
     out = []
     if fmt == "tum":

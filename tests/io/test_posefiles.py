@@ -87,3 +87,37 @@ def test_seconds_to_euroc_nanoseconds_are_the_decimal_ones(tmp_path):
     write_poses(tmp_path / "e.csv", t, T, "euroc")
     stamps = [ln.split(",")[0] for ln in (tmp_path / "e.csv").read_text().splitlines()[1:]]
     assert stamps == ["1305031098665900000", "1305031098675900000", "1305031098700000000"]
+
+
+@pytest.mark.parametrize("sep,fmt", [(",", "csv"), (" ", "tum")])
+def test_integer_nanosecond_stamps_are_kept_exact_and_read_as_seconds(tmp_path, sep, fmt):
+    # ROS tools write integer nanosecond stamps under t,tx,...,qw names (or TUM-like lines):
+    # they were float "seconds" of 1.4e18 (256 ns apart in float64), written back as
+    # 1.4036365797585554e+18, and --rate 1000 asked for 1000 poses per nanosecond
+    ns = [1403636579758555392 + 5_000_000 * i + i for i in range(5)]
+    head = "timestamp,tx,ty,tz,qx,qy,qz,qw" if fmt == "csv" else "# t tx ty tz qx qy qz qw"
+    rows = [head] + [sep.join([str(n), repr(0.1 * i), "0", "0", "0", "0", "0", "1"])
+                     for i, n in enumerate(ns)]
+    src = tmp_path / f"ros.{'csv' if fmt == 'csv' else 'txt'}"
+    src.write_text("\n".join(rows) + "\n")
+    tr = read_poses(src)
+    assert (tr.format, tr.time_unit, tr.origin_ns) == (fmt, "ns", ns[0])
+    np.testing.assert_allclose(tr.t, (np.array(ns) - ns[0]) * 1e-9, rtol=0, atol=1e-15)
+    write_poses(tmp_path / "back", tr.t, tr.T, fmt, origin_ns=tr.origin_ns,
+                time_unit=tr.time_unit)
+    lines = (tmp_path / "back").read_text().splitlines()[1:]
+    assert [int(ln.replace(",", " ").split()[0]) for ln in lines] == ns
+    from shellspline.cli.main import main
+
+    out = tmp_path / f"r.{'csv' if fmt == 'csv' else 'txt'}"
+    assert main(["path", str(src), "-o", str(out), "--rate", "1000", "-q"]) == 0
+    stamps = [int(ln.replace(",", " ").split()[0]) for ln in out.read_text().splitlines()[1:]]
+    assert stamps == [ns[0] + 1_000_000 * k for k in range(21)]   # 20 ms at 1 kHz
+    # a later stamp that is not an integer is refused in one line
+    bad = tmp_path / "bad.txt"
+    bad.write_text(rows[0] + "\n" + rows[1] + "\n" + rows[2].replace(str(ns[1]), "1.5", 1)
+                   + "\n")
+    from shellspline.errors import ShellsplineError
+
+    with pytest.raises(ShellsplineError, match="bad.txt:3: the first time stamps are integer"):
+        read_poses(bad)
