@@ -84,9 +84,10 @@ def _check_choice(w, key, v):
 def _check_reference(w, v):
     if is_int(v) and v >= 0:
         return int(v)
-    if isinstance(v, str) and v.strip().lower() in ("constant", "keyframe"):
+    if isinstance(v, str) and v.strip().lower() in ("constant", "keyframe", "geodesic"):
         return v.strip().lower()
-    raise job_error(w, f"must be 'constant', 'keyframe' or a keyframe index, got {v!r}")
+    raise job_error(w, f"must be 'constant', 'keyframe', 'geodesic' or a keyframe index, got "
+                       f"{v!r}")
 
 
 def _check_coarse(w, v):

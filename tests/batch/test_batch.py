@@ -617,3 +617,16 @@ def test_missing_usd_extra_fails_the_batch_up_front(tmp_path, capsys, monkeypatc
     with pytest.raises(ImportError, match=r"shellspline\[usd\]"):  # the library alike
         batch.run_batch(ss.load_job(p))
     assert not (tmp_path / "out").exists()
+
+
+def test_reference_key_takes_what_the_cli_takes(tmp_path):
+    """`reference = "geodesic"` was refused by the job schema although the API and the CLI
+    take it; a typo still gets the one-line key error."""
+    for ref, want in (('"geodesic"', "geodesic"), ('"Keyframe"', "keyframe"), ("1", 1)):
+        p = _job(tmp_path, '[job]\noutput = "o"\n[[sequences]]\nname = "a"\n'
+                           f'synth = "ellipsoids"\nreference = {ref}\n')
+        assert ss.load_job(p).sequences[0].params["reference"] == want
+    p = _job(tmp_path, '[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+                       'reference = "geodesics"\n')
+    with pytest.raises(ValueError, match="key 'reference'.*'geodesic'"):
+        ss.load_job(p)
