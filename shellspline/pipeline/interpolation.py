@@ -121,9 +121,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         reconstruction on the coarse meshes and prolong the result by detail transfer.
         ``"auto"`` (default) decimates to 1000 vertices above 20 000 vertices
         (:data:`~shellspline.pipeline.options.AUTO_COARSE_VERTICES`, ``AUTO_COARSE_ABOVE``;
-        above 2000 with ``method="nonlinear"``, ``AUTO_NONLINEAR_ABOVE``); ``"none"`` runs at full
-        resolution. Applies to ``method="lta"`` and ``"nonlinear"`` (the nonlinear spline then
-        runs on the coarse meshes, started from their LΘA spline, and is prolonged).
+        above 2000 with ``method="nonlinear"`` or ``"geodesic"``, ``AUTO_NONLINEAR_ABOVE``);
+        ``"none"`` runs at full resolution. Applies to ``method="lta"``, ``"nonlinear"`` and
+        ``"geodesic"`` (the nonlinear spline or the geodesics then run on the coarse meshes,
+        started from their LΘA spline, and are prolonged).
     fine : bool
         After the coarse run, run the LΘA spline and Gauss–Newton at full resolution,
         initialised from the prolonged sequence (paper Table 2, last column).
