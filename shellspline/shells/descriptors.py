@@ -83,11 +83,14 @@ def face_areas(V, T: Topology) -> np.ndarray:
     return geometry.face_areas(V, T.F)
 
 
-def _flap_geometry(V, flaps):
-    v0, v1, v2, v3 = (np.take(V, flaps[:, i], axis=-2) for i in range(4))
+def _flap_geometry(X, flaps):
+    """Flap corners and the two face normals from coordinate rows ``X (3, ..., n)``
+    (:func:`~shellspline.mesh.geometry.coordinate_rows`); every result is a ``(3, ..., i)``
+    array or a tuple of three ``(..., i)`` components."""
+    v0, v1, v2, v3 = (np.take(X, flaps[:, k], axis=-1) for k in range(4))
     e = v1 - v0
-    n1 = geometry.cross(e, v2 - v0)          # normal of face (v0, v1, v2)
-    n2 = geometry.cross(v0 - v1, v3 - v1)    # normal of face (v1, v0, v3)
+    n1 = geometry.cross_rows(e, v2 - v0)          # normal of face (v0, v1, v2)
+    n2 = geometry.cross_rows(v0 - v1, v3 - v1)    # normal of face (v1, v0, v3)
     return v0, v1, v2, v3, e, n1, n2
 
 
@@ -119,11 +122,11 @@ def dihedral_angles(V, T: Topology) -> np.ndarray:
     >>> np.degrees(dihedral_angles(V, topology(F))).round(6).tolist()
     [90.0]
     """
-    V = np.asarray(V, dtype=np.float64)
-    _, _, _, _, e, n1, n2 = _flap_geometry(V, T.flaps)
-    el = np.sqrt(np.einsum("...i,...i->...", e, e))
-    y = np.einsum("...i,...i->...", geometry.cross(n1, n2), e) / el
-    x = np.einsum("...i,...i->...", n1, n2)
+    X = geometry.coordinate_rows(np.asarray(V, dtype=np.float64))
+    _, _, _, _, e, n1, n2 = _flap_geometry(X, T.flaps)
+    el = np.sqrt(geometry.dot_rows(e, e))
+    y = geometry.dot_rows(geometry.cross_rows(n1, n2), e) / el
+    x = geometry.dot_rows(n1, n2)
     return np.arctan2(y, x)
 
 
@@ -289,31 +292,36 @@ def element_gradients(V, T: Topology):
     to round-off (complex-step differentiation), which
     :meth:`shellspline.shells.energy.DiscreteShells.hessian_product` uses.
     """
+    # every element quantity as three contiguous coordinate rows (about 1.5x faster than
+    # (k, 3) arrays and their stride-3 components; the same operations, bit-identical)
+    X = geometry.coordinate_rows(V)
+    dot, cross = geometry.dot_rows, geometry.cross_rows
     # lengths
-    d = V[T.E[:, 1]] - V[T.E[:, 0]]
-    L = np.sqrt(np.einsum("ij,ij->i", d, d))
-    u = d / L[:, None]
-    gL = np.concatenate([-u, u], axis=1)
+    d = np.take(X, T.E[:, 1], axis=1) - np.take(X, T.E[:, 0], axis=1)
+    L = np.sqrt(dot(d, d))
+    u = d / L
+    gL = np.stack([-u[0], -u[1], -u[2], u[0], u[1], u[2]], axis=1)
     # dihedral angles
-    v0, v1, v2, v3, e, n1, n2 = _flap_geometry(V, T.flaps)
-    ee = np.einsum("ij,ij->i", e, e)
+    v0, v1, v2, v3, e, n1, n2 = _flap_geometry(X, T.flaps)
+    ee = dot(e, e)
     el = np.sqrt(ee)
-    n1n, n2n = np.einsum("ij,ij->i", n1, n1), np.einsum("ij,ij->i", n2, n2)
-    q1 = n1 * (el / n1n)[:, None]
-    q2 = n2 * (el / n2n)[:, None]
-    t1 = (np.einsum("ij,ij->i", v2 - v0, e) / ee)[:, None]
-    t2 = (np.einsum("ij,ij->i", v3 - v0, e) / ee)[:, None]
-    gT = np.concatenate([(1 - t1) * q1 + (1 - t2) * q2, t1 * q1 + t2 * q2, -q1, -q2], axis=1)
-    y = np.einsum("ij,ij->i", geometry.cross(n1, n2), e) / el
-    x = np.einsum("ij,ij->i", n1, n2)
+    s1, s2 = el / dot(n1, n1), el / dot(n2, n2)
+    q1, q2 = [c * s1 for c in n1], [c * s2 for c in n2]
+    t1 = dot(v2 - v0, e) / ee
+    t2 = dot(v3 - v0, e) / ee
+    o1, o2 = 1 - t1, 1 - t2
+    gT = np.stack([o1 * q1[c] + o2 * q2[c] for c in range(3)] +
+                  [t1 * q1[c] + t2 * q2[c] for c in range(3)] +
+                  [-c for c in q1] + [-c for c in q2], axis=1)
+    y = dot(cross(n1, n2), e) / el
+    x = dot(n1, n2)
     # areas
-    F = T.F
-    w0, w1, w2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    N = geometry.cross(w1 - w0, w2 - w0)
-    nn = np.sqrt(np.einsum("ij,ij->i", N, N))
-    nu = N / nn[:, None]
-    gA = 0.5 * np.concatenate([geometry.cross(nu, w2 - w1), geometry.cross(nu, w0 - w2), geometry.cross(nu, w1 - w0)],
-                              axis=1)
+    w0, w1, w2 = (np.take(X, T.F[:, c], axis=1) for c in range(3))
+    N = cross(w1 - w0, w2 - w0)
+    nn = np.sqrt(dot(N, N))
+    nu = [c / nn for c in N]
+    gA = np.stack([0.5 * c for c in cross(nu, w2 - w1) + cross(nu, w0 - w2) + cross(nu, w1 - w0)],
+                  axis=1)
     return gL, gT, gA, (L, y, x, nn)
 
 

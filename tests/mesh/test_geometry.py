@@ -6,7 +6,8 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from shellspline.mesh.geometry import (cross, dot, face_areas, face_normals, normalized, norms,
+from shellspline.mesh.geometry import (coordinate_rows, cross, cross_rows, dot, dot_rows,
+                                       face_areas, face_normals, normalized, norms,
                                        vertex_face_incidence, vertex_normals)
 from shellspline.mesh.rigid import best_rotations
 
@@ -29,6 +30,20 @@ def test_cross_dot_norms_match_numpy():
     u = normalized(np.concatenate([a, np.zeros((4, 1, 3))], axis=1))
     np.testing.assert_allclose(norms(u[:, :7]), 1.0, rtol=1e-15)
     assert not u[:, 7].any()  # a zero vector stays zero, no NaN
+
+
+def test_coordinate_rows_cross_and_dot_match_the_last_axis_forms():
+    rng = np.random.default_rng(2)
+    a, b = rng.normal(size=(2, 4, 7, 3)) * 10.0 ** rng.uniform(-6, 6, size=(2, 4, 7, 3))
+    X, Y = coordinate_rows(a), coordinate_rows(b)
+    assert X.shape == (3, 4, 7) and X.flags.c_contiguous and np.array_equal(X[1], a[..., 1])
+    assert np.array_equal(np.stack(cross_rows(X, Y), axis=-1), np.cross(a, b))
+    np.testing.assert_allclose(dot_rows(X, Y), (a * b).sum(-1), rtol=1e-13)
+    assert np.array_equal(dot_rows(X, Y), ((a[..., 0] * b[..., 0] + a[..., 2] * b[..., 2])
+                                           + a[..., 1] * b[..., 1]))
+    # complex input (complex-step derivatives of the descriptors): analytic, no conjugation
+    z = X + 1j * Y
+    assert np.allclose(dot_rows(z, z), (X * X - Y * Y + 2j * X * Y).sum(0), rtol=1e-12)
 
 
 def test_face_normals_and_areas_match_trimesh(mesh):
