@@ -125,3 +125,16 @@ def test_unwrap_keeps_a_flap_folding_through_pi_continuous():
     th = dihedral_angles(np.array(poses, dtype=float), T)
     assert th[2, 0] < 0  # the raw angle jumped to the other branch
     assert np.allclose(np.degrees(unwrap_angles(th))[:, 0], [150, 175, 200])
+
+
+def test_wrap_angle_is_the_modulo_form_bit_for_bit():
+    rng = np.random.default_rng(4)
+    x = np.concatenate([rng.normal(0, 1, 500), rng.uniform(-40, 40, 500),
+                        [np.pi, -np.pi, 3 * np.pi, -3 * np.pi, 0.0, -0.0, np.nextafter(np.pi, 0),
+                         np.nan, np.inf, -np.inf]]).reshape(2, -1)
+    with np.errstate(invalid="ignore"):
+        ref = (x + np.pi) % (2 * np.pi) - np.pi
+        got = wrap_angle(x)
+    assert got.shape == x.shape and np.array_equal(got, ref, equal_nan=True)
+    assert np.all((got[np.isfinite(got)] >= -np.pi) & (got[np.isfinite(got)] < np.pi))
+    assert wrap_angle(3 * np.pi / 2) == -np.pi / 2 and np.ndim(wrap_angle(1.0)) == 0
