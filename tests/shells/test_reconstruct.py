@@ -229,7 +229,7 @@ def test_rotated_factorization_is_exact_for_a_rotated_pose():
     assert counts[False] > 20  # (measured: hits the limit of 200 without converging)
 
 
-@pytest.mark.parametrize("chunk", [None, 500])
+@pytest.mark.parametrize("chunk", [None, 500, 1])
 def test_lower_assembler_matches_sparse_product(chunk, monkeypatch):
     import scipy.sparse as sp
 
