@@ -90,15 +90,17 @@ class SparseCholesky:
             import cvxopt.cholmod
 
             if self._symbolic is None:
+                # canonical CSC (rows sorted in each column, no duplicates): the keys
+                # col*N + row ascend, and the values are already laid out on the pattern
                 Al = sp.tril(A, format="csc")
-                Al.sort_indices()
+                Al.sum_duplicates()
                 cols = np.repeat(np.arange(A.shape[1]), np.diff(Al.indptr))
                 self._keys = cols.astype(np.int64) * A.shape[0] + Al.indices
-                order = np.argsort(self._keys)
-                self._keys = self._keys[order]
-                self._I = cvxopt.matrix((self._keys % A.shape[0]).astype(np.int64))
-                self._J = cvxopt.matrix((self._keys // A.shape[0]).astype(np.int64))
-            data = self._scatter(A)
+                self._I = cvxopt.matrix(Al.indices.astype(np.int64))
+                self._J = cvxopt.matrix(cols.astype(np.int64))
+                data = np.asarray(Al.data, dtype=np.float64)
+            else:
+                data = self._scatter(A)
             M = cvxopt.spmatrix(cvxopt.matrix(data), self._I, self._J, size=A.shape)
             cvxopt.cholmod.options["supernodal"] = 2
             if self._symbolic is None:
