@@ -6,7 +6,11 @@ between configurations (``--repeat`` rounds, so all see the same machine load): 
 with subspace steps (the default) and, with ``--gauss-newton``, without them
 (``GaussNewton(subspace=False)``); with ``--baseline DIR``, the same run on another checkout
 of the package (e.g. ``git worktree add /tmp/old <rev>``: the old code in the same run).
-Prints wall time, the time of the reconstruction stages (first pass and continuation pass),
+Prints wall time, CPU time (this process and its workers) and CPU milliseconds per
+Gauss–Newton iteration (the whole run's CPU time over its iterations: the per-iteration cost,
+less sensitive to the machine's load than wall time; compare configurations whose iteration
+counts agree, ``--workers 1`` to make them deterministic), the
+time of the reconstruction stages (first pass and continuation pass),
 Gauss–Newton iterations (total, median, max), CG iterations, factorizations, frames
 converged and the defects of :func:`shellspline.metrics.sequence_defects`; writes every run
 to ``benchmarks/results/bench_gn.json`` (``--json``).
@@ -26,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -36,8 +41,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from _common import format_table  # noqa: E402
 
-COLUMNS = ["wall", "reconstruct", "continue", "iterations", "median", "max", "cg",
-           "factorizations", "converged", "frames", "flipped", "collapsed", "folded", "pop"]
+COLUMNS = ["wall", "cpu", "ms/it", "reconstruct", "continue", "iterations", "median", "max",
+           "cg", "factorizations", "converged", "frames", "flipped", "collapsed", "folded", "pop"]
 
 
 def measure(args, subspace: bool) -> dict:
@@ -50,15 +55,16 @@ def measure(args, subspace: bool) -> dict:
     frames = [int(f) for f in args.frames.split(",")]
     kf = shellspline.read_keyframes(paths, frames=frames)
     pinned = np.loadtxt(args.pinned, dtype=np.int64) if args.pinned else None
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_seconds()
     res = shellspline.interpolate(kf, coarse="none", workers=args.workers, pinned=pinned,
                                   gn_options={"subspace": subspace})
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _cpu_seconds() - c0
     gn = res.report["gauss_newton"]
     stages = res.report.get("timings") or res.report.get("stages") or {}
     d = sequence_defects(res.V, shellspline.topology(res.F), res.frames)
     return {"package": os.path.dirname(os.path.abspath(shellspline.__file__)),
-            "vertices": int(kf.n), "wall": wall,
+            "vertices": int(kf.n), "wall": wall, "cpu": cpu,
+            "ms/it": 1e3 * cpu / max(gn["iterations_total"], 1),
             "reconstruct": stages.get("reconstruct"),
             "continue": stages.get("reconstruct (continue)"),
             "iterations": gn["iterations_total"], "median": gn["iterations_median"],
@@ -66,6 +72,13 @@ def measure(args, subspace: bool) -> dict:
             "factorizations": gn["factorizations_total"], "converged": gn["converged"],
             "frames": gn["frames"], "flipped": d["flipped_faces"],
             "collapsed": d["collapsed_faces"], "folded": d["folded_edges"], "pop": d["pop"]}
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU time of this process and of its finished children (the workers of
+    ``interpolate`` are joined before it returns)."""
+    return sum(r.ru_utime + r.ru_stime for r in (resource.getrusage(resource.RUSAGE_SELF),
+                                                 resource.getrusage(resource.RUSAGE_CHILDREN)))
 
 
 def _child_argv(args, subspace: bool) -> list:
