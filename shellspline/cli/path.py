@@ -17,6 +17,10 @@ from ..errors import ShellsplineError
 from ..io.atomic import write_atomically
 
 EXIT_OK, EXIT_WARN = 0, 1
+# Most poses --rate may ask for: 10 million poses are ~1.3 GB of matrices and a 1.5 GB
+# text file; a rate given per millisecond or in the wrong unit asked for billions (and the
+# machine's memory) before.
+MAX_OUTPUT_POSES = 10_000_000
 
 _EPILOG = """examples:
   shellspline path groundtruth.txt -o smooth.txt --keep-every 10
@@ -196,8 +200,13 @@ def _path(args) -> int:
     tk, Tk = track.t[keys], track.T[keys]
     curve = build_curve(tk, Tk, args.kind, args.group, args.bc)
     if args.rate is not None:
-        m = int(np.floor((tk[-1] - tk[0]) * args.rate + 1e-9)) + 1
-        tq = tk[0] + np.arange(m) / args.rate
+        m = np.floor((tk[-1] - tk[0]) * args.rate + 1e-9) + 1
+        if not m <= MAX_OUTPUT_POSES:
+            raise ShellsplineError(
+                f"--rate {args.rate:g} over the span {tk[-1] - tk[0]:.6g} of {args.poses} "
+                f"gives {m:.6g} poses; at most {MAX_OUTPUT_POSES:,} (--rate is poses per second;"
+                " KITTI: per pose index)")
+        tq = tk[0] + np.arange(int(m)) / args.rate
     elif args.times is not None:
         if track.time_unit == "ns":  # the file's unit: integer nanoseconds (EuRoC, ROS)
             tq = (_read_times(args.times, nanoseconds=True) - track.origin_ns) * 1e-9

@@ -373,3 +373,16 @@ def test_keyframes_are_added_where_the_dropped_poses_turn_half_a_turn(tmp_path, 
     # a track that turns less (2 degrees per pose) keeps exactly every 10th pose
     slow = Rotation.from_rotvec(np.c_[0 * a, 0 * a, a / 10]).as_matrix()
     assert np.array_equal(keyframe_indices(n, 10, slow), keyframe_indices(n, 10))
+
+
+def test_a_rate_that_asks_for_billions_of_poses_is_refused(tmp_path, capsys):
+    # --rate 1e12 on 4 s of poses asked numpy for 4e12 poses (a MemoryError, reported as an
+    # internal error, or the machine's memory); now one line, exit 2, nothing written
+    t, T = _track(40)
+    write_poses(tmp_path / "p.txt", t, T, "tum")
+    code = main(["path", str(tmp_path / "p.txt"), "-o", str(tmp_path / "o.txt"), "--rate",
+                 "1e12"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "p.txt gives" in err and "at most 10,000,000" in err
+    assert not (tmp_path / "o.txt").exists()
