@@ -23,8 +23,11 @@ a header line without ``#`` (a first data line with no number on it, e.g. ``time
 ...``), and a line repeated verbatim right after itself (the same time and pose: dropped).
 Column names above the data, when they name the quaternion (``qx ... qw``, ``q_RS_w []``),
 are checked against the detected format: integer nanoseconds under scalar-last names are
-ours (``csv``, times in the file's unit), not EuRoC; a scalar-first header over TUM-like
-data is refused (every quaternion would still be a unit one, read wrong). COLMAP
+ours (``csv``), not EuRoC; a scalar-first header over TUM-like
+data is refused (every quaternion would still be a unit one, read wrong). Integer time
+stamps of 13 digits or more (nanoseconds: EuRoC, and TUM or CSV files from ROS tools) are
+kept exact: ``t`` is seconds since ``origin_ns`` and ``time_unit`` is ``"ns"``, so they are
+written back as the same integers. COLMAP
 ``images.txt`` is recognised and refused with a message (not supported). Writing is atomic
 (a temporary file in the target folder, then a rename) and makes quaternion signs continuous.
 Layer rule: numpy, :mod:`shellspline.groups`, :mod:`shellspline.errors` and
