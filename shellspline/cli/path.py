@@ -214,8 +214,12 @@ def _path(args) -> int:
             tq = _read_times(args.times)
         lo, hi = tk[0], tk[-1]
         if tq[0] < lo - 1e-9 or tq[-1] > hi + 1e-9:
-            raise ShellsplineError(f"{args.times}: times must lie in [{lo:.9g}, {hi:.9g}] (the "
-                                   f"keyframes), got {tq[0]:.9g}..{tq[-1]:.9g}")
+            def shown(x):  # in the file's unit (1.3e9 s printed as 1.30503110e+09 before)
+                if track.time_unit == "ns":
+                    return str(track.origin_ns + int(round(float(x) * 1e9)))
+                return repr(float(x))
+            raise ShellsplineError(f"{args.times}: times must lie in [{shown(lo)}, {shown(hi)}] "
+                                   f"(the keyframes), got {shown(tq[0])}..{shown(tq[-1])}")
     else:
         tq = track.t
     Tq = curve(tq)
