@@ -392,7 +392,7 @@ def test_times_outside_the_keyframes_are_named_in_the_files_unit(tmp_path, capsy
     # Unix-epoch seconds were printed with 9 digits ("[1.30503110e+09, ...]"), EuRoC ones as
     # seconds since the first stamp while the user wrote nanoseconds
     t, T = _track(10)
-    t = t + 1305031000.0
+    t = (t + 1305031000.0).tolist()
     write_poses(tmp_path / "p.txt", t, T, "tum")
     (tmp_path / "times.txt").write_text(f"{t[0] - 0.5!r}\n{t[1]!r}\n")
     code = main(["path", str(tmp_path / "p.txt"), "-o", str(tmp_path / "o.txt"), "--times",
@@ -400,9 +400,9 @@ def test_times_outside_the_keyframes_are_named_in_the_files_unit(tmp_path, capsy
     err = capsys.readouterr().err
     assert code == 2 and f"[{t[0]!r}, {t[-1]!r}]" in err and f"got {t[0] - 0.5!r}.." in err
     origin = 1_403_636_579_758_555_392
-    write_poses(tmp_path / "e.csv", t - t[0], T, "euroc", origin_ns=origin)
-    (tmp_path / "ns.txt").write_text(f"{origin - 1}\n")
+    write_poses(tmp_path / "e.csv", np.array(t) - t[0], T, "euroc", origin_ns=origin)
+    (tmp_path / "ns.txt").write_text(f"{origin - 1000}\n")
     code = main(["path", str(tmp_path / "e.csv"), "-o", str(tmp_path / "o.csv"), "--times",
                  str(tmp_path / "ns.txt")])
     err = capsys.readouterr().err
-    assert code == 2 and f"[{origin}, " in err and f"got {origin - 1}..{origin - 1}" in err
+    assert code == 2 and f"[{origin}, " in err and f"got {origin - 1000}..{origin - 1000}" in err
