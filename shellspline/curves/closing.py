@@ -25,8 +25,8 @@ constraint is that the SRV extrapolated to the seam from either side is the same
 ``q_0 - r_0 (q_1 - q_0) = q_end + r_e (q_end - q_{end-1})`` (:func:`seam_weights`). The
 samples ``q_i`` are the velocities of the intervals, half an interval away from the seam on
 each side: the plain ``q_end = q_0`` is violated by ``h q'`` on a clip that already loops
-smoothly, and closing such a 20 s walk at 120 Hz moved its joints by up to 41 degrees. Its update would be a spike at both ends in the L2 metric, so
-the changes are measured in the periodic H1-type metric
+smoothly, and closing such a 20 s walk at 120 Hz moved its joints by up to 41 degrees.
+Its update would be a spike at both ends in the L2 metric, so the changes are measured in the periodic H1-type metric
 ``sum dt |dq|^2 + kappa sum |dq_{i+1} - dq_i|^2 / dt`` (wrapping round the seam), which spreads
 them over a time of about ``sqrt(kappa)``.
 
