@@ -1032,6 +1032,62 @@ def _top_joints(motion: Motion) -> list[int]:
         [int(j) for j in np.flatnonzero(motion.parents < 0)]
 
 
+def _heading_fit(b: Motion, a: Motion, up=None):
+    """``(ax, th, pa, pb)``: the up axis, the turn ``th`` (radians, about +up) that takes
+    ``b`` to face like ``a`` and the start positions ``pa``, ``pb`` (stage frame) of their
+    travel joints; None when ``b``'s top joints cannot be turned and moved (see
+    :func:`heading_aligned`)."""
+    ax = _parse_up(up, a)[0] if up is not None else up_axis(a)[0]
+    h0, h1 = (ax + 1) % 3, (ax + 2) % 3       # the ground plane; h0 -> h1 turns about +up
+    hz = {"XYZ"[h0], "XYZ"[h1]}
+    ok = all(len(set(_rotation_axes(m.channels[j]))) == 3 and
+             hz <= set(_position_axes(m.channels[j])) for m in (a, b) for j in _top_joints(m))
+    if not ok or a.n_frames != b.n_frames:
+        return None
+    Pa, Pb = stage_kinematics(a)[0], stage_kinematics(b)[0]
+    body = body_joints(a)
+    ra, rb = translation_root(a), translation_root(b)
+    da = Pa[-1, ra, [h0, h1]] - Pa[0, ra, [h0, h1]]
+    db = Pb[-1, rb, [h0, h1]] - Pb[0, rb, [h0, h1]]
+    H = body_height(a, Pa, ax)
+    if min(np.linalg.norm(da), np.linalg.norm(db)) > H:   # both travel: their directions
+        Qa, Qb = da[None, None], db[None, None]
+    else:  # the bodies' horizontal layout about the travel joint, over all frames
+        Qa = Pa[:, body][..., [h0, h1]] - Pa[:, ra, None][..., [h0, h1]]
+        Qb = Pb[:, body][..., [h0, h1]] - Pb[:, rb, None][..., [h0, h1]]
+    th = float(np.arctan2(np.sum(Qa[..., 1] * Qb[..., 0] - Qa[..., 0] * Qb[..., 1]),
+                          np.sum(Qa * Qb)))
+    return ax, th, Pa[0, ra].copy(), Pb[0, rb].copy()
+
+
+def _ground_moved(m: Motion, ax: int, th: float, shift) -> Motion:
+    """``m`` with its top joints (:func:`_top_joints`) moved by ``x -> G x + shift`` in the
+    stage frame, ``G`` the turn by ``th`` about the axis ``ax``."""
+    shift = np.asarray(shift, dtype=np.float64)
+    if th == 0.0 and not shift.any():
+        return m
+    G = _turn(ax, th)
+    values = m.values.copy()
+    R, t = m.local_transforms()
+    for j in _top_joints(m):
+        cols, chans = m.channel_columns(j), m.channels[j]
+        rcols = [c for c, n in zip(cols, chans) if n.endswith("rotation")]
+        axes = _rotation_axes(chans)
+        values[:, rcols] = euler_angles(G @ R[:, j], axes, reference=values[:, rcols])
+        tj = t[:, j] @ G.T + shift
+        for c, n in zip(cols, chans):
+            if n.endswith("position"):
+                values[:, c] = tj[:, "XYZ".index(n[0])]
+    return Motion(m.names, m.parents, m.offsets, m.channels, m.frame_time, values, m.end_sites)
+
+
+def _turn(ax: int, th: float) -> np.ndarray:
+    h0, h1 = (ax + 1) % 3, (ax + 2) % 3
+    G = np.eye(3)
+    G[[h0, h0, h1, h1], [h0, h1, h0, h1]] = [np.cos(th), -np.sin(th), np.sin(th), np.cos(th)]
+    return G
+
+
 def heading_aligned(b: Motion, a: Motion, *, up=None) -> tuple[Motion, float]:
     """``b`` turned about the up axis and moved on the ground to face and start like ``a``.
 
@@ -1062,46 +1118,13 @@ def heading_aligned(b: Motion, a: Motion, *, up=None) -> tuple[Motion, float]:
     float
         The turn in degrees (0 when unchanged).
     """
-    ax = _parse_up(up, a)[0] if up is not None else up_axis(a)[0]
-    h0, h1 = (ax + 1) % 3, (ax + 2) % 3       # the ground plane; h0 -> h1 turns about +up
-    tops = _top_joints(b)
-    hz = {"XYZ"[h0], "XYZ"[h1]}
-    ok = all(len(set(_rotation_axes(b.channels[j]))) == 3 and
-             hz <= set(_position_axes(b.channels[j])) for j in tops)
-    if not ok or a.n_frames != b.n_frames:
+    fit = _heading_fit(b, a, up)
+    if fit is None:
         return b, 0.0
-    Pa, Pb = stage_kinematics(a)[0], stage_kinematics(b)[0]
-    body = body_joints(a)
-    ra, rb = translation_root(a), translation_root(b)
-    da = Pa[-1, ra, [h0, h1]] - Pa[0, ra, [h0, h1]]
-    db = Pb[-1, rb, [h0, h1]] - Pb[0, rb, [h0, h1]]
-    H = body_height(a, Pa, ax)
-    if min(np.linalg.norm(da), np.linalg.norm(db)) > H:   # both travel: their directions
-        Qa, Qb = da[None, None], db[None, None]
-    else:  # the bodies' horizontal layout about the travel joint, over all frames
-        Qa = Pa[:, body][..., [h0, h1]] - Pa[:, ra, None][..., [h0, h1]]
-        Qb = Pb[:, body][..., [h0, h1]] - Pb[:, rb, None][..., [h0, h1]]
-    th = float(np.arctan2(np.sum(Qa[..., 1] * Qb[..., 0] - Qa[..., 0] * Qb[..., 1]),
-                          np.sum(Qa * Qb)))
-    G = np.eye(3)
-    G[[h0, h0, h1, h1], [h0, h1, h0, h1]] = [np.cos(th), -np.sin(th), np.sin(th), np.cos(th)]
-    shift = Pa[0, ra] - G @ Pb[0, rb]
+    ax, th, pa, pb = fit
+    shift = pa - _turn(ax, th) @ pb
     shift[ax] = 0.0
-    if th == 0.0 and not shift.any():
-        return b, 0.0
-    values = b.values.copy()
-    R, t = b.local_transforms()
-    for j in tops:
-        cols, chans = b.channel_columns(j), b.channels[j]
-        rcols = [c for c, n in zip(cols, chans) if n.endswith("rotation")]
-        axes = _rotation_axes(chans)
-        values[:, rcols] = euler_angles(G @ R[:, j], axes, reference=values[:, rcols])
-        tj = t[:, j] @ G.T + shift
-        for c, n in zip(cols, chans):
-            if n.endswith("position"):
-                values[:, c] = tj[:, "XYZ".index(n[0])]
-    out = Motion(b.names, b.parents, b.offsets, b.channels, b.frame_time, values, b.end_sites)
-    return out, float(np.degrees(th))
+    return _ground_moved(b, ax, th, shift), float(np.degrees(th))
 
 
 def _pair(a: Motion, b: Motion, n_frames=None, heading="align", up=None):
@@ -1111,13 +1134,17 @@ def _pair(a: Motion, b: Motion, n_frames=None, heading="align", up=None):
     if heading not in ("align", "keep"):
         raise ShellsplineError(f"heading must be 'align' or 'keep', got {heading!r}")
     a2, b2 = common_grid(a, b, n_frames)
-    if heading == "align":
-        b2 = heading_aligned(b2, a2, up=up)[0]
+    place = _heading_fit(b2, a2, up) if heading == "align" else None
+    if place is not None:  # b faces and starts like a (see heading_aligned)
+        ax, th, pa, pb = place
+        shift = pa - _turn(ax, th) @ pb
+        shift[ax] = 0.0
+        b2 = _ground_moved(b2, ax, th, shift)
     ca, cb = motion_curve(a2), motion_curve(b2)
     for which, m, c in (("a", a, ca), ("b", b, cb)):  # on the clip's own frames
         _check_steps(c if c.template is m else motion_curve(m), f"clip {which}")
     H = 0.5 * (body_height(a) + body_height(b))  # symmetric in a and b
-    return a2, b2, ca, cb, H
+    return a2, b2, ca, cb, H, place
 
 
 def contact_features(a: Motion, b: Motion, *, up=None) -> np.ndarray:
@@ -1249,7 +1276,7 @@ def align(a: Motion, b: Motion, *, features=None, n_frames=None, up=None,
 
     if n_frames is None:
         n_frames = min(_grid_frames(a, b), MOTION_DP_FRAMES)
-    a2, b2, ca, cb, H = _pair(a, b, n_frames, heading, up)
+    a2, b2, ca, cb, H, _ = _pair(a, b, n_frames, heading, up)
     cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
     pa, pb = (_product_curve(ca, H, cols=cols, rots=rots),
               _product_curve(cb, H, cols=cols, rots=rots))
@@ -1293,7 +1320,7 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
     if align == "none":
-        _, _, ca, cb, H = _pair(a, b, n_frames, heading, up)
+        _, _, ca, cb, H, _ = _pair(a, b, n_frames, heading, up)
         cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
         return srv_distance(_product_curve(ca, H, cols=cols, rots=rots),
                             _product_curve(cb, H, cols=cols, rots=rots))
@@ -1327,11 +1354,13 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
         Detect the blend's foot contacts and correct its root where planted feet slide
         (:func:`plant_feet`).
     heading : {"align", "keep"}
-        ``"align"`` (default): ``b`` is first turned about the up axis and moved on the
-        ground to face and start like ``a`` (:func:`heading_aligned`), so that takes
-        recorded in other directions blend into one walk in ``a``'s direction (two walks
-        facing opposite ways blended as they are cancel their travel); ``"keep"``: blended
-        where they are.
+        ``"align"`` (default): the motions are blended with ``b`` turned about the up axis
+        and moved on the ground to face and start like ``a`` (:func:`heading_aligned`), and
+        the blend is then placed between them: turned by ``s`` times ``b``'s turn and moved
+        by ``s`` times the step between their starts (``s = 0`` is ``a``, ``s = 1`` is
+        ``b``, where they were recorded). Takes recorded facing other ways blend into one
+        walk; blended as recorded, two walks facing opposite ways cancelled their travel
+        (a walk on the spot). ``"keep"``: blended as recorded.
 
     Returns
     -------
@@ -1349,7 +1378,7 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     s = float(s)
     if not np.isfinite(s):
         raise ShellsplineError(f"s must be a finite number, got {s!r}")
-    a2, b2, ca, cb, H = _pair(a, b, n_frames, heading, up)
+    a2, b2, ca, cb, H, place = _pair(a, b, n_frames, heading, up)
     cols = _varying(ca.X, cb.X)
     pa, pb = _product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols)
     rep = None
@@ -1384,6 +1413,11 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     n_out = max(int(round(dur / ft)) + 1, 2)
     R, X, ref = _sample_curve(out, np.linspace(0.0, out.n_frames - 1.0, n_out))
     m = out.with_samples(R, X, ft, ref).to_motion()
+    if place is not None:  # placed between a and b: turned by s of b's turn, moved by s
+        ax, th, pa, pb = place
+        d = pb - pa
+        d[ax] = 0.0
+        m = _ground_moved(m, ax, -s * th, pa + s * d - _turn(ax, -s * th) @ pa)
     if plant:
         m = plant_feet(m, foot_contacts(m, up=up))
     return m, rep

@@ -327,16 +327,13 @@ def test_blend_ends_and_timing():
     # s = 0 is a (resampled to the common grid and back)
     Pa, P0 = forward_kinematics(a)[0], forward_kinematics(m0)[0]
     assert np.abs(Pa - P0).max() < 0.02 * A.body_height(a)
-    m1, _ = A.blend(a, b, 1.0, align="dp", heading="keep")
-    assert m1.n_frames == b.n_frames
-    # s = 1 plays b: every joint within 1 % of the body height (where the DP warp is steep,
-    # blending on a's grid alone skipped frames of b: 8 % off)
-    assert np.abs(forward_kinematics(m1)[0] - forward_kinematics(b)[0]).max() \
-        <= 0.01 * A.body_height(b)
-    # by default b is moved to start where a starts (on the ground), facing a's way
-    m1, _ = A.blend(a, b, 1.0, align="dp")
-    Pa, P1 = forward_kinematics(a)[0], forward_kinematics(m1)[0]
-    assert np.abs(P1[0, 1, [0, 2]] - Pa[0, 1, [0, 2]]).max() < 1e-9   # the hips, x and z
+    for heading in ("align", "keep"):
+        m1, _ = A.blend(a, b, 1.0, align="dp", heading=heading)
+        assert m1.n_frames == b.n_frames
+        # s = 1 plays b where it was recorded: every joint within 1 % of the body height
+        # (where the DP warp is steep, blending on a's grid alone skipped frames of b: 8 %)
+        assert np.abs(forward_kinematics(m1)[0] - forward_kinematics(b)[0]).max() \
+            <= 0.01 * A.body_height(b)
     mh, rep = A.blend(a, b, 0.5)
     dur = (mh.n_frames - 1) * mh.frame_time
     da, db = ((x.n_frames - 1) * x.frame_time for x in (a, b))
@@ -810,16 +807,25 @@ def turned_on_ground(m: Motion, deg: float, shift) -> Motion:
 def test_takes_recorded_facing_other_ways_are_one_motion(deg):
     """Oracle: the clip itself. Blended as recorded, a walk and the same walk facing the other
     way cancelled their travel (the blend walked on the spot, turned 90 degrees from both);
-    by default b is first turned and moved on the ground to face and start like a."""
+    by default the motions are blended facing alike, and the blend is placed between the
+    takes: here the walk itself, turned by half the turn about a's start and moved by half
+    the step between the starts."""
     a = synth.motion(fps=60, seconds=2.0, channels=3, order="ZXY")
-    b = turned_on_ground(a, deg, [300.0, 0.0, -120.0])
+    shift = np.array([300.0, 0.0, -120.0])
+    b = turned_on_ground(a, deg, shift)
     assert A.distance(a, b, align="none") < 1e-9
     assert A.distance(a, b) < 1e-6
-    m, _ = A.blend(a, b, 0.5, align="none")
-    Pa, Pm = forward_kinematics(a)[0], forward_kinematics(m)[0]
-    assert np.abs(Pm - Pa).max() < 1e-6 * A.body_height(a)
     b2, turn = A.heading_aligned(b, a)
     assert abs((turn + deg + 180.0) % 360.0 - 180.0) < 1e-9          # b turned back by deg
+    c2, ca = A.motion_curve(b2), A.motion_curve(a)      # (angles may differ by 360)
+    assert np.abs(c2.R - ca.R).max() < 1e-12 and np.abs(c2.X - ca.X).max() < 1e-9
+    Pa = forward_kinematics(a)[0]
+    p0, pb0 = Pa[0, 0] * [1, 0, 1], forward_kinematics(b)[0][0, 0] * [1, 0, 1]
+    for s in (0.0, 0.5, 1.0):
+        m, _ = A.blend(a, b, s, align="none")
+        G = Rotation.from_euler("y", -s * turn, degrees=True).as_matrix()
+        expect = (Pa - p0) @ G.T + p0 + s * (pb0 - p0)
+        assert np.abs(forward_kinematics(m)[0] - expect).max() < 1e-6 * A.body_height(a)
     # as recorded (heading="keep"): the travel of the 180 degree blend cancels
     k, _ = A.blend(a, b, 0.5, align="none", heading="keep")
     travel = np.linalg.norm(np.ptp(forward_kinematics(k)[0][:, 0, [0, 2]], axis=0))
