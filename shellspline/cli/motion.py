@@ -87,7 +87,8 @@ def add_parsers(sub) -> None:
         q.add_argument("--align", choices=["dp", "none"], default=default,
                        help=f"time alignment by dynamic programming or none (default {default})")
         q.add_argument("--features", metavar="F", default="none",
-                       help="feature points: contacts, none, or a CSV of time pairs (seconds)")
+                       help="feature points: contacts, none, or a CSV of time pairs (seconds; "
+                            "pose tracks: in the files' times, EuRoC nanoseconds)")
         weight(q)
 
     def weight(q):
@@ -109,7 +110,8 @@ def add_parsers(sub) -> None:
     common(q, out="warp CSV file")
     heading(q)
     q.add_argument("--features", metavar="F", default="none",
-                   help="feature points: contacts, none, or a CSV of time pairs (seconds)")
+                   help="feature points: contacts, none, or a CSV of time pairs (seconds; "
+                        "pose tracks: in the files' times, EuRoC nanoseconds)")
     weight(q)
     q.set_defaults(func=_align)
 
@@ -416,13 +418,35 @@ def _align(args) -> int:
     return _status(rep.result, say)
 
 
+def _file_times(track, t) -> list:
+    """Times ``t`` of a pose track (its seconds) as its file writes them: integer nanoseconds
+    for EuRoC and ROS stamps (``origin_ns + round(t * 1e9)``), else seconds."""
+    t = np.asarray(t, dtype=np.float64)
+    if track.time_unit == "ns":
+        return [str(x) for x in (track.origin_ns + np.round(t * 1e9).astype(np.int64)).tolist()]
+    return [repr(x) for x in t.tolist()]
+
+
+def _track_features(args, a, b):
+    """``--features`` time pairs in the files' units, as the tracks' seconds."""
+    feats = _read_features(args.features)
+    if feats is None or isinstance(feats, str):
+        return feats
+    feats = feats.copy()
+    for k, tr in enumerate((a, b)):
+        if tr.time_unit == "ns":
+            feats[:, k] = (feats[:, k] - float(tr.origin_ns)) * 1e-9
+    return feats
+
+
 def _align_tracks(args, a, b, length, fkw, say) -> int:
     from ..animation import track_align
     from ..io.posefiles import write_text_atomic
 
-    feats = _read_features(args.features)
+    feats = _track_features(args, a, b)
     r = track_align(a, b, length=length, features=feats, **fkw)
-    lines = ["time_a,time_b"] + [f"{x!r},{y!r}" for x, y in zip(r.t.tolist(), r.phi.tolist())]
+    lines = ["time_a,time_b"] + [f"{x},{y}" for x, y in zip(_file_times(a, r.t),
+                                                            _file_times(b, r.phi))]
     write_text_atomic(args.out, "\n".join(lines) + "\n")
     say(f"  align       {r.t.size} poses (evenly resampled): energy {r.energy_identity:.4g} "
         f"-> {r.energy:.4g}, SRV distance {r.distance:.4g} ({r.status}: {r.message})")
@@ -479,7 +503,7 @@ def _blend_tracks(args, a, b, length, fkw, say) -> int:
 
     if not np.isfinite(args.s):
         raise ShellsplineError(f"--s must be a finite number, got {args.s!r}")
-    feats = _read_features(args.features)
+    feats = _track_features(args, a, b)
     if feats is not None and args.align != "dp":
         raise ShellsplineError("--features needs --align dp")
     out, rep = track_blend(a, b, args.s, align=args.align, length=length, features=feats,

@@ -422,3 +422,28 @@ def test_heading_option(capsys, tmp_path):
     track.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n2 2 0 0 0 0 0 1\n")
     code, _, err = run(capsys, "distance", track, track, "--heading", "keep")
     assert code == 2 and "--heading: BVH clips only" in err
+
+
+def test_track_warp_and_features_are_in_the_files_times(capsys, tmp_path):
+    """EuRoC's integer nanoseconds stay nanoseconds in the warp CSV (the rows were seconds
+    since the first stamp) and --features pairs are read in them; a TUM track's column is
+    its seconds."""
+    from shellspline.groups import se3, so3
+    from shellspline.io.posefiles import write_poses
+
+    t = np.linspace(0.0, 4.0, 81)
+    T = se3.from_rt(so3.exp(np.c_[0.1 * np.sin(t), 0.3 * t, 0 * t]),
+                    np.c_[np.cos(t), np.sin(t), 0.1 * t])
+    origin = 1_403_636_579_758_555_392
+    write_poses(tmp_path / "e.csv", t, T, "euroc", origin_ns=origin)
+    write_poses(tmp_path / "p.txt", t + 1305031098.5, T, "tum")
+    feats = tmp_path / "f.csv"
+    feats.write_text(f"{origin + 2_000_000_000},{1305031098.5 + 2.5!r}\n")
+    code, _, _ = run(capsys, "align", tmp_path / "e.csv", tmp_path / "p.txt", "-o",
+                     tmp_path / "w.csv", "--features", feats, "--feature-weight", "1e5", "-q")
+    rows = [ln.split(",") for ln in (tmp_path / "w.csv").read_text().splitlines()[1:]]
+    assert code in (0, 1) and rows[0] == [str(origin), repr(1305031098.5)]
+    assert int(rows[-1][0]) == origin + 4_000_000_000
+    ta = (np.array([int(r[0]) for r in rows]) - origin) * 1e-9
+    tb = np.array([float(r[1]) for r in rows]) - 1305031098.5
+    assert abs(np.interp(2.0, ta, tb) - 2.5) < 0.1      # the feature pair pulled the warp
