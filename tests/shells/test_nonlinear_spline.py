@@ -471,3 +471,39 @@ def test_trust_region_rules():
         TrustRegionNewton(hessian="newton")
     with pytest.raises(ValueError, match="retract"):
         TrustRegionNewton(retract="yes")
+
+
+def test_unconverged_midpoints_are_not_moved_by_an_unguarded_newton_step(tiny):
+    """F is evaluated at the midpoints the Newton solves returned when they did not converge
+    (an extra full step from a non-stationary midpoint is no refinement and can jump far); a
+    converged solve still gets its one refinement step (at round-off level)."""
+    Vkey, T = tiny
+    W = DiscreteShells(T, eta=0.1)
+    prob = NonlinearSplineProblem(W, [0, 2, 4], 4, midpoint_tol=1e-12)
+    S = linear_blend(Vkey, prob.frames, 4)
+    rng = np.random.default_rng(3)
+    S[prob.free_nodes] += 0.05 * rng.standard_normal(S[prob.free_nodes].shape)
+    warm = 0.5 * (S[prob.terms[:, 0]] + S[prob.terms[:, 2]])
+    # no Newton step allowed: every solve returns its start, unconverged
+    own = [prob.solver.solve(S[a], S[b], warm[t][None], tol=1e-12, max_iter=0)
+           for t, (a, _, b) in enumerate(prob.terms)]
+    assert not any(r.success for r in own)
+    assert all(np.array_equal(r.V[1], w) for r, w in zip(own, warm))
+    F = prob.evaluate(S, gradient=False, warm=warm, max_newton=0)
+    assert np.array_equal(prob.midpoints, warm)
+    expect = prob.scale4 * sum(W.energy(S[k], w) for (_, k, _), w in zip(prob.terms, warm))
+    assert F == pytest.approx(expect, rel=1e-12)
+    # converged solves: the refinement step moves the midpoints by round-off only
+    prob.evaluate(S, gradient=False, warm=warm)
+    conv = np.stack([prob.solver.solve(S[a], S[b], warm[t][None], tol=1e-12).V[1]
+                     for t, (a, _, b) in enumerate(prob.terms)])
+    assert np.abs(prob.midpoints - conv).max() < 1e-9 * np.abs(conv).max()
+
+
+def test_full_evaluations_allow_more_newton_steps_than_trials():
+    from shellspline.shells.nonlinear.problem import MIDPOINT_MAX_NEWTON
+    import inspect
+
+    assert MIDPOINT_MAX_NEWTON >= 100  # the horse's snapping terms need 61-78
+    sig = inspect.signature(NonlinearSplineProblem.evaluate)
+    assert sig.parameters["max_newton"].default == MIDPOINT_MAX_NEWTON
