@@ -109,18 +109,21 @@ def test_large_meshes_bridge_one_frame_a_side(monkeypatch):
 
 def test_keep_rule_counts_a_pop_above_the_seam_bound_as_a_defect():
     """A bridge that takes its window from a pop (step ratio above SEAM_POP) to below it
-    while adding one folded edge replaces a whole-mesh jump by a local defect: kept. One
-    that adds defects without removing a pop, or does not lower the step ratio, is not."""
+    while adding up to POP_DEFECTS folded edges replaces a whole-mesh jump by local defects:
+    kept. One that adds defects without removing a pop, adds more than that, or does not
+    lower the step ratio, is not."""
     from types import SimpleNamespace
 
-    from shellspline.pipeline.reconstruction import SEAM_POP, bridge_kept
+    from shellspline.pipeline.reconstruction import POP_DEFECTS, SEAM_POP, bridge_kept
 
     ok = SimpleNamespace(status="converged")
     d = np.array
     assert bridge_kept(ok, (2.7, d([1, 0, 0])), (1.3, d([1, 1, 0])))
+    assert bridge_kept(ok, (2.7, d([1, 1, 0])), (1.3, d([1, 1 + POP_DEFECTS, 0])))
     assert not bridge_kept(ok, (1.4, d([1, 0, 0])), (1.2, d([1, 1, 0])))      # no pop before
     assert not bridge_kept(ok, (2.7, d([1, 0, 0])), (1.6, d([1, 1, 0])))      # still a pop
-    assert not bridge_kept(ok, (2.7, d([1, 0, 0])), (1.3, d([1, 2, 0])))      # two more
+    assert not bridge_kept(ok, (2.7, d([1, 0, 0])),
+                           (1.3, d([1, POP_DEFECTS + 1, 0])))                # too many more
     assert not bridge_kept(ok, (2.7, d([0, 0, 0])), (2.8, d([0, 0, 0])))      # no lower ratio
     assert not bridge_kept(SimpleNamespace(status="failed"), (2.7, d([0, 0, 0])),
                            (1.0, d([0, 0, 0])))
