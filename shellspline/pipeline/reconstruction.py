@@ -32,6 +32,13 @@ SERIAL_RECONSTRUCT_WORK = 20_000
 #: K = 20, decodes in 0.08 s in-process and 0.10 s with two workers.
 SERIAL_DECODE_WORK = 250_000
 
+#: A window step ratio above :data:`SEAM_POP` counts as this many element defects in
+#: :func:`bridge_kept`: a pop moves the whole mesh at once, a folded edge two triangles.
+#: Bridges that removed a pop added 1–3 folded edges on the horse (0/02/04/06/08 coarse:
+#: 1; at full resolution: 2 at each of two seams; the pair 03 → 09: 3); counted as one
+#: defect, all of these were refused and the pops (up to 3.5) stayed.
+POP_DEFECTS = 3
+
 _WORKER: dict = {}
 
 
@@ -311,7 +318,8 @@ def safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):
 
 
 def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn_options,
-                       workers, warm, prog, stage_prefix="", bridge=True):
+                       workers, warm, prog, stage_prefix="", bridge=True,
+                       pop_defects=POP_DEFECTS):
     """The reconstruction stage: frames ``ks`` in runs from the keyframes
     (:func:`reconstruction_runs`), then, with ``warm="extrapolate"``, the continuation pass
     of :func:`continued_runs`.
@@ -341,6 +349,8 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         Prefix of the progress stage names (``"coarse "``, ``"fine "``).
     bridge : bool
         Re-solve the frames around each seam jointly (:func:`bridge_seams`).
+    pop_defects : int
+        What a pop counts in the bridges' keep rule (:func:`bridge_kept`).
 
     Returns
     -------
@@ -371,12 +381,12 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         results[seam["frame"]][1]["seam_jump"] = seam["jump"]
     if bridge and seams:
         bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                     stage_prefix, workers)
+                     stage_prefix, workers, pop_defects)
     return results
 
 
 def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                 stage_prefix="", workers=1):
+                 stage_prefix="", workers=1, pop_defects=POP_DEFECTS):
     """Re-solve the frames around each seam jointly (:func:`~.bridge.bridge_seam`) and
     replace them in ``results`` (in place) where that removes the jump without a new defect.
 
@@ -430,7 +440,7 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
             for i, (s, br, before, after) in enumerate(done):
                 if br is None:
                     continue
-                keep = bridge_kept(br, before, after)
+                keep = bridge_kept(br, before, after, pop_defects)
                 if keep:
                     for k, Vk, e in zip(br.frames, br.V, br.energies):
                         rec = dict(results[int(k)][1])
@@ -453,24 +463,16 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
         _WORKER.pop("bridge", None)
 
 
-#: A window step ratio above :data:`SEAM_POP` counts as this many element defects in
-#: :func:`bridge_kept`: a pop moves the whole mesh at once, a folded edge two triangles.
-#: Bridges that removed a pop added 1–3 folded edges on the horse (0/02/04/06/08 coarse:
-#: 1; at full resolution: 2 at each of two seams; the pair 03 → 09: 3); counted as one
-#: defect, all of these were refused and the pops (up to 3.5) stayed.
-POP_DEFECTS = 3
-
-
-def bridge_kept(br, before, after) -> bool:
+def bridge_kept(br, before, after, pop_defects: int = POP_DEFECTS) -> bool:
     """Whether a bridge replaces its window's frames: it did not fail, the window's largest
     step over its mean step dropped, and the window's defects did not grow: its flipped,
-    folded and collapsed elements, and :data:`POP_DEFECTS` more where that step ratio is
-    above :data:`SEAM_POP`.
+    folded and collapsed elements, and ``pop_defects`` (:data:`POP_DEFECTS`) more where that
+    step ratio is above :data:`SEAM_POP`.
 
     ``before``/``after``: ``(step ratio, (3,) defect counts)`` of the window
     (:func:`_window_check`)."""
     def count(check):
-        return int(check[1].sum()) + POP_DEFECTS * int(check[0] > SEAM_POP)
+        return int(check[1].sum()) + pop_defects * int(check[0] > SEAM_POP)
     return br.status != "failed" and after[0] < before[0] and count(after) <= count(before)
 
 

@@ -17,8 +17,8 @@ from ..shells.lta_spline import lta_spline
 from ..timeline import linear_blend
 from .describe import SplineRows, describe_and_solve
 from .placement import place
-from .reconstruction import (SEAM_POP, parallel_decode, reconstruct_frames, run_reconstruction,
-                             safe_init)
+from .reconstruction import (POP_DEFECTS, SEAM_POP, parallel_decode, reconstruct_frames,
+                             run_reconstruction, safe_init)
 from .report import fixpoint_change, nonlinear_record
 
 __all__ = ["StageResult", "run_method", "in_input_units", "linear_stage", "geodesic_stage", "lta_stage",
@@ -203,6 +203,7 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
     tg = describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix)
     ks = _in_betweens(prob, opts)
     warm = "extrapolate" if opts.warm_start else False
+    refine = Vinit is not None  # (a bool: Vinit itself is freed below)
     if Vinit is None:
         Vinit = safe_init(linear_blend(Vkey, frames, K, bc), Vkey, frames, K, bc, T)
     else:
@@ -210,10 +211,15 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
                                      pinned, prob, opts)
         if start_log is not None:
             start_log.update(starts)
+    # a refinement (given starts: the guarded prolonged sequence) promises no defect that
+    # the coarse frames lack, and its guard fades new ones back to those starts: its bridges
+    # do not trade folds for a pop (with the coarse weight, a sliver tube's fine bridges
+    # added 4 folded edges that the guard could not fade out)
     results = reconstruct_frames(T, ks, tg.Z, tg.W_of, Vinit, pinned, frames=frames, K=K,
                                  periodic=opts.periodic, gn_options=opts.gn_options,
                                  workers=opts.workers, warm=warm, prog=prog,
-                                 stage_prefix=stage_prefix)
+                                 stage_prefix=stage_prefix,
+                                 pop_defects=1 if refine else POP_DEFECTS)
     del Vinit
     Z = tg.Z[:] if isinstance(tg.Z, SplineRows) else tg.Z
     with prog.stage(stage_prefix + "place"):
