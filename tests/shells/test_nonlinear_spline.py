@@ -500,10 +500,27 @@ def test_unconverged_midpoints_are_not_moved_by_an_unguarded_newton_step(tiny):
     assert np.abs(prob.midpoints - conv).max() < 1e-9 * np.abs(conv).max()
 
 
-def test_full_evaluations_allow_more_newton_steps_than_trials():
+def test_full_evaluations_allow_more_newton_steps_than_trials(tiny):
+    """Full evaluations give every midpoint solve MIDPOINT_MAX_NEWTON Newton steps (the
+    coarse horse's midpoints next to snapping flaps need 61-78), trial points 10."""
+    from shellspline.shells.nonlinear import NonlinearSplineSolver
     from shellspline.shells.nonlinear.problem import MIDPOINT_MAX_NEWTON
-    import inspect
 
-    assert MIDPOINT_MAX_NEWTON >= 100  # the horse's snapping terms need 61-78
-    sig = inspect.signature(NonlinearSplineProblem.evaluate)
-    assert sig.parameters["max_newton"].default == MIDPOINT_MAX_NEWTON
+    Vkey, T = tiny
+    prob = NonlinearSplineProblem(DiscreteShells(T, eta=0.1), [0, 2, 4], 4)
+    limits = []
+    solve = prob.solver.solve
+
+    def spy(*args, max_iter=50, **kw):
+        limits.append(max_iter)
+        return solve(*args, max_iter=max_iter, **kw)
+
+    prob.solver.solve = spy
+    solver = NonlinearSplineSolver(prob)
+    solver.S0 = linear_blend(Vkey, prob.frames, 4)
+    x = prob.x_of(solver.S0)
+    solver.evaluate(x)
+    assert limits == [MIDPOINT_MAX_NEWTON] * len(prob.terms) and MIDPOINT_MAX_NEWTON >= 100
+    limits.clear()
+    solver.evaluate(x, trial=True)
+    assert limits == [10] * len(prob.terms)
