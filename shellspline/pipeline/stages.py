@@ -398,7 +398,9 @@ def prolonged(prob, opts, prog, dec, Vc, multires):
 
 def nonlinear_solve(Vkey, T, pinned, Vinit, prob, opts, prog, stage_prefix=""):
     """The nonlinear spline (paper eqs. 7–8) started from ``Vinit``; returns
-    ``(V (K+1,n,3), report record)``."""
+    ``(V (K+1,n,3), report record)``, ``V`` the start itself (keyframes exact) when the
+    spline's result has defects the start does not (:func:`worse_than_start`; the record says
+    so in ``start_returned`` and its message)."""
     from ..shells.nonlinear import nonlinear_spline
 
     kw = dict(opts.solver_options)
