@@ -118,6 +118,8 @@ def convergence_problems(report: dict) -> list[str]:
     ['Gauss–Newton converged on 3/4 frames']
     >>> convergence_problems({"gauss_newton": gn, "nonlinear": {"success": True}})
     []
+    >>> convergence_problems({"nonlinear": {"success": True, "start_returned": True}})
+    ['nonlinear result refused (more defects than its LΘA start, which was written)']
     """
     out = []
     gn = report.get("gauss_newton")
@@ -126,6 +128,10 @@ def convergence_problems(report: dict) -> list[str]:
     for name in ("geodesic", "nonlinear"):
         if name in report and not report[name]["success"]:
             out.append(f"{name} did not converge")
+    if report.get("nonlinear", {}).get("start_returned"):
+        # the output is not what was asked for: not a success, whatever the solve reached
+        out.append("nonlinear result refused (more defects than its LΘA start, which was "
+                   "written)")
     return out
 
 

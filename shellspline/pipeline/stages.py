@@ -450,12 +450,20 @@ def nonlinear_solve(Vkey, T, pinned, Vinit, prob, opts, prog, stage_prefix=""):
 def worse_than_start(V, start, T, frames, bc) -> str:
     """Which defects (:func:`shellspline.metrics.sequence_defects`) the sequence ``V
     (K+1,n,3)`` has more of than ``start``: more flipped or collapsed faces or folded edges,
-    or a pop above both the start's and :data:`~.reconstruction.SEAM_POP`; ``""`` if none
-    (the nonlinear spline's result is kept only then)."""
+    or a pop above both :data:`POP_MARGIN` times the start's and
+    :data:`~.reconstruction.SEAM_POP`; ``""`` if none (the nonlinear spline's result is kept
+    only then)."""
     got = sequence_defects(V, T, frames, bc=bc)
     ref = sequence_defects(start, T, frames, bc=bc)
     out = [f"{k.replace('_', ' ')} {got[k]} > {ref[k]}"
            for k in ("flipped_faces", "collapsed_faces", "folded_edges") if got[k] > ref[k]]
-    if got["pop"] > max(ref["pop"], SEAM_POP):
-        out.append(f"pop {got['pop']:.2f} > {max(ref['pop'], SEAM_POP):.2f}")
+    bound = max(POP_MARGIN * ref["pop"], SEAM_POP)
+    if got["pop"] > bound:
+        out.append(f"pop {got['pop']:.2f} > {bound:.2f}")
     return ", ".join(out)
+
+
+#: :func:`worse_than_start` calls a pop worse only beyond this factor of the start's: the
+#: pop is a ratio of steps that any change of the path moves a little (a converged nonlinear
+#: spline of the ellipsoids, started from poorly solved LΘA frames: 1.83 against 1.79).
+POP_MARGIN = 1.1

@@ -59,6 +59,9 @@ def test_nonlinear_stage_returns_its_start_when_the_result_is_worse(monkeypatch)
     assert "flipped faces" in nl["message"]
     assert np.allclose(res.V, V, atol=1e-9 * np.ptp(V))  # the LΘA start, placed alike
     assert sequence_defects(res.V, T, [0, 6, 12])["flipped_faces"] == 0
+    # not what was asked for: never a success (the CLI's exit code and the batch status)
+    from shellspline.pipeline.report import convergence_problems
+    assert any("refused" in p for p in convergence_problems(res.report))
     # without the tampering the result is kept
     monkeypatch.setattr(nonlinear, "nonlinear_spline", real)
     res = ss.interpolate((d["V"], d["F"]), frames=[0, 6, 12], K=12, eta=0.1, method="nonlinear",
