@@ -258,24 +258,21 @@ def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]
             out.append(f"pinned vertices move between keyframes (max {spread:.3g}); "
                        "each frame pins them at their blended position")
     n_coarse = prob.n_coarse
-    if opts.method == "geodesic":
+    # the Discrete Shells methods (fine=True is refused for geodesic, and refines nonlinear)
+    heavy = {"geodesic": ("piecewise geodesics", f"one Newton solve with 3 x {n} x (frames per "
+                          "gap - 1) unknowns per keyframe gap, minutes per step"),
+             "nonlinear": ("nonlinear spline", "expect far more than the ~4 min it takes at "
+                           f"{AUTO_COARSE_VERTICES}")}
+    if opts.method in heavy and not opts.fine:
+        what, cost = heavy[opts.method]
         if n_coarse is not None and coarse_target(opts.coarse, n) is None:
-            out.append(f"geodesic: solving on {n_coarse} coarse vertices and prolonging to {n} "
-                       f"(--coarse none: all {n}, far slower)")
-        elif n_coarse is None and n > AUTO_NONLINEAR_ABOVE:
-            out.append(f"piecewise geodesics on all {n} vertices: one Newton solve with "
-                       f"3 x {n} x (frames per gap - 1) unknowns per keyframe gap, minutes per "
-                       f"step (--coarse {AUTO_COARSE_VERTICES} solves there and prolongs)")
-    if opts.method not in ("lta", "nonlinear"):
-        return out
-    if opts.method == "nonlinear" and not opts.fine:
-        if n_coarse is not None and coarse_target(opts.coarse, n) is None:
-            out.append(f"nonlinear: solving on {n_coarse} coarse vertices and prolonging "
+            out.append(f"{opts.method}: solving on {n_coarse} coarse vertices and prolonging "
                        f"to {n} (--coarse none: all {n}, far slower)")
         elif n_coarse is None and n > AUTO_NONLINEAR_ABOVE:
-            out.append(f"nonlinear spline on all {n} vertices: expect far more than the "
-                       f"~4 min it takes at {AUTO_COARSE_VERTICES} (--coarse "
+            out.append(f"{what} on all {n} vertices: {cost} (--coarse "
                        f"{AUTO_COARSE_VERTICES} solves there and prolongs)")
+    if opts.method not in ("lta", "nonlinear"):
+        return out
     if (n_coarse is None or opts.fine) and n > FULL_RESOLUTION_WARN:
         out.append(f"Gauss–Newton at full resolution on {n} vertices takes minutes and "
                    "gigabytes (measured: 154k vertices, K = 50, --fine from 1000 coarse "
