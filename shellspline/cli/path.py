@@ -70,6 +70,8 @@ def add_parsers(sub) -> None:
     p.add_argument("--plot", metavar="PNG",
                    help="plot positions, rotation angles and angular rate (needs matplotlib: "
                         "pip install 'shellspline[viz]')")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace OUT (and the --plot picture) when they exist")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=_path)
 
@@ -176,6 +178,22 @@ def build_curve(t, T, kind="interp", group="so3xr3", bc="natural"):
     raise ShellsplineError(f"kind must be interp, bezier or bspline, got {kind!r}")
 
 
+def _check_outputs(args) -> None:
+    """Fail before any work on an output that is one of the inputs (never overwritten), that
+    exists without ``--overwrite``, or whose folder is missing."""
+    inputs = [Path(q).resolve() for q in (args.poses, args.times) if q]
+    for out in (args.out, args.plot):
+        if not out:
+            continue
+        p = Path(out)
+        if p.resolve() in inputs:
+            raise ShellsplineError(f"{out} is an input of this command: write to another file")
+        if p.exists() and not args.overwrite:
+            raise ShellsplineError(f"{out} exists (use --overwrite to replace it)")
+        if not p.parent.is_dir():
+            raise ShellsplineError(f"{out}: the folder {p.parent} does not exist")
+
+
 def _path(args) -> int:
     from ..groups import so3
     from ..io.posefiles import read_poses, write_poses
@@ -186,6 +204,7 @@ def _path(args) -> int:
         raise ShellsplineError(f"--keep-every must be >= 1, got {args.keep_every}")
     if args.rate is not None and not args.rate > 0:
         raise ShellsplineError(f"--rate must be > 0, got {args.rate}")
+    _check_outputs(args)
     if args.plot:  # fail before any work when the picture cannot be drawn
         import importlib.util
 

@@ -273,10 +273,11 @@ def test_path_periodic_and_clamped(tmp_path):
     np.testing.assert_allclose(b.T[:, 2, 3], 0, atol=1e-12)
     # the product metric interpolates the positions as a periodic cubic: close, not exact
     assert main(["path", str(src), "-o", str(out), "--bc", "periodic", "--rate", "50",
-                 "-q"]) == 0
+                 "-q", "--overwrite"]) == 0
     r = np.linalg.norm(read_poses(out).T[:, :2, 3], axis=1)
     assert 1e-6 < np.abs(r - 1).max() < 1e-2
-    assert main(["path", str(src), "-o", str(out), "--bc", "clamped", "--rate", "1000", "-q"]) == 0
+    assert main(["path", str(src), "-o", str(out), "--bc", "clamped", "--rate", "1000", "-q",
+                 "--overwrite"]) == 0
     v = read_poses(out).T[:2, :3, 3]
     assert np.linalg.norm(v[1] - v[0]) < 1e-5  # starts at rest (1 ms step, zero velocity)
 
@@ -406,3 +407,28 @@ def test_times_outside_the_keyframes_are_named_in_the_files_unit(tmp_path, capsy
                  str(tmp_path / "ns.txt")])
     err = capsys.readouterr().err
     assert code == 2 and f"[{origin}, " in err and f"got {origin - 1000}..{origin - 1000}" in err
+
+
+def test_path_never_overwrites_its_input_nor_an_output_unasked(tmp_path, capsys):
+    """`path` replaced an existing OUT silently, and `-o` naming the input overwrote the
+    input itself (the poses were lost). Now: the input is refused as OUT, an existing OUT
+    needs --overwrite (as `interpolate` and `motion`), each in one line, exit 2, files
+    untouched."""
+    t, T = _track(10)
+    src = tmp_path / "in.txt"
+    write_poses(src, t, T, "tum")
+    before = src.read_bytes()
+    assert main(["path", str(src), "-o", str(src), "-q", "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is an input of this command" in err
+    assert src.read_bytes() == before
+    out = tmp_path / "o.txt"
+    out.write_text("keep me\n")
+    assert main(["path", str(src), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "exists (use --overwrite" in err and str(out) in err
+    assert out.read_text() == "keep me\n"
+    assert main(["path", str(src), "-o", str(out), "-q", "--overwrite"]) == 0
+    np.testing.assert_allclose(read_poses(out).T, T, atol=1e-9)
+    assert main(["path", str(src), "-o", str(tmp_path / "no" / "o.txt"), "-q"]) == 2
+    assert "does not exist" in capsys.readouterr().err
