@@ -44,7 +44,7 @@ from ..mesh.topology import Topology
 __all__ = ["DiscreteShells", "EuclideanEnergy", "MixedOperator", "shell_energy",
            "shell_energy_gradient",
            "shell_energy_hessian", "dihedral_angle_hessians", "face_area_hessians",
-           "edge_length_hessians"]
+           "edge_length_hessians", "psd_projected", "PROJECTIONS", "checked_projection"]
 
 _BLOCKS = ("11", "22", "12", "21")
 
@@ -238,6 +238,62 @@ def dihedral_angle_hessians(V, flaps, *, return_gradients: bool = False):
     if return_gradients:
         return H, tx[:, None] * gx + ty[:, None] * gy
     return H
+
+
+# --------------------------------------------------------------------------------------
+# Positive semi-definite projection (projected Newton)
+# --------------------------------------------------------------------------------------
+#: The PSD projections of :meth:`DiscreteShells.chain_hessian_data`: ``"clamp"`` sets an
+#: element's negative eigenvalues to 0 (Teran et al. 2005), ``"abs"`` flips their sign.
+PROJECTIONS = ("clamp", "abs")
+
+
+def checked_projection(projection):
+    """``projection`` canonicalised: ``None`` (the true Hessian) or one of
+    :data:`PROJECTIONS`; raises :class:`~shellspline.errors.ShellsplineError` otherwise."""
+    if projection is None or (isinstance(projection, str) and projection in PROJECTIONS):
+        return projection
+    raise ShellsplineError(f"`projection` must be None or one of "
+                           f"{', '.join(map(repr, PROJECTIONS))}, got {projection!r}")
+
+
+def _psd_eigenvalues(w, projection):
+    return np.maximum(w, 0.0) if projection == "clamp" else np.abs(w)
+
+
+def psd_projected(H, projection: str = "clamp") -> np.ndarray:
+    """Each symmetric matrix of the stack ``H (k,s,s)`` projected onto the positive
+    semi-definite cone (batched ``eigh``): negative eigenvalues clamped to 0 (``"clamp"``)
+    or replaced by their absolute values (``"abs"``). Matrices whose eigenvalues are all
+    ``>= -1e-12`` times their largest magnitude are returned unchanged (bit-identical).
+
+    Parameters
+    ----------
+    H : (k,s,s) float64 array
+    projection : {"clamp", "abs"}
+
+    Returns
+    -------
+    (k,s,s) float64 array
+    """
+    H = np.asarray(H, dtype=np.float64)
+    if not len(H):
+        return H.copy()
+    w, U = np.linalg.eigh(H)
+    bad = w[:, 0] < -1e-12 * np.abs(w).max(axis=1)
+    out = H.copy()
+    if bad.any():
+        Ub = U[bad]
+        out[bad] = np.matmul(Ub * _psd_eigenvalues(w[bad], projection)[:, None, :],
+                             Ub.transpose(0, 2, 1))
+    return out
+
+
+def _scaled_psd(c, w, U, projection):
+    """``c_k U_k diag(w_k) U_kᵀ`` projected: ``U diag(f(c w)) Uᵀ`` for the eigenpairs
+    ``w (k,s)``, ``U (k,s,s)`` of fixed matrices and weights ``c (k,)``."""
+    cw = _psd_eigenvalues(c[:, None] * w, projection)
+    return np.matmul(U * cw[:, None, :], U.transpose(0, 2, 1))
 
 
 # --------------------------------------------------------------------------------------
@@ -788,6 +844,190 @@ class DiscreteShells:
                           np.matmul(Gb.transpose(0, 2, 1), np.matmul(Phib, Gb)).ravel()))
         return extra
 
+    # -- projected Newton ------------------------------------------------------------------
+    def chain_hessian_data(self, S, projection=None) -> tuple:
+        """Pattern data of the Hessian of ``Σ_k W[S_k, S_{k+1}]`` w.r.t. the inner poses
+        ``S[1:-1]`` (``S[0]`` and ``S[-1]`` fixed), as a sum of element Hessians, each
+        projected onto the positive semi-definite cone when ``projection`` is given
+        (projected Newton: Teran et al. 2005; the sum is then PSD).
+
+        The elements (all Hessians are ``Jᵀ Φ J + Σ_i c_i ∇²z_i``, see the module docstring):
+
+        - per inner shell, each descriptor's curvature term ``c_i ∇²z_i`` (``c`` the
+          descriptor gradient summed over the shell's two energy terms): an edge length
+          (``∇²l`` is PSD, so only the sign of ``c_i`` matters), a dihedral angle (12×12)
+          and a triangle area (9×9), through the eigenpairs of ``∇²z_i`` (cached per pose);
+        - per pair ``(S_k, S_{k+1})``, each energy element's Gauss–Newton term
+          ``G_eᵀ Φ_e G_e``: an interior edge (length and bending terms; descriptors
+          ``l, θ, a_1, a_2`` of ``S_k`` and ``l̃, θ̃`` of ``S_{k+1}``, flap stencils), a
+          boundary edge (``l, a_1, l̃``) and a triangle (``a, ã``), projected through its
+          small descriptor Hessian ``Φ_e`` (at most 6×6; only its free part when ``S_k`` or
+          ``S_{k+1}`` is fixed).
+
+        Parameters
+        ----------
+        S : (m+2,n,3) float array
+            The chain of poses, ``m >= 1`` inner ones.
+        projection : {None, "clamp", "abs"}
+            ``None``: the true Hessian (the same numbers as :meth:`midpoint_hessian_data` and
+            :meth:`hessian_data` ``"12"``); see :func:`psd_projected`.
+
+        Returns
+        -------
+        diag : list of m (pattern.nnz,) float64 arrays
+            Block ``(j, j)`` of inner pose ``S[j+1]``.
+        upper : list of m-1 (pattern.nnz,) float64 arrays
+            Block ``(j, j+1)`` (rows ``S[j+1]``, columns ``S[j+2]``).
+        """
+        projection = checked_projection(projection)
+        S = checked_poses(S, self.n_vertices, "S")
+        m = len(S) - 2
+        if m < 1:
+            raise ShellsplineError(f"`S` must hold at least 3 poses, got {len(S)}")
+        geos = [self._geometry(P) for P in S]
+        z = [g["z"] for g in geos]
+        nnz = self.pattern.nnz
+        diag = [np.zeros(nnz) for _ in range(m)]
+        upper = [np.zeros(nnz) for _ in range(m - 1)]
+        for k in range(m + 1):
+            fx, fy = k >= 1, k <= m - 1
+            d11, d22, d12 = self._pair_gauss_newton(geos[k], geos[k + 1], fx, fy, projection)
+            if fx:
+                diag[k - 1] += d11
+            if fy:
+                diag[k] += d22
+            if fx and fy:
+                upper[k - 1] += d12
+        for j in range(m):
+            c = self.descriptor_gradient(z[j], z[j + 1], 1) + \
+                self.descriptor_gradient(z[j + 1], z[j + 2], 0)
+            diag[j] += self._scatter(self._curvature_parts(geos[j + 1], c, projection), [])
+        return diag, upper
+
+    def _curvature_parts(self, g, c, projection):
+        """Element blocks ``c_i ∇²z_i`` (:meth:`_element_parts`), each projected onto the PSD
+        cone when ``projection`` is given."""
+        if projection is None:
+            return self._element_parts(g, c)
+        if "H" not in g:
+            self._element_hessians(g)
+        HL, HT, HA = g["H"]
+        T = self.T
+        if "eig" not in g:
+            wT, UT = np.linalg.eigh(HT.reshape(-1, 12, 12)) if T.n_interior else (None, None)
+            g["eig"] = (wT, UT) + tuple(np.linalg.eigh(HA.reshape(-1, 9, 9)))
+        wT, UT, wA, UA = g["eig"]
+        sL, sT, sA = self._sl
+        PT = _scaled_psd(c[sT], wT, UT, projection).reshape(T.n_interior, 144) \
+            if T.n_interior else HT.copy()
+        return [_psd_eigenvalues(c[sL], projection)[:, None] * HL, PT,
+                _scaled_psd(c[sA], wA, UA, projection).reshape(T.n_faces, 81)]
+
+    def _pair_elements(self, gX, gY):
+        """The energy elements of ``W[s, s̃]`` as ``(positions (k,s²), GX (k,p,s), GY (k,q,s),
+        Φ (k,p+q,p+q))``: descriptor gradients of ``s`` (``p``) and ``s̃`` (``q``) lifted to
+        the element's stencil of ``s`` coordinates and the element's descriptor Hessian
+        (rows and columns: ``s``'s descriptors, then ``s̃``'s). Interior edges on flaps
+        (``l, θ, a_1, a_2 | l̃, θ̃``), boundary edges on their face (``l, a_1 | l̃``), triangles
+        (``a | ã``)."""
+        T = self.T
+        mu, lam, eta = self.mu, self.lam, self.eta
+        L, A, Lt, At, d, rho, li, di, dl = self._terms(gX["z"], gY["z"])
+        gL, gT, gA = gX["grads"]
+        gLt, gTt, gAt = gY["grads"]
+        out = []
+
+        def sym(P, a, b, v):
+            P[:, a, b] = v
+            P[:, b, a] = v
+
+        i = T.n_interior
+        if i:
+            intr = T.interior
+            rows = np.arange(i)[:, None]
+            GX = np.zeros((i, 4, 12))
+            GX[rows, 0, self._colL] = gL[intr]
+            GX[:, 1] = gT
+            GX[rows, 2, self._colA0] = gA[self._f0[intr]]
+            GX[rows, 3, self._colA1] = gA[self._f1[intr]]
+            GY = np.zeros((i, 2, 12))
+            GY[rows, 0, self._colL] = gLt[intr]
+            GY[:, 1] = gTt
+            Lti, ri = Lt[intr], rho[intr]
+            P = np.zeros((i, 6, 6))
+            sym(P, 0, 0, 2 * mu * di * (Lti ** 2 / li ** 4 - 2 * ri * Lti / li ** 3)
+                + 2 * eta * dl ** 2 / di)
+            sym(P, 0, 1, 4 * eta * li * dl / di)
+            vLa = (2.0 / 3.0) * mu * ri * Lti / li ** 2 - 2 * eta * li * dl ** 2 / (3 * di ** 2)
+            sym(P, 0, 2, vLa)
+            sym(P, 0, 3, vLa)
+            sym(P, 1, 1, 2 * eta * li ** 2 / di)
+            vTa = -2 * eta * li ** 2 * dl / (3 * di ** 2)
+            sym(P, 1, 2, vTa)
+            sym(P, 1, 3, vTa)
+            vaa = 2 * eta * li ** 2 * dl ** 2 / (9 * di ** 3)
+            for a, b in ((2, 2), (3, 3), (2, 3)):
+                sym(P, a, b, vaa)
+            sym(P, 0, 4, 2 * mu * di * (1 - 2 * Lti / li) / li ** 2)
+            sym(P, 0, 5, -4 * eta * li * dl / di)
+            sym(P, 1, 5, -2 * eta * li ** 2 / di)
+            vaL, vaT = -(2.0 / 3.0) * mu * ri / li, 2 * eta * li ** 2 * dl / (3 * di ** 2)
+            for a in (2, 3):
+                sym(P, a, 4, vaL)
+                sym(P, a, 5, vaT)
+            sym(P, 4, 4, 2 * mu * di / li ** 2)
+            sym(P, 5, 5, 2 * eta * li ** 2 / di)
+            out.append((self._posP, GX, GY, P))
+        bnd = self._bnd
+        if len(bnd):
+            nb, fb = len(bnd), self._f0[bnd]
+            rows = np.arange(nb)[:, None]
+            Lb, Ltb, rb, db = L[bnd], Lt[bnd], rho[bnd], d[bnd]
+            GX = np.zeros((nb, 2, 9))
+            GX[rows, 0, self._colLb] = gL[bnd]
+            GX[:, 1] = gA[fb]
+            GY = np.zeros((nb, 1, 9))
+            GY[rows, 0, self._colLb] = gLt[bnd]
+            P = np.zeros((nb, 3, 3))
+            sym(P, 0, 0, 2 * mu * db * (Ltb ** 2 / Lb ** 4 - 2 * rb * Ltb / Lb ** 3))
+            sym(P, 0, 1, (2.0 / 3.0) * mu * rb * Ltb / Lb ** 2)
+            sym(P, 0, 2, 2 * mu * db * (1 - 2 * Ltb / Lb) / Lb ** 2)
+            sym(P, 1, 2, -(2.0 / 3.0) * mu * rb / Lb)
+            sym(P, 2, 2, 2 * mu * db / Lb ** 2)
+            out.append((self._posF[fb], GX, GY, P))
+        P = np.empty((T.n_faces, 2, 2))
+        P[:, 0, 0] = 2 * lam * At ** 2 / A ** 3
+        P[:, 0, 1] = P[:, 1, 0] = -2 * lam * At / A ** 2
+        P[:, 1, 1] = 2 * lam / A
+        out.append((self._posF, gA[:, None, :], gAt[:, None, :], P))
+        return out
+
+    def _pair_gauss_newton(self, gX, gY, free_x: bool, free_y: bool, projection):
+        """Pattern data ``(d11, d22, d12)`` of the Gauss–Newton part ``Σ_e G_eᵀ Φ_e G_e`` of
+        ``W[s, s̃]`` (``None`` for blocks of a fixed shell), ``Φ_e`` (or its free part)
+        projected onto the PSD cone when ``projection`` is given."""
+        nnz = self.pattern.nnz
+        d11 = np.zeros(nnz) if free_x else None
+        d22 = np.zeros(nnz) if free_y else None
+        d12 = np.zeros(nnz) if free_x and free_y else None
+        for pos, GX, GY, P in self._pair_elements(gX, gY):
+            p = GX.shape[1]
+            if not (free_x and free_y):
+                P = P[:, :p, :p] if free_x else P[:, p:, p:]
+            if projection is not None:
+                P = psd_projected(P, projection)
+            if free_x:
+                d11 += np.bincount(pos.ravel(), minlength=nnz, weights=np.matmul(
+                    GX.transpose(0, 2, 1), np.matmul(P[:, :p, :p], GX)).ravel())
+            if free_y:
+                Q = P[:, p:, p:] if free_x else P
+                d22 += np.bincount(pos.ravel(), minlength=nnz, weights=np.matmul(
+                    GY.transpose(0, 2, 1), np.matmul(Q, GY)).ravel())
+            if d12 is not None:
+                d12 += np.bincount(pos.ravel(), minlength=nnz, weights=np.matmul(
+                    GX.transpose(0, 2, 1), np.matmul(P[:, :p, p:], GY)).ravel())
+        return d11, d22, d12
+
     def _element_hessians(self, g) -> None:
         """Per-element descriptor Hessians of the pose of ``g`` (cached in ``g["H"]``):
         lengths ``(e,36)``, angles ``(i,144)``, areas ``(m,81)``."""
@@ -1049,6 +1289,16 @@ class EuclideanEnergy:
 
     def midpoint_hessian_data(self, Va, M, Vb) -> np.ndarray:
         return np.full(3 * self.n_vertices, 4.0)
+
+    def chain_hessian_data(self, S, projection=None) -> tuple:
+        """Interface of :meth:`DiscreteShells.chain_hessian_data` (the Hessian is PSD:
+        ``4 I`` diagonal and ``−2 I`` upper blocks, the same with any ``projection``)."""
+        checked_projection(projection)
+        m = len(checked_poses(S, self.n_vertices, "S")) - 2
+        if m < 1:
+            raise ShellsplineError(f"`S` must hold at least 3 poses, got {m + 2}")
+        N = 3 * self.n_vertices
+        return [np.full(N, 4.0) for _ in range(m)], [np.full(N, -2.0) for _ in range(m - 1)]
 
     def mixed_product(self, V, Vt, v, block: str = "12") -> np.ndarray:
         if block not in ("12", "21"):

@@ -7,8 +7,17 @@ A discrete geodesic between shells ``s_A`` and ``s_B`` minimises the time-discre
 
 over the inner shells ``s_1 … s_{K-1}``. :class:`PathSolver` is the precompute object (the
 block-tridiagonal sparsity pattern of the Hessian over all inner shells, its symbolic
-factorization); it runs damped Newton with an Armijo line search. It also solves the
+factorization); it runs projected Newton with an Armijo line search. It also solves the
 geodesic-midpoint problems of the nonlinear spline (``K = 2``, paper eq. 8).
+
+Projected Newton (Teran et al. 2005): away from the minimum the Hessian is indefinite
+(compressed and strongly bent shells), and a damped Newton step needs a shift of up to 1e-2
+of its largest entry, found by ~3 factorizations per step, and then crawls. The Newton matrix
+is instead the sum of the element Hessians, each projected onto the positive semi-definite
+cone (:meth:`~shellspline.shells.energy.DiscreteShells.chain_hessian_data`): positive
+semi-definite by construction, one factorization per step. Once the true Hessian factors with
+a shift of at most :data:`_EXACT_MAX_SHIFT` it is used instead (quadratic convergence near
+the minimum). Adjoint solves (:meth:`PathSolver.factor_at`) always use the true Hessian.
 
 Rigid motions: ``W`` is invariant under a rigid motion of each shell, so the Hessian has six
 zero eigenvalues per inner shell. Without pinned vertices they are handled by a tiny
@@ -45,6 +54,11 @@ __all__ = ["PathSolver", "GeodesicResult", "discrete_geodesic", "geodesic_interp
 #: resolve it: on the 1000-vertex cactus (η = 1e-3) midpoint solves at tolerance 1e-13 stalled
 #: at a gradient of 5e-9 and failed the trust region's trial steps.
 _ROUNDOFF_DECREASE = 1e-11
+#: Projected Newton tries the true Hessian again only once the gradient's max-norm fell below
+#: this fraction of its value when the true Hessian last failed to factor (was indefinite).
+_EXACT_RETRY = 0.1
+#: The largest relative shift with which projected Newton still takes the true Hessian.
+_EXACT_MAX_SHIFT = 1e-6
 #: Relative Levenberg–Marquardt shift that makes the rigid-motion kernel invertible.
 _EPS_SHIFT = 1e-10
 #: Relative Levenberg–Marquardt shifts tried in turn (ratio ~3: a ladder of 100× steps
@@ -74,9 +88,12 @@ class GeodesicResult(SolverResult):
         Max-norm of the gradient of ``Σ_k W[s_{k-1}, s_k]`` w.r.t. the inner shells at the
         same points.
     message : str
+    factorizations : int
+        Numeric factorizations of the Newton matrix (damping retries included).
     """
 
     V: np.ndarray
+    factorizations: int = 0
 
 
 class PathSolver:
@@ -145,6 +162,9 @@ class PathSolver:
         self._chol = None
         self._slots: dict = {}
         self._tau_hint = 0.0
+        self._exact_hint = 0.0
+        #: numeric factorizations so far (shifted retries included)
+        self.factorizations = 0
         self.backend = backend
         if hasattr(energy, "cache_size"):
             energy.cache_size = max(energy.cache_size, m + 4)
@@ -162,11 +182,23 @@ class PathSolver:
         return np.stack([W.gradient(S[k], S[k + 1], 1) + W.gradient(S[k + 1], S[k + 2], 0)
                          for k in range(self.n_inner)])
 
-    def hessian_data(self, A, X, B) -> np.ndarray:
-        """Data of the block-tridiagonal Hessian on :attr:`gpattern` (free DOFs only)."""
+    def hessian_data(self, A, X, B, projection=None) -> np.ndarray:
+        """Data of the block-tridiagonal Hessian on :attr:`gpattern` (free DOFs only).
+
+        ``projection`` (``"clamp"`` or ``"abs"``): the projected Newton matrix instead, a
+        sum of element Hessians each projected onto the positive semi-definite cone
+        (:meth:`~shellspline.shells.energy.DiscreteShells.chain_hessian_data`)."""
         S = [A, *X, B]
         W, keep = self.energy, self._keep
         vals = []
+        if projection is not None:
+            diag, upper = W.chain_hessian_data(np.stack(S), projection)
+            vals = [d[keep] for d in diag]
+            for d12 in upper:
+                vals.append(d12[keep])
+                vals.append(d12[self._permT][keep])
+            return np.bincount(np.concatenate(self._pos), weights=np.concatenate(vals),
+                               minlength=self.gpattern.nnz)
         for k in range(self.n_inner):
             vals.append(W.midpoint_hessian_data(S[k], S[k + 1], S[k + 2])[keep])
         for k in range(self.n_inner - 1):
@@ -193,6 +225,7 @@ class PathSolver:
         """Factor ``H + shift I`` (lower data); returns False when not positive definite."""
         indptr, indices, sel = self._lower
         low = data[sel] + shift * self._diag_mask
+        self.factorizations += 1
         try:
             if self._chol is None:
                 # the analysis once, even when this shift is not positive definite
@@ -204,15 +237,20 @@ class PathSolver:
             return False
         return True
 
-    def _damped_factor(self, data, scale, from_zero: bool = False):
+    def _damped_factor(self, data, scale, from_zero: bool = False, max_tau=None,
+                       hint: str = "_tau_hint"):
         """Factor ``H + (ε + τ) I`` with the smallest ``τ`` in ``0, 1e-8, 1e-6, …`` (times
-        ``scale``) that is positive definite; returns ``τ``."""
+        ``scale``) that is positive definite, the ladder starting two rungs below the last
+        ``τ`` (attribute ``hint``) unless ``from_zero``; returns ``τ``, or ``None`` when no
+        ``τ <= max_tau`` is (default: raises ``ArithmeticError`` when none is)."""
         eps = _EPS_SHIFT * scale
         taus = _TAUS
-        start = 0 if from_zero else max(0, taus.index(self._tau_hint) - 2)
+        start = 0 if from_zero else max(0, taus.index(getattr(self, hint)) - 2)
         for tau in taus[start:]:
+            if max_tau is not None and tau > max_tau:
+                return None
             if self._factor(data, eps + tau * scale):
-                self._tau_hint = tau
+                setattr(self, hint, tau)
                 return tau
         raise ArithmeticError("the path Hessian could not be factored")
 
@@ -281,7 +319,8 @@ class PathSolver:
 
     # -- Newton --------------------------------------------------------------------------
     def solve(self, A, B, X0, *, tol: float = 1e-9, max_iter: int = 50,
-              check=None, deadline: float | None = None, progress=None) -> GeodesicResult:
+              check=None, deadline: float | None = None, progress=None,
+              projection="clamp") -> GeodesicResult:
         """Minimise the path energy over the inner shells, starting from ``X0``.
 
         Parameters
@@ -302,6 +341,11 @@ class PathSolver:
         progress : callable, optional
             ``progress(iteration, path energy, gradient max-norm)`` at every iterate (a
             Newton step of a fine path takes seconds: logs get a line per step).
+        projection : {"clamp", "abs", None}
+            Projected Newton (default ``"clamp"``): the Newton matrix is the sum of the
+            element Hessians, each projected onto the positive semi-definite cone
+            (:meth:`hessian_data`), so it needs no damping shift; ``None``: the true Hessian,
+            shifted until it is positive definite.
 
         Returns
         -------
@@ -318,6 +362,8 @@ class PathSolver:
         res = GeodesicResult(V=X, status="limit", energies=[K * E],
                              message="maximum number of iterations reached")
         nit = 0
+        nfact0 = self.factorizations
+        exact_below = np.inf
         g_next = None  # the gradient at X when a round-off-level step already computed it
         for nit in range(max_iter + 1):
             if check is not None:
@@ -345,9 +391,24 @@ class PathSolver:
                 res.stop("limit", "time limit reached")
                 break
             modes = self._modes(X)
-            data = self.hessian_data(A, X, B)
-            scale = float(np.abs(data).max())
-            tau = self._damped_factor(data, scale)
+            data = None
+            if projection is not None and gn < exact_below:
+                # the true Hessian when it is positive definite up to a small shift (the
+                # rotations of each shell have curvature ~ |g|; quadratic convergence near
+                # the minimum); else the projected one, and the true one again only after
+                # the gradient fell by _EXACT_RETRY (failed factorizations cost time)
+                exact = self.hessian_data(A, X, B)
+                scale = float(np.abs(exact).max())
+                tau = self._damped_factor(exact, scale, max_tau=_EXACT_MAX_SHIFT,
+                                          hint="_exact_hint")
+                if tau is not None:
+                    data = exact
+                else:
+                    exact_below = _EXACT_RETRY * gn
+            if data is None:
+                data = self.hessian_data(A, X, B, projection)
+                scale = float(np.abs(data).max())
+                tau = self._damped_factor(data, scale)
             d = -self._project(self._chol.solve(g.ravel()).reshape(m, nf), modes)
             slope = float(np.sum(g * d))
             while slope >= 0 and tau < 1e2:  # not a descent direction: damp harder
@@ -385,6 +446,7 @@ class PathSolver:
             X, E = ls.payload, ls.value
         res.V = np.concatenate([A[None], X, B[None]])
         res.iterations = nit
+        res.factorizations = self.factorizations - nfact0
         return res
 
 

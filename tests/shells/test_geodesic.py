@@ -6,7 +6,7 @@ import pytest
 from conftest import icosphere
 
 import data_synth
-from shellspline.shells.descriptors import edge_lengths
+from shellspline.shells.descriptors import dihedral_angles, edge_lengths
 from shellspline.shells.geodesic import PathSolver, discrete_geodesic, geodesic_interpolation
 from shellspline.shells.energy import DiscreteShells, EuclideanEnergy
 from shellspline.mesh.topology import topology
@@ -269,3 +269,41 @@ def test_not_converged_message_names_the_segment_and_its_frames(ellipsoids):
     assert not res.success
     assert "segment 1 of 2 (frames 0-3)" in res.message and "segment 2 of 2 (frames 3-6)" \
         in res.message and "after 1 Newton iterations" in res.message
+
+
+def test_projected_newton_reaches_the_exact_newton_geodesic_in_fewer_steps():
+    """Projected Newton (element Hessians projected onto the PSD cone, the true Hessian once
+    it is positive definite up to a small shift) and damped Newton on the true Hessian reach
+    the same geodesic from the compressed, strongly indefinite blend of two folds of a
+    hexagon; the projected one in fewer Newton steps and factorizations (measured: 7 and 25
+    against 13 and 40), and quadratically at the end."""
+    h = data_synth.generate("hexagon", n_vertices=61)
+    T = topology(h["F"])
+    A, B = h["V"][0], h["V"][1]
+    W = DiscreteShells(T, eta=1e-4)
+    X0 = (1 - np.arange(1, 6)[:, None, None] / 6) * A + np.arange(1, 6)[:, None, None] / 6 * B
+    exact = PathSolver(W, 5).solve(A, B, X0, max_iter=60, projection=None)
+    proj = PathSolver(W, 5).solve(A, B, X0, max_iter=60)
+    assert exact.success and proj.success, (exact.message, proj.message)
+    # the same shells up to a rigid motion of each (W is rigid-invariant)
+    assert abs(proj.energy - exact.energy) <= 1e-9 * exact.energy
+    for f in (edge_lengths, dihedral_angles):
+        assert np.abs(f(proj.V, T) - f(exact.V, T)).max() < 1e-6
+    assert proj.nit < exact.nit and proj.factorizations < exact.factorizations
+    g = proj.grad_norms
+    assert g[-1] <= 1e-2 * g[-2] or g[-1] <= 1e-11
+
+
+def test_adjoint_factorization_keeps_the_true_hessian():
+    """``factor_at`` (the nonlinear spline's adjoint solves) factors the true Hessian, not the
+    projected Newton matrix, even where they differ (an indefinite midpoint)."""
+    h = data_synth.generate("hexagon", n_vertices=61)
+    T = topology(h["F"])
+    A, B = h["V"][0], h["V"][1]
+    S = PathSolver(DiscreteShells(T, eta=1e-4), 1)
+    X = (0.5 * (A + B))[None]
+    true, projected = S.hessian_data(A, X, B), S.hessian_data(A, X, B, "clamp")
+    assert np.abs(true - projected).max() > 1e-3 * np.abs(true).max()
+    ctx = S.factor_at(A, X, B)
+    assert np.array_equal(ctx["H"].toarray(), S.gpattern.matrix(true).toarray())
+    assert ctx["tau"] > 0  # indefinite: the true Hessian needed a shift to factor
