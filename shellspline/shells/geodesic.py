@@ -16,7 +16,7 @@ of its largest entry, found by ~3 factorizations per step, and then crawls. The 
 is instead the sum of the element Hessians, each projected onto the positive semi-definite
 cone (:meth:`~shellspline.shells.energy.DiscreteShells.chain_hessian_data`): positive
 semi-definite by construction, one factorization per step. Once the true Hessian factors with
-a shift of at most :data:`_EXACT_MAX_SHIFT` it is used instead (quadratic convergence near
+a shift of at most 1e-6 of its largest entry (:data:`_EXACT_TAUS`) it is used instead (quadratic convergence near
 the minimum). Adjoint solves (:meth:`PathSolver.factor_at`) always use the true Hessian.
 
 Rigid motions: ``W`` is invariant under a rigid motion of each shell, so the Hessian has six
@@ -41,7 +41,8 @@ from ..numerics.linalg import SparseCholesky
 from ..numerics.linesearch import backtracking
 from ..numerics.result import SolverResult
 from ..timeline import canonical_bc, checked_frames, checked_K
-from .energy import DiscreteShells, HessianPattern, checked_pose, checked_poses
+from .energy import (DiscreteShells, HessianPattern, checked_pose, checked_poses,
+                     checked_projection)
 from ..mesh.pinned import canonical_pinned
 from ..mesh.rigid import rigid_modes
 from ..mesh.topology import Topology
@@ -57,8 +58,11 @@ _ROUNDOFF_DECREASE = 1e-11
 #: Projected Newton tries the true Hessian again only once the gradient's max-norm fell below
 #: this fraction of its value when the true Hessian last failed to factor (was indefinite).
 _EXACT_RETRY = 0.1
-#: The largest relative shift with which projected Newton still takes the true Hessian.
-_EXACT_MAX_SHIFT = 1e-6
+#: Relative shifts with which projected Newton tries the true Hessian (starting one below
+#: the last one that worked); the rotations of each shell have curvature ~ |g| (not zero),
+#: so away from the minimum the true Hessian needs a small shift even where it is
+#: essentially convex.
+_EXACT_TAUS = (0.0, 1e-8, 1e-6)
 #: Relative Levenberg–Marquardt shift that makes the rigid-motion kernel invertible.
 _EPS_SHIFT = 1e-10
 #: Relative Levenberg–Marquardt shifts tried in turn (ratio ~3: a ladder of 100× steps
@@ -237,20 +241,15 @@ class PathSolver:
             return False
         return True
 
-    def _damped_factor(self, data, scale, from_zero: bool = False, max_tau=None,
-                       hint: str = "_tau_hint"):
+    def _damped_factor(self, data, scale, from_zero: bool = False):
         """Factor ``H + (ε + τ) I`` with the smallest ``τ`` in ``0, 1e-8, 1e-6, …`` (times
-        ``scale``) that is positive definite, the ladder starting two rungs below the last
-        ``τ`` (attribute ``hint``) unless ``from_zero``; returns ``τ``, or ``None`` when no
-        ``τ <= max_tau`` is (default: raises ``ArithmeticError`` when none is)."""
+        ``scale``) that is positive definite; returns ``τ``."""
         eps = _EPS_SHIFT * scale
         taus = _TAUS
-        start = 0 if from_zero else max(0, taus.index(getattr(self, hint)) - 2)
+        start = 0 if from_zero else max(0, taus.index(self._tau_hint) - 2)
         for tau in taus[start:]:
-            if max_tau is not None and tau > max_tau:
-                return None
             if self._factor(data, eps + tau * scale):
-                setattr(self, hint, tau)
+                self._tau_hint = tau
                 return tau
         raise ArithmeticError("the path Hessian could not be factored")
 
@@ -352,6 +351,7 @@ class PathSolver:
         GeodesicResult
         """
         W = self.energy
+        projection = checked_projection(projection)
         m, nf = self.n_inner, self.nf
         A = np.asarray(A, np.float64)
         B = np.asarray(B, np.float64)
@@ -393,16 +393,17 @@ class PathSolver:
             modes = self._modes(X)
             data = None
             if projection is not None and gn < exact_below:
-                # the true Hessian when it is positive definite up to a small shift (the
-                # rotations of each shell have curvature ~ |g|; quadratic convergence near
-                # the minimum); else the projected one, and the true one again only after
-                # the gradient fell by _EXACT_RETRY (failed factorizations cost time)
+                # the true Hessian when it is positive definite up to a small shift
+                # (quadratic convergence near the minimum); else the projected one, and the
+                # true one again only after the gradient fell by _EXACT_RETRY (failed
+                # factorizations cost time)
                 exact = self.hessian_data(A, X, B)
                 scale = float(np.abs(exact).max())
-                tau = self._damped_factor(exact, scale, max_tau=_EXACT_MAX_SHIFT,
-                                          hint="_exact_hint")
-                if tau is not None:
-                    data = exact
+                start = max(0, _EXACT_TAUS.index(self._exact_hint) - 1)
+                for tau in _EXACT_TAUS[start:]:
+                    if self._factor(exact, (_EPS_SHIFT + tau) * scale):
+                        data, self._exact_hint = exact, tau
+                        break
                 else:
                     exact_below = _EXACT_RETRY * gn
             if data is None:
@@ -472,7 +473,7 @@ def make_energy(T, energy, mu, lam, eta):
 def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 1.0,
                       lam: float = 1.0, eta: float = 1e-3, pinned=None, init=None, energy=None,
                       tol: float = 1e-9, max_iter: int = 50,
-                      backend: str = "auto") -> GeodesicResult:
+                      backend: str = "auto", projection="clamp") -> GeodesicResult:
     """Discrete geodesic ``(s_0 = VA, …, s_K = VB)`` minimising ``E^K`` (paper eq. 3).
 
     Parameters
@@ -495,6 +496,9 @@ def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 
         Gradient max-norm tolerance relative to ``energy.scale(VA)``.
     max_iter : int
     backend : {"auto", "cholmod", "splu"}
+    projection : {"clamp", "abs", None}
+        Projected Newton (default) or Newton on the true Hessian (``None``); see
+        :meth:`PathSolver.solve`.
 
     Returns
     -------
@@ -525,7 +529,7 @@ def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 
         raise ShellsplineError(f"`init` must have shape (K-1,n,3) = ({K - 1},{n},3), "
                                f"got {init.shape}")
     return PathSolver(W, K - 1, pinned=pinned, backend=backend).solve(
-        VA, VB, init, tol=tol, max_iter=max_iter)
+        VA, VB, init, tol=tol, max_iter=max_iter, projection=checked_projection(projection))
 
 
 @dataclass(kw_only=True)
@@ -552,10 +556,13 @@ class GeodesicInterpolationResult(SolverResult):
     segment_energies : list of float
         Path energy ``E^{K_j}`` of every segment (eq. 3 with its own number of steps).
     segments : list of GeodesicResult
+    factorizations : int
+        Numeric factorizations of the Newton matrices over all segments.
     """
 
     V: np.ndarray
     frames: np.ndarray
+    factorizations: int = 0
     segment_energies: list = field(default_factory=list)
     segments: list = field(default_factory=list)
 
@@ -565,7 +572,8 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                            bc: str = "natural", energy=None, tol: float = 1e-9,
                            max_iter: int = 50, backend: str = "auto",
                            callback=None, progress=None, init=None,
-                           max_time_s: float | None = None) -> GeodesicInterpolationResult:
+                           max_time_s: float | None = None,
+                           projection="clamp") -> GeodesicInterpolationResult:
     """Piecewise discrete geodesic interpolation of keyframes (the paper's baseline, §3).
 
     Consecutive keyframes ``j, j+1`` are joined by a discrete geodesic with
@@ -607,6 +615,9 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
         their linear blend, and all of them are reported unconverged. Default: none (each
         segment stops after ``max_iter`` Newton iterations; on the 1000-vertex coarse horse
         one 20-step segment takes ~10 s per iteration and does not converge in 50).
+    projection : {"clamp", "abs", None}
+        Projected Newton (default) or Newton on the true Hessian (``None``); see
+        :meth:`PathSolver.solve`.
 
     Returns
     -------
@@ -628,6 +639,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
         raise ShellsplineError(f"`max_time_s` must be a positive number of seconds, got "
                                f"{max_time_s!r}")
     deadline = None if max_time_s is None else t0 + float(max_time_s)
+    projection = checked_projection(projection)
     W = make_energy(T, energy, mu, lam, eta)
     Vkey = checked_poses(Vkey, W.n_vertices)
     if init is not None:
@@ -658,6 +670,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
             else:
                 res = solvers[steps].solve(
                     Vkey[ja], Vkey[jb], X0, tol=tol, max_iter=max_iter, deadline=deadline,
+                    projection=projection,
                     progress=None if progress is None else
                     (lambda it, e, g, s=s: progress(s, it, e, g)))
             V[fa + 1:fb] = res.V[1:-1]
@@ -688,4 +701,5 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                                        energies=[sum(r.energy for r in results)],
                                        grad_norms=[max(finals)] if finals else [],
                                        segment_energies=[r.energy for r in results],
-                                       segments=results)
+                                       segments=results,
+                                       factorizations=sum(r.factorizations for r in results))
