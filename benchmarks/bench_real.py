@@ -52,7 +52,15 @@ Gauss–Newton frames converged / stalled and iterations. Ratios ``lta/linear`` 
 ``lta/cubic`` (issue 13's goal: both ≤ 1, column ``goal``) and ``shape/cubic`` (the ``shape``
 parts; the ``rigid`` parts are equal by construction), for the diagnostics too. Where LΘA
 loses, the JSON says where: the worst frames (error, flips, Gauss–Newton status) and the
-joints whose vertices carry most of the excess ``shape`` error over the cubic spline.
+joints whose vertices carry most of the excess ``shape`` error over the cubic spline. A third
+table splits the rigid misplacement of ``lta`` and ``cubic`` (rms centroid offset, per axis,
+and best-fit rotation angle: an aliased vertical bounce shows as one large axis) and gives
+their error over the two end gaps and over the interior gaps relative to the cubic's (where
+the natural end conditions act, and where they do not). ``--descriptors`` (a diagnostic, a
+minute per clip) rebuilds LΘA's in-betweens from the natural cubic spline of the keyframe
+descriptors with one group taken from the truth (lengths, dihedral angles, areas;
+:func:`descriptor_swaps`): the group whose true values remove the ``shape`` loss is the one
+whose time interpolation costs it.
 
 **Horse** (``--no-horse`` skips it): ``../shared/data/horse`` keyframes ``horse-reference,
 horse-03, horse-07`` at frames 0, 20, 40 (K = 40): full resolution (``coarse="none"``),
@@ -69,6 +77,7 @@ Run
     PYTHONPATH=. python3 benchmarks/bench_real.py              # full (~8-15 minutes)
     PYTHONPATH=. python3 benchmarks/bench_real.py --no-horse --clips walk_normal
     PYTHONPATH=. python3 benchmarks/bench_real.py --no-horse --clips run_normal --start 0
+    PYTHONPATH=. python3 benchmarks/bench_real.py --no-horse --clips run_normal --descriptors
 
 ``--start`` moves the window (default: the middle of the clip), so that the keyframes fall on
 other phases of the motion: one window is one sample of where the keyframes happen to land.
@@ -148,23 +157,105 @@ def procrustes_residual(X, Y):
     return np.sqrt(((_rigidly_onto(X, Y) - Y) ** 2).sum(-1).mean(-1))
 
 
-def ground_truth_errors(X, truth, inner, size) -> dict:
+def rigid_offsets(X, Y):
+    """The rigid misplacement of every frame of X (T,n,3) against Y (T,n,3): the offset of
+    the vertex centroids ``(T,3)`` and the angle in degrees ``(T,)`` of the best rotation
+    (Kabsch) of X onto Y about them."""
+    from shellspline.mesh.rigid import best_rotations
+
+    Xm, Ym = X.mean(axis=1, keepdims=True), Y.mean(axis=1, keepdims=True)
+    R = best_rotations(X - Xm, Y - Ym)
+    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    return (Xm - Ym)[:, 0], np.degrees(np.arccos(cos))
+
+
+def ground_truth_errors(X, truth, inner, size, frames=None) -> dict:
     """Errors of poses ``X (T,n,3)`` against ``truth`` on the in-between frames ``inner``,
     relative to ``size``: rms ``err``, worst frame ``max``, the ``shape`` part (after a
-    per-frame rigid fit) and the ``rigid`` rest (``err² = shape² + rigid²``)."""
+    per-frame rigid fit) and the ``rigid`` rest (``err² = shape² + rigid²``); the rigid
+    misplacement itself: rms centroid offset (``translation``, and per axis
+    ``translation_axes``) and best-fit rotation angle (``rotation_deg``); with the keyframes
+    ``frames``, ``err`` over the two end gaps and over the interior gaps (``gaps``: where a
+    spline's end conditions act, and where they do not)."""
     e = np.sqrt(((X - truth) ** 2).sum(-1).mean(-1)) / size
     s = procrustes_residual(X[inner], truth[inner]) / size
     err, shape = float(np.sqrt(np.mean(e[inner] ** 2))), float(np.sqrt(np.mean(s ** 2)))
+    dc, angle = rigid_offsets(X[inner], truth[inner])
     # err² = shape² + rigid²: the rigid part is the rms of the per-frame rigid misplacement
-    return {"err": err, "max": float(e[inner].max()), "shape": shape,
-            "rigid": float(np.sqrt(max(err ** 2 - shape ** 2, 0.0))),
-            "err_per_frame": e.tolist()}
+    out = {"err": err, "max": float(e[inner].max()), "shape": shape,
+           "rigid": float(np.sqrt(max(err ** 2 - shape ** 2, 0.0))),
+           "translation": float(np.sqrt(np.mean((dc ** 2).sum(-1)))) / size,
+           "translation_axes": (np.sqrt(np.mean(dc ** 2, axis=0)) / size).tolist(),
+           "rotation_deg": float(np.sqrt(np.mean(angle ** 2))),
+           "err_per_frame": e.tolist()}
+    if frames is not None and len(frames) > 2:
+        f = np.asarray(frames)
+        end = (inner < f[1]) | (inner > f[-2])
+        out["gaps"] = {name: float(np.sqrt(np.mean(e[inner[m]] ** 2))) if m.any() else None
+                       for name, m in (("end", end), ("interior", ~end))}
+    return out
+
+
+def descriptor_swaps(truth, F, frames, V_init, size) -> dict:
+    """Which descriptor's time spline costs the shape: every in-between frame rebuilt
+    (one Gauss–Newton solve from ``V_init``, LΘA weights of the first keyframe, the
+    keyframes scaled by :func:`shellspline.metrics.length_scale` as ``interpolate`` does)
+    from the natural C² cubic spline of the keyframe descriptors (lengths, dihedral angles on
+    their :func:`~shellspline.shells.descriptors.consistent_angles` paths, areas), and from
+    the same with one group replaced by the truth's (``true_L``, ``true_theta``, ``true_A``).
+
+    Returns
+    -------
+    dict
+        ``shape`` error (rms over the in-between frames, after each frame's rigid fit to the
+        truth, relative to ``size``) per variant (``spline``, ``true_L``, ``true_theta``,
+        ``true_A``), and the Gauss–Newton frames that did not converge (``unconverged``).
+    """
+    from scipy.interpolate import CubicSpline
+
+    from shellspline.metrics import length_scale
+    from shellspline.shells.descriptors import (consistent_angles, dihedral_angles,
+                                                edge_lengths, face_areas, lta_weights,
+                                                wrap_angle)
+    from shellspline.shells.reconstruct import reconstruct
+    from shellspline.mesh.topology import topology
+
+    T = topology(F)
+    frames = np.asarray(frames)
+    K = truth.shape[0] - 1
+    inner = np.setdiff1d(np.arange(K + 1), frames)
+    D = length_scale(truth[frames[0]], F)
+    X = truth / D
+    L, Th, A = edge_lengths(X, T), dihedral_angles(X, T), face_areas(X, T)
+    key = np.concatenate([L[frames], consistent_angles(Th[frames]), A[frames]], axis=1)
+    Zs = CubicSpline(frames.astype(np.float64), key, axis=0, bc_type="natural")(inner)
+    e, i = L.shape[1], Th.shape[1]
+    th_true = Zs[:, e:e + i] + wrap_angle(Th[inner] - Zs[:, e:e + i])  # on the spline's branch
+    Zt = np.concatenate([L[inner], th_true, A[inner]], axis=1)
+    w = lta_weights(X[frames[0]], T)
+    groups = {"true_L": slice(0, e), "true_theta": slice(e, e + i), "true_A": slice(e + i, None)}
+    out, unconverged = {}, 0
+    for name in ("spline", *groups):
+        Z = Zs.copy()
+        if name in groups:
+            Z[:, groups[name]] = Zt[:, groups[name]]
+        Vr = np.empty((len(inner),) + truth.shape[1:])
+        for r, k in enumerate(inner):
+            res = reconstruct(Z[r], w, V_init[k] / D, T)
+            Vr[r] = res.V * D
+            unconverged += not res.success
+        s = procrustes_residual(Vr, truth[inner]) / size
+        out[name] = float(np.sqrt(np.mean(s ** 2)))
+    out["unconverged"] = int(unconverged)
+    return out
 
 
 def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
-            coarse: bool, cold: bool = False, start: int | None = None) -> dict:
+            coarse: bool, cold: bool = False, start: int | None = None,
+            descriptors: bool = False) -> dict:
     """All methods on one clip: the true window (from frame ``start``, default the middle of
-    the clip), keyframes every ``step`` frames."""
+    the clip), keyframes every ``step`` frames; ``descriptors``: also
+    :func:`descriptor_swaps` from the LΘA frames."""
     import shellspline
     from scipy.interpolate import CubicSpline
 
@@ -233,10 +324,12 @@ def gt_case(path: Path, window: int, n_vertices: int, steps, workers: int,
                "methods": {}}
         for name, (X, t, gn) in runs.items():
             rec["methods"][name] = {"seconds": t, "gn": gn,
-                                    **ground_truth_errors(X, truth, inner, size),
+                                    **ground_truth_errors(X, truth, inner, size, frames),
                                     **defects(X, T, frames)}
         rec["where"] = {name: _where(name, runs, truth, inner, size, owner, motion.names, rec)
                         for name in runs if name.startswith("lta") and "@" not in name}
+        if descriptors:
+            rec["descriptors"] = descriptor_swaps(truth, F, frames, res.V, size)
         out["steps"][str(step)] = rec
     return out
 
@@ -355,7 +448,44 @@ def gt_tables(cases) -> str:
                        "coll", "fold", "pop", "GN conv/stall/n", "it med/max", "s"], rows)
     t2 = format_table(["clip /step", "method", "err/linear", "err/cubic", "shape/cubic",
                        "goal (both <= 1)", "excess over cubic (joints)"], ratio_rows)
-    return t1 + "\n\n" + t2
+    return t1 + "\n\n" + t2 + "\n\n" + placement_table(cases) + descriptor_table(cases)
+
+
+def placement_table(cases) -> str:
+    """Where LΘA and the cubic lose: the rigid misplacement (centroid offset per axis, rotation)
+    and the error over the end gaps and the interior gaps, LΘA over the cubic."""
+    rows = []
+    for c in cases:
+        for step, rec in c["steps"].items():
+            for name in ("lta", "cubic"):
+                r, cub = rec["methods"][name], rec["methods"]["cubic"]
+                g, gc = r.get("gaps") or {}, cub.get("gaps") or {}
+                rows.append([f"{c['clip']} /{step}", name, 1e3 * r["translation"],
+                             " ".join(f"{1e3 * a:.2f}" for a in r["translation_axes"]),
+                             r["rotation_deg"],
+                             *(f"{g[k] / gc[k]:.3f}" if g.get(k) and gc.get(k) else "-"
+                               for k in ("end", "interior"))])
+    return format_table(["clip /step", "method", "centroid‰", "per axis x y z ‰", "rot °",
+                         "end gaps / cubic", "interior / cubic"], rows)
+
+
+def descriptor_table(cases) -> str:
+    """``--descriptors``: the shape error of in-betweens rebuilt from the descriptor spline
+    with one descriptor group taken from the truth (:func:`descriptor_swaps`)."""
+    rows = []
+    for c in cases:
+        for step, rec in c["steps"].items():
+            d = rec.get("descriptors")
+            if d:
+                m = rec["methods"]
+                rows.append([f"{c['clip']} /{step}", 1e3 * m["lta"]["shape"],
+                             1e3 * m["cubic"]["shape"], 1e3 * d["spline"], 1e3 * d["true_L"],
+                             1e3 * d["true_theta"], 1e3 * d["true_A"], d["unconverged"]])
+    if not rows:
+        return ""
+    return "\n\nShape ‰ of in-betweens rebuilt from the descriptor spline, one group true\n" + \
+        format_table(["clip /step", "lta", "cubic", "spline", "true L", "true Θ", "true A",
+                      "GN unconverged"], rows)
 
 
 # ----------------------------------------------------------------------------------------
@@ -425,6 +555,10 @@ def main(argv=None) -> int:
     ap.add_argument("--cold", action="store_true",
                     help="ground truth: also LΘA with warm_start=False (diagnostic: each frame "
                          "starts from the keyframe blend)")
+    ap.add_argument("--descriptors", action="store_true",
+                    help="ground truth: also rebuild the LΘA in-betweens from the descriptor "
+                         "spline with the lengths, angles or areas of the truth (diagnostic: "
+                         "which descriptor's interpolation costs the shape; a minute per clip)")
     ap.add_argument("--clips", nargs="+", metavar="NAME",
                     help="only the BVH clips whose file name contains one of these")
     ap.add_argument("--start", type=int, default=None, metavar="FRAME",
@@ -453,7 +587,8 @@ def main(argv=None) -> int:
             print(f"... {c.name}", flush=True)
             result["ground_truth"].append(gt_case(c, window, n_vertices, (3, 6), args.workers,
                                                   coarse=not args.quick, cold=args.cold,
-                                                  start=args.start))
+                                                  start=args.start,
+                                                  descriptors=args.descriptors))
         if result["ground_truth"]:
             print("\nGround truth (errors in ‰ of the body size; flip/coll/fold: new defects)")
             print(gt_tables(result["ground_truth"]))
