@@ -120,3 +120,39 @@ def test_descriptor_swaps_find_the_angles_of_a_fast_fold(bench):
     assert d["true_L"] == pytest.approx(d["spline"], rel=1e-6)
     assert d["true_A"] == pytest.approx(d["spline"], rel=1e-6)
     assert d["unconverged"] == 0
+
+
+def test_spline_error_weights_from_third_derivative_jumps(bench):
+    from scipy.interpolate import CubicSpline
+
+    rng = np.random.default_rng(7)
+    frames = np.array([0, 4, 8, 12, 16])
+    t = frames[:, None, None].astype(float)
+    # vertex 0 moves at a constant velocity (the natural spline reproduces it: no jump),
+    # vertex 1 on a sine, the others at random
+    Vkey = rng.normal(size=(5, 6, 3))
+    Vkey[:, 0] = (0.5 + 0.2 * t)[:, 0] * [1.0, 2.0, -1.0]
+    Vkey[:, 1] = np.sin(t[:, 0] / 2.0) * [1.0, 0.0, 0.0]
+    w = bench.spline_error_weights(Vkey, frames)
+    # oracle: the jumps of scipy's third derivative, evaluated left and right of each knot
+    d3 = CubicSpline(frames, Vkey, axis=0, bc_type="natural").derivative(3)
+    jumps = np.stack([d3(f + 1e-9) - d3(f - 1e-9) for f in frames[1:-1]])
+    q = (jumps ** 2).sum(-1).mean(0)
+    np.testing.assert_allclose(w, 1.0 / (0.3 * np.median(q) + q), rtol=1e-6)
+    assert q[0] < 1e-12 and w[0] == w.max()        # the exact track is trusted most
+    assert bench.spline_error_weights(Vkey[:2], frames[:2]) is None
+    # constant velocities everywhere: no jump, no preference
+    lin = np.stack([Vkey[0] + f * Vkey[1] for f in frames])
+    assert bench.spline_error_weights(lin, frames) is None
+
+
+def test_placed_on_moves_rigidly_and_keeps_keyframes(bench):
+    rng = np.random.default_rng(8)
+    track = rng.normal(size=(7, 20, 3))
+    R = Rotation.random(7, random_state=9)
+    V = np.stack([R[k].apply(track[k]) + rng.normal(size=3) for k in range(7)])
+    frames = np.array([0, 3, 6])
+    out = bench.placed_on(V, track, frames, rng.uniform(0.5, 2.0, size=20))
+    inner = [1, 2, 4, 5]
+    np.testing.assert_allclose(out[inner], track[inner], atol=1e-9)   # rigid copies land
+    assert np.array_equal(out[frames], V[frames])
