@@ -147,6 +147,7 @@ def geodesic_stage(prob, opts, prog) -> StageResult:
         prog.message(f"geodesic: {g.message}")
     rec = {"success": bool(g.success), "nit": int(g.nit), "message": g.message,
            "segment_energies": [float(e) for e in g.segment_energies], "start": "lta",
+           "factorizations": int(g.factorizations),
            "start_frames": start.frame_records}
     out = StageResult(V=g.V, report={"geodesic": rec})
     if dec is not None:
