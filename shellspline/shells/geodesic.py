@@ -614,7 +614,8 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
         after it, a segment stopped by it keeps the path reached so far, later segments keep
         their linear blend, and all of them are reported unconverged. Default: none (each
         segment stops after ``max_iter`` Newton iterations; on the 1000-vertex coarse horse
-        one 20-step segment takes ~10 s per iteration and does not converge in 50).
+        one 20-step segment takes ~11 s per projected Newton step on a loaded 2-core machine
+        and does not converge: its minimising paths collapse sliver faces, see the README).
     projection : {"clamp", "abs", None}
         Projected Newton (default) or Newton on the true Hessian (``None``); see
         :meth:`PathSolver.solve`.
