@@ -109,7 +109,7 @@ class SeamBridge:
     """
 
     def __init__(self, gn, frame_of, K: int, s: int, a: int, b: int, Z, W_of, *,
-                 half: int = BRIDGE_HALF, beta: float = BRIDGE_BETA):
+                 half: int = BRIDGE_HALF, beta: float = BRIDGE_BETA, tube_of=None):
         U = list(range(max(a + 1, s - half), min(b - 1, s + half - 1) + 1))
         ctx = list(range(max(0, U[0] - 2), min(K, U[-1] + 2) + 1)) if U else []
         self.gn, self.T = gn, gn.T
@@ -132,6 +132,8 @@ class SeamBridge:
             w[sL][z[sL] <= 0] = 0.0
             w[sA][z[sA] <= 0] = 0.0
             self.weights.append(w)
+        self.tubes = [None if tube_of is None else np.asarray(tube_of(k), dtype=np.float64)
+                      for k in U]
         self.floors = [1e-6 * np.maximum(z[sA], 0.0) for z in self.targets]
         # lumped vertex masses from the first window frame's target areas, mean 1
         A0 = np.maximum(self.targets[0][sA], 0.0)
@@ -160,7 +162,7 @@ class SeamBridge:
         out = []
         for i, j in enumerate(self.iu):
             J, z = lta_jacobian(X[j].reshape(-1, 3), self.T, return_values=True)
-            f, r, w = self.gn.merit(z, self.targets[i], self.weights[i])
+            f, r, w = self.gn.merit(z, self.targets[i], self.weights[i], self.tubes[i])
             out.append((f, J, r, w))
         return out
 
@@ -177,7 +179,7 @@ class SeamBridge:
                 if not np.all(face_areas(X[j].reshape(-1, 3), self.T) > self.floors[i]):
                     return np.inf
             terms = [(self.gn.merit(lta_descriptors(X[j].reshape(-1, 3), self.T),
-                                    self.targets[i], self.weights[i])[0],)
+                                    self.targets[i], self.weights[i], self.tubes[i])[0],)
                      for i, j in enumerate(self.iu)]
         return sum(t[0] for t in terms) + self.mu * self.penalty(X)
 
@@ -292,7 +294,7 @@ class SeamBridge:
 
 def bridge_seam(gn, frame_of, K: int, s: int, a: int, b: int, Z, W_of, *,
                 half: int = BRIDGE_HALF, beta: float = BRIDGE_BETA, dtol: float = BRIDGE_DTOL,
-                max_iter: int = 30) -> BridgeResult | None:
+                max_iter: int = 30, tube_of=None) -> BridgeResult | None:
     """Re-solve the frames around the seam at frame ``s`` of the gap ``(a, b)`` jointly.
 
     Parameters
@@ -317,13 +319,17 @@ def bridge_seam(gn, frame_of, K: int, s: int, a: int, b: int, Z, W_of, *,
         Converged when the joint Gauss–Newton decrement is below ``dtol`` times the
         objective (or the gradient norm below the solver's ``gtol`` times the first).
     max_iter : int
+    tube_of : callable(int) -> (i,) float64 array, optional
+        Tube weights of frame ``k``'s dihedral angles
+        (:meth:`~shellspline.shells.reconstruct.GaussNewton.merit`).
 
     Returns
     -------
     BridgeResult or None
         None when the gap has no frame to re-solve.
     """
-    problem = SeamBridge(gn, frame_of, K, s, a, b, Z, W_of, half=half, beta=beta)
+    problem = SeamBridge(gn, frame_of, K, s, a, b, Z, W_of, half=half, beta=beta,
+                         tube_of=tube_of)
     if not len(problem.frames):
         return None
     return problem.solve(dtol=dtol, max_iter=max_iter)

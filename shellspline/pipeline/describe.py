@@ -15,7 +15,7 @@ from ..timeline import keyframe_bracket
 
 __all__ = ["describe_and_solve", "SplineTargets", "keyframe_angles", "AngleBand", "SplineRows",
            "geodesic_weights", "ANGLE_MARGIN", "bending_fade", "flap_strain", "FADE_ANGLE", "FADE_FLOOR",
-           "HINGE_STRAIN", "POSITIVE_FLOOR"]
+           "HINGE_STRAIN", "POSITIVE_FLOOR", "tube_weights"]
 
 #: Default ``fade_angle`` (radians): an edge whose dihedral angle turns by more than this
 #: between the two keyframes of a gap has its bending weight faded in that gap (see
@@ -239,6 +239,9 @@ class SplineTargets:
         The weights the report's energies use (the paper's, without the fade).
     faded_edges : int
         Interior edges whose bending weight :func:`bending_fade` lowers in some gap.
+    tube_of : callable(int) -> (i,) float64 array, or None
+        Tube weights of frame ``k``'s dihedral angles (:func:`tube_weights`); None without a
+        fade.
     """
 
     Zkey: np.ndarray
@@ -248,6 +251,7 @@ class SplineTargets:
     W_spline: np.ndarray | None
     W_report: np.ndarray
     faded_edges: int = 0
+    tube_of: Callable | None = None
 
 
 def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> SplineTargets:
@@ -301,10 +305,13 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
         fade = bending_fade(Zkey[:, sT], periodic, opts.fade_angle,
                             strain=flap_strain(Zkey, T, periodic))
         faded = int((fade < 1.0).any(axis=0).sum())
+        tube_of = None
         if faded:
             j0, _, t = keyframe_bracket(frames, K, periodic)
             gap = np.minimum(j0, len(fade) - 1)
-            W_of = _faded(W_of, fade, gap, np.sin(np.pi * np.clip(t, 0.0, 1.0)), sT)
+            depth = np.sin(np.pi * np.clip(t, 0.0, 1.0))
+            tube_of = tube_weights(W_of, fade, gap, depth, sT)
+            W_of = _faded(W_of, fade, gap, depth, sT)
     with prog.stage(stage_prefix + "solve"):
         if W_spline is None:
             # constant weights: the spline is one linear map of the keyframes, Z = S Zkey;
@@ -315,7 +322,7 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
         else:
             Z = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline, spline=opts.spline))
     return SplineTargets(Zkey=Zkey, clamp=clamp, Z=Z, W_of=W_of, W_spline=W_spline,
-                         W_report=W_report, faded_edges=faded)
+                         W_report=W_report, faded_edges=faded, tube_of=tube_of)
 
 
 def _faded(W_of, fade, gap, depth, sT):
@@ -330,3 +337,51 @@ def _faded(W_of, fade, gap, depth, sT):
         w[sT] *= fade[gap[k]] ** depth[k]
         return w
     return faded_W_of
+
+
+def tube_weights(W_of, fade, gap, depth, sT):
+    """The tube weights that go with the faded bending weights of :func:`_faded`: what the
+    fade took away, ``w (1 − fade ** depth)`` per dihedral angle of frame ``k``.
+
+    The reconstruction (:meth:`~shellspline.shells.reconstruct.GaussNewton.merit`) lets an
+    angle leave its spline target by up to
+    :data:`~shellspline.shells.reconstruct.ANGLE_TUBE` at its faded weight and charges the
+    paper's weight again on the distance beyond. Why: a faded angle is free, and a flap whose
+    lengths and areas are its only targets is bistable (it can buckle either way, and a
+    skin fold can be formed or not): on the horse (``horse-reference, horse-03, horse-07`` at
+    frames 0, 20, 40) faded edges stayed at their keyframe's value for half a gap and then
+    snapped through ±π in one step (edge 16743: keyframes −0.43, 2.44, −0.13; frames 4–8 of
+    the run from keyframe 0: −0.44, −0.52, −0.76, −2.79, 3.08), and the two runs of a gap met
+    with a fold formed in one and not in the other (edge 1364: keyframes 0.00, 0.93, −0.14;
+    2.54 at frame 31, −1.41 at frame 32).
+    A band between the two keyframe values did not help (both states are inside it: 5 flips
+    and 7 folds instead of 4 and 6); the full weight back everywhere (``fade_angle=0``)
+    crumpled the seam (38 flipped faces). With the tube, no edge folds on four horse pose
+    sets (2026-11-25, ``coarse="none"``; new flipped / folded, before → after):
+    reference/03/07 4/6 → 6/0, reference/05/09 1/1 → 2/0, 01/04/08 6/8 → 9/0, the five
+    poses reference/02/04/06/08 1/6 → 1/0, pops within ±0.03. Narrower tubes hold harder and
+    crumple more (0.75: 8 and 10 flips on the first and third; 0.4: 13 on the first), wider
+    ones fold more on the sliver tube of ``data_synth.stress`` (1.25: 3 folded edges, 1.0:
+    1, none: 9).
+
+    Parameters
+    ----------
+    W_of : callable(int) -> (d,) float64 array
+        The unfaded weights of frame ``k``.
+    fade : (gaps, i) float64 array
+        :func:`bending_fade`.
+    gap : (K+1,) int array
+        Keyframe gap of every frame.
+    depth : (K+1,) float64 array
+        Exponent of the fade at every frame (see :func:`_faded`).
+    sT : slice
+        The dihedral angles in the descriptor vector.
+
+    Returns
+    -------
+    callable(int) -> (i,) float64 array
+    """
+    def tube_of(k):
+        w = np.asarray(W_of(k), dtype=np.float64)[sT]
+        return w * (1.0 - fade[gap[k]] ** depth[k])
+    return tube_of

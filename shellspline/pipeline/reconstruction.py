@@ -62,7 +62,7 @@ def _worker_init(F, n, pinned, gn_options):
 
 
 def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
-               worse_than=None):
+               worse_than=None, tubes=None):
     """Reconstruct a run of consecutive frames, in the run's order (see :func:`reconstruction_runs`).
 
     ``Vanchor`` is the keyframe next to the run's first frame, or a pair of solved frames
@@ -78,6 +78,9 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
 
     ``worse_than`` (energies, one per frame of the run): the run stops at the first frame
     whose energy is not below it, and that frame is not returned (see :func:`continued_runs`).
+
+    ``tubes`` (one ``(i,)`` array or None per frame): the frames' tube weights
+    (:meth:`~shellspline.shells.reconstruct.GaussNewton.solve`).
     """
     out = []
     gn.reset()  # a run's result does not depend on which runs this solver did before, so
@@ -98,7 +101,7 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
                     0.5 * np.linalg.norm(face_normals(vw, gn.T.F), axis=-1)
                     > 1e-6 * np.maximum(z[gn.T.descriptor_slices()[2]], 0.0)):
                 v = vw
-        r = gn.solve(z, w, v)
+        r = gn.solve(z, w, v, None if tubes is None else tubes[i])
         if worse_than is not None and not r.energy < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
             break
         prev2, prev, prev_init = prev, r.V, v0
@@ -192,11 +195,16 @@ def _worker_solve(task):
     if isinstance(task, tuple) and len(task) == 4 and task[0] == "inherited":
         # forked worker: the frame data are the parent's arrays, inherited (no copies)
         _, ks, anchor, worse = task
-        Z, W_of, Vinit, warm = _WORKER["frame_data"]
+        Z, W_of, Vinit, warm, tube_of = _WORKER["frame_data"]
         return solve_run(_WORKER["gn"], ks, [Z[k] for k in ks], [W_of(k) for k in ks],
                           [Vinit[k] for k in ks], _anchor(anchor, Vinit), warm,
-                          worse_than=worse)
+                          worse_than=worse, tubes=_tubes(tube_of, ks))
     return solve_run(_WORKER["gn"], *task)
+
+
+def _tubes(tube_of, ks):
+    """The tube weights of frames ``ks`` (None without ``tube_of``)."""
+    return None if tube_of is None else [tube_of(int(k)) for k in ks]
 
 
 def _anchor(anchor, Vinit):
@@ -235,9 +243,10 @@ def _chunks(idx, n_chunks):
 
 
 def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress, warm,
-                        stage="reconstruct", runs=None):
+                        stage="reconstruct", runs=None, tube_of=None):
     """Reconstruct frames ``ks`` (in ``runs``, see :func:`reconstruction_runs`; default one run per frame
-    anchored at its predecessor) serially or on ``workers`` processes."""
+    anchored at its predecessor) serially or on ``workers`` processes; ``tube_of(k)``: the
+    tube weights of frame ``k`` (see :func:`solve_run`)."""
     results = {}
     total = len(ks)
     if runs is None:
@@ -255,7 +264,8 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                                               Vinit[run], _anchor(anchor, Vinit), warm,
                                               lambda i, rec: progress.advance(
                                                   stage, done + i, total,
-                                                  text=_frame_text(rec)), worse):
+                                                  text=_frame_text(rec)), worse,
+                                              _tubes(tube_of, run)):
                     results[kk] = (Vk, rec)
         finally:
             if limiter is not None:
@@ -276,7 +286,7 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
         gn = GaussNewton(T, pinned=pinned, **gn_options)
         gn.prepare(Vinit[ks[0]])  # and the fill-reducing order (large meshes), also inherited
         _WORKER["gn"] = gn
-        _WORKER["frame_data"] = (Z, W_of, Vinit, warm)
+        _WORKER["frame_data"] = (Z, W_of, Vinit, warm, tube_of)
     done = 0
     try:
         with process_pool(workers, _worker_init, (T.F, T.n_vertices, pinned, gn_options),
@@ -284,7 +294,7 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
             # one task per run (runs start next to a keyframe; the pool balances them)
             futs = [ex.submit(_worker_solve, ("inherited", c, a, w) if method == "fork" else
                               (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
-                               _anchor(a, Vinit), warm, None, w))
+                               _anchor(a, Vinit), warm, None, w, _tubes(tube_of, c)))
                     for c, a, w in runs]
             for fut in as_completed(futs):
                 for kk, Vk, rec in fut.result():
@@ -319,7 +329,7 @@ def safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):
 
 def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn_options,
                        workers, warm, prog, stage_prefix="", bridge=True,
-                       pop_defects=POP_DEFECTS):
+                       pop_defects=POP_DEFECTS, tube_of=None):
     """The reconstruction stage: frames ``ks`` in runs from the keyframes
     (:func:`reconstruction_runs`), then, with ``warm="extrapolate"``, the continuation pass
     of :func:`continued_runs`.
@@ -351,6 +361,9 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         Re-solve the frames around each seam jointly (:func:`bridge_seams`).
     pop_defects : int
         What a pop counts in the bridges' keep rule (:func:`bridge_kept`).
+    tube_of : callable(int) -> (i,) float64 array, optional
+        Tube weights of frame ``k``'s dihedral angles
+        (:func:`~shellspline.pipeline.describe.tube_weights`).
 
     Returns
     -------
@@ -364,7 +377,7 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
     stage = stage_prefix + "reconstruct"
     with prog.stage(stage, total=len(ks)):
         results = run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
-                                     warm, stage=stage, runs=runs)
+                                     warm, stage=stage, runs=runs, tube_of=tube_of)
     if warm != "extrapolate":
         return results
     again = continued_runs(runs, results, Vinit)
@@ -372,7 +385,8 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
     with prog.stage(stage, total=sum(len(r) for r, _, _ in again)):
         better = run_reconstruction(T, np.concatenate([r for r, _, _ in again]) if again
                                     else np.zeros(0, int), Z, W_of, Vinit, pinned, gn_options,
-                                    workers, prog, warm, stage=stage, runs=again)
+                                    workers, prog, warm, stage=stage, runs=again,
+                                    tube_of=tube_of)
     for kk, (Vk, rec) in better.items():
         rec["continued"] = True
         results[kk] = (Vk, rec)
@@ -381,12 +395,12 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         results[seam["frame"]][1]["seam_jump"] = seam["jump"]
     if bridge and seams:
         bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                     stage_prefix, workers, pop_defects)
+                     stage_prefix, workers, pop_defects, tube_of)
     return results
 
 
 def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                 stage_prefix="", workers=1, pop_defects=POP_DEFECTS):
+                 stage_prefix="", workers=1, pop_defects=POP_DEFECTS, tube_of=None):
     """Re-solve the frames around each seam jointly (:func:`~.bridge.bridge_seam`) and
     replace them in ``results`` (in place) where that removes the jump without a new defect.
 
@@ -423,7 +437,7 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
     large = T.n_vertices > LARGE_MESH
     workers = 1 if large else workers
     _WORKER["bridge"] = (T, frame_of, K, Z, W_of, pinned, gn_options,
-                         1 if large else BRIDGE_HALF)
+                         1 if large else BRIDGE_HALF, tube_of)
     try:
         with prog.stage(stage, total=len(tasks)):
             if workers > 1 and len(tasks) > 1 and start_method() == "fork":
@@ -486,9 +500,9 @@ def _bridge_one(task):
     from .bridge import bridge_seam
 
     s, a, b = task
-    T, frame_of, K, Z, W_of, pinned, gn_options, half = _WORKER["bridge"]
+    T, frame_of, K, Z, W_of, pinned, gn_options, half, tube_of = _WORKER["bridge"]
     gn = GaussNewton(T, pinned=pinned, **gn_options)
-    br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of, half=half)
+    br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of, half=half, tube_of=tube_of)
     if br is None:
         return s, None, None, None
     new = dict(zip(br.frames.tolist(), br.V))

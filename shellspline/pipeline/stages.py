@@ -220,7 +220,8 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
                                  periodic=opts.periodic, gn_options=opts.gn_options,
                                  workers=opts.workers, warm=warm, prog=prog,
                                  stage_prefix=stage_prefix,
-                                 pop_defects=1 if refine else POP_DEFECTS)
+                                 pop_defects=1 if refine else POP_DEFECTS,
+                                 tube_of=tg.tube_of)
     del Vinit
     Z = tg.Z[:] if isinstance(tg.Z, SplineRows) else tg.Z
     with prog.stage(stage_prefix + "place"):
@@ -278,7 +279,8 @@ def given_starts(Vinit, Vkey, T, ks, tg, pinned, prob, opts):
         w = np.array(tg.W_of(k), dtype=np.float64, copy=True)
         w[sL][z[sL] <= 0] = 0.0  # as Gauss–Newton weighs them
         w[sA][z[sA] <= 0] = 0.0
-        f_given, f_blend = (gn.merit(lta_descriptors(X, T), z, w)[0]
+        tube = None if tg.tube_of is None else tg.tube_of(k)
+        f_given, f_blend = (gn.merit(lta_descriptors(X, T), z, w, tube)[0]
                             for X in (Vinit[k], blend[k]))
         if f_blend < f_given or not np.isfinite(f_given):
             if V is Vinit:

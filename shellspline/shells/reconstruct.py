@@ -75,11 +75,16 @@ from ..numerics.linesearch import backtracking
 from ..numerics.result import SolverResult
 from .descriptors import face_areas, lta_descriptors, lta_jacobian, wrap_angle
 
-__all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement"]
+__all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement", "ANGLE_TUBE"]
 
 #: Vertex count above which :class:`GaussNewton` rotates its cached preconditioner and refreshes
 #: it less eagerly (both pay off only when a factorization costs many solves).
 LARGE_MESH = 20_000
+
+#: Half-width (radians) of the tube around a dihedral-angle target outside which an angle
+#: with a tube weight (``solve(..., tube=)``) pays that weight on its distance to the tube:
+#: see :meth:`GaussNewton.merit`.
+ANGLE_TUBE = 1.0
 
 #: :class:`GaussNewton` with ``subspace=True`` replaces a step by
 #: :meth:`GaussNewton.subspace_step` only where the previous step's secant curvature differs
@@ -275,7 +280,7 @@ class GaussNewton:
         self._dof_order(np.asarray(V, dtype=np.float64).ravel())
 
     # -- pieces -------------------------------------------------------------------------
-    def merit(self, z, z_target, w):
+    def merit(self, z, z_target, w, tube=None):
         """The reconstruction energy and its Gauss–Newton form at descriptors ``z``.
 
         Parameters
@@ -284,11 +289,13 @@ class GaussNewton:
             Descriptors of the iterate and the target.
         w : (e+i+m,) float64 array
             Weights.
+        tube : (i,) float64 array, optional
+            Tube weights of the dihedral angles (0: none; see the notes).
 
         Returns
         -------
         f : float
-            ``Σ w ρ²``.
+            ``Σ w ρ²`` (plus the tube terms).
         r_eff, w_eff : (e+i+m,) float64 arrays
             ``Jᵀ (w_eff r_eff)`` is half the gradient of ``f`` and ``Jᵀ W_eff J`` its
             Gauss–Newton matrix (``J`` the descriptor Jacobian).
@@ -309,6 +316,13 @@ class GaussNewton:
           target area stalled on 23 of 38 horse frames (the full form conditions the
           Gauss–Newton matrix of compressed triangles). It moves the ellipsoids of paper
           Fig. 3 by at most 6e-4 of a half-axis.
+
+        An angle with a tube weight ``w_t > 0`` also pays ``w_t d²``, ``d`` its distance to the
+        tube ``[θ* − τ, θ* + τ]`` (``τ`` = :data:`ANGLE_TUBE`, the angle on the branch nearest
+        its target): free to leave its target inside the tube at its own (faded) weight, held
+        beyond it (see :func:`shellspline.pipeline.describe.tube_weights` for why). The term
+        is C¹ and its Gauss–Newton model exact: ``w_eff = w + w_t`` and
+        ``r_eff = (w ρ + w_t d) / w_eff`` outside the tube.
         """
         r = z - z_target
         r[self._sT] = wrap_angle(r[self._sT])
@@ -329,6 +343,20 @@ class GaussNewton:
             r = r.copy()
             r[idx] = rho / slope
         f = float(w @ (f_r * f_r))
+        if tube is not None:
+            sT = self._sT
+            e = np.flatnonzero(tube > 0)
+            re = r[sT][e]                        # wrapped: the branch nearest the target
+            d = re - np.clip(re, -ANGLE_TUBE, ANGLE_TUBE)
+            out = d != 0
+            if out.any():
+                i = sT.start + e[out]
+                d, wt = d[out], tube[e[out]]
+                f += float(wt @ (d * d))
+                w_eff = w_eff.copy() if w_eff is w else w_eff
+                wi = w_eff[i]
+                r[i] = (wi * r[i] + wt * d) / (wi + wt)
+                w_eff[i] = wi + wt
         return f, r, w_eff
 
     def _assembler(self):
@@ -451,12 +479,12 @@ class GaussNewton:
                   max_iter=self.cg_max_iter if max_iter is None else max_iter)
         return res.x, res.iterations, res.status == "converged"
 
-    def half_gradient(self, x, z_target, w) -> np.ndarray:
+    def half_gradient(self, x, z_target, w, tube=None) -> np.ndarray:
         """``g = Jᵀ W_eff r``, half the gradient of :meth:`merit`'s ``f``, at the flattened
-        pose ``x (3n,)``; zero on pinned DOFs. ``w`` as used by :meth:`solve` (weights of
-        non-positive targets already zeroed)."""
+        pose ``x (3n,)``; zero on pinned DOFs. ``w`` and ``tube`` as used by :meth:`solve`
+        (weights of non-positive targets already zeroed)."""
         J, z = lta_jacobian(x.reshape(-1, 3), self.T, return_values=True)
-        _, r, w_eff = self.merit(z, z_target, w)
+        _, r, w_eff = self.merit(z, z_target, w, tube)
         g = J.T @ (w_eff * r)
         g[self._dof_pinned] = 0.0
         return g
@@ -470,7 +498,7 @@ class GaussNewton:
         sGs = float(w_eff @ (Js * Js))
         return not (sGs > 0 and abs(float(s @ y) / sGs - 1.0) <= SUBSPACE_GATE)
 
-    def subspace_step(self, x, g, p, s_prev, y_prev, z_target, w, h: float = 1.0):
+    def subspace_step(self, x, g, p, s_prev, y_prev, z_target, w, h: float = 1.0, tube=None):
         """The step that minimises the second-order model of ``f`` on ``span{p, s_prev}``.
 
         Parameters
@@ -485,6 +513,8 @@ class GaussNewton:
             The previous accepted step and the change of ``g`` along it (None on a frame's
             first iteration: then ``p`` is only rescaled).
         z_target, w : (e+i+m,) float64 arrays
+            As used by :meth:`solve`.
+        tube : (i,) float64 array, optional
             As used by :meth:`solve`.
         h : float
             Length scale of the pose (mean edge length): the finite-difference product
@@ -521,7 +551,7 @@ class GaussNewton:
         if not pmax > 0:
             return p
         eps = 1e-6 * h / pmax
-        Hp = (self.half_gradient(x + eps * p, z_target, w) - g) / eps
+        Hp = (self.half_gradient(x + eps * p, z_target, w, tube) - g) / eps
         pHp = float(p @ Hp)
         gp = float(g @ p)
         if s_prev is not None and y_prev is not None:
@@ -537,7 +567,7 @@ class GaussNewton:
             return p * (-gp / pHp)
         return p
 
-    def solve(self, z_target, weights, V_init) -> ReconstructionResult:
+    def solve(self, z_target, weights, V_init, tube=None) -> ReconstructionResult:
         """Reconstruct one frame.
 
         Parameters
@@ -549,12 +579,21 @@ class GaussNewton:
             non-positive target lengths or areas are set to zero here (paper §7).
         V_init : (n,3) float64 array
             Initial guess; pinned vertices keep these positions.
+        tube : (i,) float64 array, optional
+            Tube weights of the dihedral angles (see :meth:`merit`); default none.
 
         Returns
         -------
         ReconstructionResult
         """
         T = self.T
+        if tube is not None:
+            tube = np.asarray(tube, dtype=np.float64)
+            if tube.shape != (T.n_interior,):
+                raise ShellsplineError(f"`tube` must have shape ({T.n_interior},), got "
+                                       f"{tube.shape}")
+            if not tube.any():
+                tube = None
         z_target = np.asarray(z_target, dtype=np.float64)
         w = np.array(weights, dtype=np.float64, copy=True)
         w[self._sL][z_target[self._sL] <= 0] = 0.0
@@ -563,7 +602,7 @@ class GaussNewton:
         a_floor = 1e-6 * np.maximum(z_target[self._sA], 0.0)
         x = np.array(V_init, dtype=np.float64, copy=True).ravel()
         J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
-        f, r, w_eff = self.merit(z, z_target, w)
+        f, r, w_eff = self.merit(z, z_target, w, tube)
         g = J.T @ (w_eff * r)
         g[self._dof_pinned] = 0.0
         g0 = float(np.linalg.norm(g))
@@ -646,14 +685,14 @@ class GaussNewton:
                     f_old - f <= SUBSPACE_TAIL * f_old and \
                     (f_old - f > SUBSPACE_RATE * (f_older - f_old) or
                      self._large_residual(J, w_eff, s_prev, y_prev)):
-                p = self.subspace_step(x, g, p, s_prev, y_prev, z_target, w, h)
+                p = self.subspace_step(x, g, p, s_prev, y_prev, z_target, w, h, tube)
                 slope = float(g @ p)
 
             def trial(alpha):  # the merit at x + alpha p; inf where a triangle collapses
                 Vn = (x + alpha * p).reshape(-1, 3)
                 if not np.all(face_areas(Vn, T) > a_floor):
                     return np.inf, None
-                return self.merit(lta_descriptors(Vn, T), z_target, w)[0], None
+                return self.merit(lta_descriptors(Vn, T), z_target, w, tube)[0], None
 
             # Armijo on f with f'(0) = 2 g·p; the quadratic-interpolation backtracking is kept
             # in [0.1, 0.5] alpha (large-residual frames overshoot by a steady factor)
@@ -678,7 +717,7 @@ class GaussNewton:
             x = xn
             f_older, f_old, f = f_old, f, fn
             J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
-            f, r, w_eff = self.merit(z, z_target, w)
+            f, r, w_eff = self.merit(z, z_target, w, tube)
             g = J.T @ (w_eff * r)
             g[self._dof_pinned] = 0.0
             y_prev = g - g_prev

@@ -361,6 +361,29 @@ def test_bending_fade_removes_the_jump_of_a_flexing_joint():
     assert np.all(ss.face_areas(res.V, T) > 0)
 
 
+def test_the_angle_tube_keeps_faded_sliver_edges_from_folding(monkeypatch):
+    # data_synth.stress.slivers (the flexing joint, half its triangles 1 % slivers): faded,
+    # the slivers' edges are free to buckle either way, stay at their keyframe's value and
+    # snap through ±π (measured: 9 folded edges); held within ANGLE_TUBE of their spline
+    # targets at the paper's weight (pipeline.describe.tube_weights), at most one folds, with
+    # no more flipped faces and the same pop
+    import shellspline.shells.reconstruct as rec
+
+    d = stress.slivers()
+    out = {}
+    for tau in (np.inf, rec.ANGLE_TUBE):
+        monkeypatch.setattr(rec, "ANGLE_TUBE", tau)
+        res = ss.interpolate((d["V"], d["F"]), frames=d["frames"])
+        out[tau] = res.report["quality"]
+        assert res.report["quality"]["keyframes_exact"]
+        assert res.report["gauss_newton"]["converged"] == res.report["gauss_newton"]["frames"]
+    old, new = out[np.inf], out[rec.ANGLE_TUBE]
+    assert old["folded_edges"] >= 5                          # the defect, without the tube
+    assert new["folded_edges"] <= 1 and new["collapsed_faces"] == 0
+    assert new["flipped_faces"] <= old["flipped_faces"]
+    assert new["pop"] <= max(old["pop"], 1.3)
+
+
 def test_flap_strain_and_an_isometric_hinge_keeps_its_weight():
     # the paper's hexagon folds isometrically along its diagonals: its folding edges turn by
     # far more than fade_angle but no length or area changes, so nothing competes with their
