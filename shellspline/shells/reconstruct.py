@@ -73,7 +73,7 @@ from ..numerics.krylov import pcg
 from ..numerics.linalg import SparseCholesky, available_backends, nested_dissection
 from ..numerics.linesearch import backtracking
 from ..numerics.result import SolverResult
-from .descriptors import face_areas, lta_descriptors, lta_jacobian, wrap_angle
+from .descriptors import lta_descriptors, lta_jacobian, wrap_angle
 
 __all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement", "ANGLE_TUBE"]
 
@@ -690,9 +690,13 @@ class GaussNewton:
 
             def trial(alpha):  # the merit at x + alpha p; inf where a triangle collapses
                 Vn = (x + alpha * p).reshape(-1, 3)
-                if not np.all(face_areas(Vn, T) > a_floor):
+                # one descriptor evaluation: its areas are the collapse test's (a collapsed
+                # edge's angles are nan there, never used)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    zn = lta_descriptors(Vn, T)
+                if not np.all(zn[self._sA] > a_floor):
                     return np.inf, None
-                return self.merit(lta_descriptors(Vn, T), z_target, w, tube)[0], None
+                return self.merit(zn, z_target, w, tube)[0], None
 
             # Armijo on f with f'(0) = 2 g·p; the quadratic-interpolation backtracking is kept
             # in [0.1, 0.5] alpha (large-residual frames overshoot by a steady factor)
