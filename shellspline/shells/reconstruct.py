@@ -75,7 +75,8 @@ from ..numerics.linesearch import backtracking
 from ..numerics.result import SolverResult
 from .descriptors import lta_descriptors, lta_jacobian, wrap_angle
 
-__all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement", "ANGLE_TUBE"]
+__all__ = ["GaussNewton", "ReconstructionResult", "reconstruct", "rigid_placement", "rigid_complement",
+           "ANGLE_TUBE"]
 
 #: Vertex count above which :class:`GaussNewton` rotates its cached preconditioner and refreshes
 #: it less eagerly (both pay off only when a factorization costs many solves).
@@ -431,7 +432,7 @@ class GaussNewton:
         modes of ``x_cur``: a factorization from an earlier pose amplifies *its* rigid modes
         by 1/δ, which are not rigid for the current pose."""
         free = self._free
-        Q = self._free_rigid_modes(x_cur) if x_cur is not None else None
+        project = self._rigid_complement(x_cur) if x_cur is not None else None
         if isinstance(R, str):
             R = self._rotations(x_cur) if x_cur is not None else None
         chol = self._chol
@@ -443,24 +444,23 @@ class GaussNewton:
             if R is not None:
                 out = np.einsum("nij,nj->ni", R, out.reshape(-1, 3)).ravel()
             out[~free] = 0.0
-            if Q is not None:
-                out -= np.einsum("ij,j->i", Q, np.einsum("ij,i->j", Q, out))
-            return out
+            return out if project is None else project(out)
 
         return precond
 
-    def _free_rigid_modes(self, x):
-        """Orthonormal (3n,r) basis of the rigid motions the pins leave free (all six without
-        pins, none with three non-collinear pins), zero on the pinned DOFs; None if r = 0."""
+    def _rigid_complement(self, x):
+        """``v ↦ v`` minus its orthogonal projection onto the rigid motions at ``x (3n,)``
+        that the pins leave free (all six without pins, none with three non-collinear pins;
+        zero on the pinned DOFs), or None where there are none."""
         if not self.pinned.size:
-            return _rigid_basis(x)
+            return rigid_complement(x)
         free = np.flatnonzero(self._free)
         Qf = rigid_modes(x.reshape(-1, 3), free, np.flatnonzero(self._dof_pinned))
         if Qf.shape[1] == 0:
             return None
         Q = np.zeros((x.shape[0], Qf.shape[1]))
         Q[free] = Qf
-        return Q
+        return lambda v: v - np.einsum("ij,j->i", Q, np.einsum("ij,i->j", Q, v))
 
     def _pcg(self, J, w, b, delta, precond, max_iter=None):
         """Solve (JᵀWJ + δI) x = b on the free DOFs by CG preconditioned with ``precond``
@@ -917,9 +917,43 @@ def _vertex_rotations(Xa, Xb, E, incidence=None, F=None):
     return U @ Vt
 
 
-def _rigid_basis(x):
-    """Orthonormal basis (3n,6) of the infinitesimal rigid motions at positions ``x`` (3n,)."""
-    return rigid_modes(x.reshape(-1, 3), slice(None), ())
+def rigid_complement(x):
+    """The orthogonal projection onto the complement of the infinitesimal rigid motions at
+    the flattened pose ``x (3n,)``, in closed form.
+
+    Parameters
+    ----------
+    x : (3n,) float64 array
+
+    Returns
+    -------
+    callable
+        ``v (3n,) ↦ v − t − ω × c`` with the centred positions ``c``, the mean ``t`` of the
+        vectors of ``v`` and ``ω = I⁻¹ Σ c_i × v_i`` (``I`` the inertia tensor of ``c``).
+
+    Notes
+    -----
+    The translations ``e_a`` and rotations ``e_a × c`` span the rigid motions; about the
+    centroid their Gram matrix is block diagonal (``n I₃`` and ``I``), so the projection is
+    ``t + ω × c`` without an orthonormal basis: a few O(n) sums instead of building the
+    ``(3n,6)`` basis and its QR factorization (horse, 8.4k vertices: ~2 ms per Gauss–Newton
+    iteration) and two ``(3n,6)`` products per preconditioner application. ``I`` is
+    pseudo-inverted (collinear points have one rotation less).
+    """
+    X = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+    c = X - X.mean(axis=0)
+    inertia = np.eye(3) * float(np.einsum("ij,ij->", c, c)) - c.T @ c
+    inv = np.linalg.pinv(inertia, rcond=1e-12, hermitian=True)
+    n = len(X)
+
+    def project(v):
+        V = v.reshape(-1, 3)
+        M = c.T @ V                                    # Σ c_i v_iᵀ: Σ c_i × v_i from it
+        a, b, d = inv @ [M[1, 2] - M[2, 1], M[2, 0] - M[0, 2], M[0, 1] - M[1, 0]]
+        W = np.array([[0.0, d, -b], [-d, 0.0, a], [b, -a, 0.0]])   # c @ W = ω × c
+        return (V - (c @ W + V.sum(axis=0) / n)).ravel()
+
+    return project
 
 
 def reconstruct(z_target, weights, V_init, T: Topology, **options) -> ReconstructionResult:

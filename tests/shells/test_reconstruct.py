@@ -296,3 +296,24 @@ def test_rigid_modes_left_free_by_pins(pins, r):
         u = u.reshape(30, 3)
         # rigid: d/dt |x_i - x_j|^2 = 2 (x_i - x_j)·(u_i - u_j) = 0 for all pairs
         assert np.abs(np.einsum("kd,kd->k", V[i] - V[j], u[i] - u[j])).max() < 1e-10
+
+
+def test_rigid_complement_is_the_projection_off_the_qr_rigid_basis():
+    # oracle: I − QQᵀ with Q the orthonormal (QR) basis of the rigid motions (mesh.rigid)
+    from shellspline.mesh.rigid import rigid_modes
+    from shellspline.shells.reconstruct import rigid_complement
+
+    rng = np.random.default_rng(3)
+    V, _ = icosphere(2)
+    V = V * [1.0, 2.0, 0.5] + [3.0, -1.0, 2.0]
+    x = V.ravel()
+    Q = rigid_modes(V, slice(None), ())
+    P = rigid_complement(x)
+    for v in rng.standard_normal((3, x.size)):
+        assert np.allclose(P(v), v - Q @ (Q.T @ v), atol=1e-12)
+    # a rigid motion's velocity field is removed entirely, its complement kept
+    w, t = rng.standard_normal(3), rng.standard_normal(3)
+    rigid = (np.cross(w, V) + t).ravel()
+    assert np.abs(P(rigid)).max() < 1e-12 * np.abs(rigid).max()
+    v = rng.standard_normal(x.size)
+    assert np.allclose(P(P(v)), P(v), atol=1e-12)
