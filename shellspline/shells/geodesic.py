@@ -16,7 +16,7 @@ of its largest entry, found by ~3 factorizations per step, and then crawls. The 
 is instead the sum of the element Hessians, each projected onto the positive semi-definite
 cone (:meth:`~shellspline.shells.energy.DiscreteShells.chain_hessian_data`): positive
 semi-definite by construction, one factorization per step. Once the true Hessian factors with
-a shift of at most 1e-6 of its largest entry (:data:`_EXACT_TAUS`) it is used instead (quadratic convergence near
+a shift of at most 1e-6 of its largest entry it is used instead (quadratic convergence near
 the minimum). Adjoint solves (:meth:`PathSolver.factor_at`) always use the true Hessian.
 
 Rigid motions: ``W`` is invariant under a rigid motion of each shell, so the Hessian has six
