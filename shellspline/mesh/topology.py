@@ -68,6 +68,21 @@ class Topology:
         """Length of the LΘA vector ``z = (L, Θ, A)``: ``e + i + m``."""
         return self.n_edges + self.n_interior + self.n_faces
 
+    @property
+    def n_components(self) -> int:
+        """Number of edge-connected components of the faces (vertices in no face do not
+        count); computed once."""
+        if "n_components" not in self._cache:
+            from scipy.sparse import coo_matrix
+            from scipy.sparse.csgraph import connected_components
+
+            n = self.n_vertices
+            A = coo_matrix((np.ones(len(self.E)), (self.E[:, 0], self.E[:, 1])), shape=(n, n))
+            _, label = connected_components(A, directed=False)
+            self._cache["n_components"] = int(np.unique(label[np.unique(self.F)]).size) \
+                if self.F.size else 0
+        return self._cache["n_components"]
+
     def descriptor_slices(self) -> tuple[slice, slice, slice]:
         """Slices of ``L``, ``Θ`` and ``A`` inside a descriptor vector ``z``."""
         e, i = self.n_edges, self.n_interior

@@ -360,6 +360,22 @@ class GaussNewton:
                 w_eff[i] = wi + wt
         return f, r, w_eff
 
+    def start_energy(self, V, z_target, weights, tube=None) -> float:
+        """The energy :meth:`solve` would start from at pose ``V (n,3)``: ``inf`` where a
+        triangle is at or below the line search's collapse floor or the energy is not finite
+        (a start to avoid). One descriptor evaluation; used to choose among candidate starts
+        (see :func:`shellspline.pipeline.reconstruction.solve_run`)."""
+        z_target = np.asarray(z_target, dtype=np.float64)
+        w = np.array(weights, dtype=np.float64, copy=True)
+        w[self._sL][z_target[self._sL] <= 0] = 0.0
+        w[self._sA][z_target[self._sA] <= 0] = 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = lta_descriptors(np.asarray(V, dtype=np.float64), self.T)
+        if not np.all(z[self._sA] > 1e-6 * np.maximum(z_target[self._sA], 0.0)):
+            return np.inf
+        f = self.merit(z, z_target, w, tube)[0]
+        return f if np.isfinite(f) else np.inf
+
     def _assembler(self):
         if self._asm is None:
             self._asm = _LowerAssembler(self.T)

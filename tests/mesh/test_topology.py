@@ -47,3 +47,15 @@ def test_invalid_connectivity_raises(F, phrase):
 def test_error_names_the_mesh():
     with pytest.raises(MeshError, match="bad.obj"):
         topology(np.array([[0, 1, 5]]), 3, name="bad.obj")
+
+
+def test_components_are_counted_over_the_faces_only():
+    import trimesh
+    from shellspline.mesh.topology import topology
+
+    m = trimesh.creation.icosphere(1)
+    F = np.asarray(m.faces)
+    n = len(m.vertices)
+    assert topology(F, n).n_components == 1
+    assert topology(np.concatenate([F, F + n]), 2 * n).n_components == 2
+    assert topology(F, n + 5).n_components == 1  # isolated vertices are no component

@@ -411,13 +411,15 @@ def test_fine_runs_start_from_the_prolonged_frame_or_the_blend_whichever_is_lowe
     fine pass then reconstructs every frame as full resolution does."""
     import data_synth.stress as stress
     from shellspline import interpolate
-    from shellspline.pipeline import stages
+    from shellspline.pipeline import reconstruction, stages
 
     c = stress.slivers()
     kw = dict(frames=c["frames"], pinned=c["pinned"])
     full = interpolate((c["V"], c["F"]), coarse="none", **kw).report
     fine = interpolate((c["V"], c["F"]), coarse=0.15, fine=True, **kw).report
     monkeypatch.setattr(stages, "given_starts", lambda V, *args: (V, {}))
+    # and no other start either (warm_start would otherwise find the lower start itself)
+    monkeypatch.setattr(reconstruction, "START_PREFERENCE", 0.0)
     given = interpolate((c["V"], c["F"]), coarse=0.15, fine=True, **kw).report
     starts = fine["multires"]["fine_starts"]
     firsts = sorted(starts["prolonged"] + starts["blend"])
