@@ -7,6 +7,9 @@
   angle goes from flat to within a few degrees of ±π.
 * :func:`slivers` — the joint tube with every odd ring moved next to the following one, so
   half of its triangles are slivers (1 % of the median area).
+* :func:`squeezed_face` — a sphere one of whose triangles is squeezed to 2 % of its height at
+  an early keyframe and grows back: the extrapolated start of the frames after it pushes the
+  triangle past its hinge.
 
 Each returns the dictionary of :func:`data_synth.generate` (``V (J,n,3)``, ``F (m,3)``,
 ``frames (J,)``, ``pinned``), deterministic.
@@ -15,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["joint", "fold_over", "slivers", "tube"]
+__all__ = ["joint", "fold_over", "slivers", "squeezed_face", "tube"]
 
 
 def tube(rings: int = 24, segments: int = 16, length: float = 2.0, radius: float = 0.2,
@@ -129,3 +132,27 @@ def fold_over(n: int = 12, angles=(0.0, 150.0, 176.0), frames=(0, 10, 20)) -> di
         Vs.append(V)
     return {"V": np.stack(Vs), "F": F, "frames": np.asarray(frames, dtype=np.int64),
             "pinned": np.flatnonzero(V0[:, 0] <= 1.0 + 1e-12).astype(np.int64)}
+
+
+def squeezed_face(height: float = 0.02, frames=(0, 2, 12), subdivisions: int = 2) -> dict:
+    """An icosphere whose face 0 has its first corner moved to ``height`` of the way from the
+    midpoint of the opposite edge at the middle keyframe (a sliver ``height`` of its height
+    high), round again at the last: a keyframe with a nearly degenerate triangle next to a
+    short gap and a long one. Nothing pinned.
+
+    Examples
+    --------
+    >>> d = squeezed_face()
+    >>> d["V"].shape, d["frames"].tolist()
+    ((3, 162, 3), [0, 2, 12])
+    """
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions)
+    V = np.asarray(m.vertices, dtype=np.float64)
+    F = np.asarray(m.faces, dtype=np.int64)
+    a, b, c = F[0]
+    Vmid = V.copy()
+    Vmid[a] = (1.0 - height) * (0.5 * (V[b] + V[c])) + height * V[a]
+    return {"V": np.stack([V, Vmid, V]), "F": F, "frames": np.asarray(frames, dtype=np.int64),
+            "pinned": np.zeros(0, dtype=np.int64)}
