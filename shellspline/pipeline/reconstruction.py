@@ -118,7 +118,8 @@ def warm_start(gn: GaussNewton, z, w, tube, v, prev, prev2, prev_init, warm):
 
     Candidates: with ``warm="extrapolate"`` and two solved frames, the linear extrapolation
     ``2 prev − prev2``; the solved predecessor moved by the initial sequence's change
-    ``prev + (v − prev_init)``; and, for a connected mesh, the predecessor itself. The
+    ``prev + (v − prev_init)``; and, after two solved frames of a connected mesh, the
+    predecessor itself. The
     extrapolation is the usual winner (it carries the spline's motion), but next to a
     keyframe with a nearly degenerate triangle it can push that triangle past its hinge: an
     icosphere face squeezed to 2 % of its height at a keyframe had the extrapolated start of
@@ -130,10 +131,12 @@ def warm_start(gn: GaussNewton, z, w, tube, v, prev, prev2, prev_init, warm):
     if prev2 is not None and warm == "extrapolate":
         cands.append(2.0 * prev - prev2)
     cands.append(prev + (v - prev_init))
-    if gn.T.n_components == 1:
-        # (pieces of a mesh are placed relative to each other only by the other two: the
-        # energy does not see it, and a frame that kept its predecessor's placement of the
-        # pieces would jump against the other run of its gap)
+    if prev2 is not None and gn.T.n_components == 1:
+        # (not next to the keyframe: it sits closer to the first frame's targets than any
+        # start that moves, but starting there cost the cactus iterations; and not for pieces
+        # of a mesh, placed relative to each other only by the other two starts: the energy
+        # does not see it, and a frame that kept its predecessor's placement of the pieces
+        # would jump against the other run of its gap)
         cands.append(prev)
     best, best_f = v, np.inf
     for i, c in enumerate(cands):
@@ -150,7 +153,7 @@ def warm_start(gn: GaussNewton, z, w, tube, v, prev, prev2, prev_init, warm):
 
 #: A start other than the usual one (see :func:`warm_start`) is taken only when its energy is
 #: below this fraction of the usual start's.
-START_PREFERENCE = 0.5
+START_PREFERENCE = 0.1
 
 
 def _frame_text(rec) -> str:
