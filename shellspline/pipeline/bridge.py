@@ -118,7 +118,7 @@ class SeamBridge:
             return
         T = gn.T
         n = T.n_vertices
-        sL, _, sA = T.descriptor_slices()
+        sA = T.descriptor_slices()[2]
         self.D = _second_differences(ctx, U)
         self.DtD = self.D.T @ self.D
         self.iu = [ctx.index(k) for k in U]
@@ -126,15 +126,11 @@ class SeamBridge:
         if len(gn.pinned):
             self.free[(3 * gn.pinned[:, None] + np.arange(3)).ravel()] = False
         self.targets = [np.asarray(Z[k], dtype=np.float64) for k in U]
-        self.weights = []
-        for k, z in zip(U, self.targets):   # as GaussNewton.solve sets them
-            w = np.array(W_of(k), dtype=np.float64, copy=True)
-            w[sL][z[sL] <= 0] = 0.0
-            w[sA][z[sA] <= 0] = 0.0
-            self.weights.append(w)
+        # the weights and collapse floors of GaussNewton.solve
+        self.weights = [gn.active_weights(z, W_of(k)) for k, z in zip(U, self.targets)]
         self.tubes = [None if tube_of is None else np.asarray(tube_of(k), dtype=np.float64)
                       for k in U]
-        self.floors = [1e-6 * np.maximum(z[sA], 0.0) for z in self.targets]
+        self.floors = [gn.area_floor(z) for z in self.targets]
         # lumped vertex masses from the first window frame's target areas, mean 1
         A0 = np.maximum(self.targets[0][sA], 0.0)
         M = np.bincount(T.F.ravel(), np.repeat(A0 / 3.0, 3), minlength=n)

@@ -364,17 +364,27 @@ class GaussNewton:
         """The energy :meth:`solve` would start from at pose ``V (n,3)``: ``inf`` where a
         triangle is at or below the line search's collapse floor or the energy is not finite
         (a start to avoid). One descriptor evaluation; used to choose among candidate starts
-        (see :func:`shellspline.pipeline.reconstruction.solve_run`)."""
+        (see :func:`shellspline.pipeline.reconstruction.warm_start`)."""
         z_target = np.asarray(z_target, dtype=np.float64)
-        w = np.array(weights, dtype=np.float64, copy=True)
-        w[self._sL][z_target[self._sL] <= 0] = 0.0
-        w[self._sA][z_target[self._sA] <= 0] = 0.0
+        w = self.active_weights(z_target, weights)
         with np.errstate(divide="ignore", invalid="ignore"):
             z = lta_descriptors(np.asarray(V, dtype=np.float64), self.T)
-        if not np.all(z[self._sA] > 1e-6 * np.maximum(z_target[self._sA], 0.0)):
+        if not np.all(z[self._sA] > self.area_floor(z_target)):
             return np.inf
         f = self.merit(z, z_target, w, tube)[0]
         return f if np.isfinite(f) else np.inf
+
+    def active_weights(self, z_target, weights):
+        """A copy of ``weights`` with no weight on non-positive target lengths and areas
+        (paper §7)."""
+        w = np.array(weights, dtype=np.float64, copy=True)
+        w[self._sL][z_target[self._sL] <= 0] = 0.0
+        w[self._sA][z_target[self._sA] <= 0] = 0.0
+        return w
+
+    def area_floor(self, z_target):
+        """The areas no iterate may reach: ``1e-6`` of the target areas."""
+        return 1e-6 * np.maximum(z_target[self._sA], 0.0)
 
     def _assembler(self):
         if self._asm is None:
@@ -611,11 +621,9 @@ class GaussNewton:
             if not tube.any():
                 tube = None
         z_target = np.asarray(z_target, dtype=np.float64)
-        w = np.array(weights, dtype=np.float64, copy=True)
-        w[self._sL][z_target[self._sL] <= 0] = 0.0
-        w[self._sA][z_target[self._sA] <= 0] = 0.0
+        w = self.active_weights(z_target, weights)
         # a step may not shrink a triangle below this (the barrier keeps iterates far above)
-        a_floor = 1e-6 * np.maximum(z_target[self._sA], 0.0)
+        a_floor = self.area_floor(z_target)
         x = np.array(V_init, dtype=np.float64, copy=True).ravel()
         J, z = lta_jacobian(x.reshape(-1, 3), T, return_values=True)
         f, r, w_eff = self.merit(z, z_target, w, tube)
