@@ -467,6 +467,8 @@ class Prolongation:
         rings, taper : int
             Spatial and temporal width of the fade.
         max_rounds : int
+            At most this many rounds; fewer when :data:`GUARD_PATIENCE` rounds in a row do
+            not improve on the best.
         fallback : (K+1,n,3) float array_like, optional
             Positions to fade towards instead of the base surface, in the same placement as
             ``V`` (e.g. the prolonged sequence that a full-resolution refinement started
@@ -498,6 +500,13 @@ class Prolongation:
                                 self.frames, fallback, bc=bc, rings=rings, taper=taper,
                                 max_rounds=max_rounds, pinned=self.pinned,
                                 pinned_at=self.keyframes[0, self.pinned])
+
+
+#: The guard stops after this many rounds in a row without fewer new defects than its best
+#: round (which it returns). Where the fallback has defects of its own everywhere, fading only
+#: adds them: the horse subdivided twice (135k vertices, 1174 coarse) went 528 → 10 383 new
+#: defects over five rounds and 4 811 after ten, 66 s of guard for the unchanged input.
+GUARD_PATIENCE = 3
 
 
 def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fallback, *,
@@ -573,7 +582,7 @@ def fade_new_defects(V, Vc, T: Topology, Tc: Topology, collapse_map, frames, fal
             best = (total, V.copy() if rounds < max_rounds and bad.any() else V, new,
                     int((fade > 0).sum()), rounds)
         bad[is_key] = False
-        if rounds == max_rounds or not bad.any():
+        if rounds == max_rounds or not bad.any() or rounds - best[4] >= GUARD_PATIENCE:
             break
         # spread over rings (linear) and frames (linear, same gap)
         level, reach = bad.astype(np.float64), bad

@@ -311,6 +311,31 @@ def test_guard_fades_the_detail_that_turns_slivers_over(sliver_run):
     assert on_base[moved].any()
 
 
+def test_guard_stops_when_fading_only_adds_defects(sliver_run, monkeypatch):
+    """A fallback with defects everywhere (the prolonged frames mirrored through z = 0: every
+    faded face turns over): fading only adds defects, and the guard gives up after
+    GUARD_PATIENCE rounds without a better one, returning its input (its best round) instead
+    of running all max_rounds (the horse subdivided twice: 528 → 10 383 new defects after
+    five rounds, 66 s of guard for nothing)."""
+    from shellspline.shells import prolong as PR
+
+    c, T, dec, Vc, P, V = sliver_run
+    counts = []
+    count = PR._new_defects
+
+    def counted(*args):
+        out = count(*args)
+        counts.append(sum(out[0].values()))
+        return out
+
+    monkeypatch.setattr(PR, "_new_defects", counted)
+    Vg, rec = P.guard(V, Vc, fallback=V * np.array([1.0, 1.0, -1.0]), max_rounds=20)
+    assert len(counts) == PR.GUARD_PATIENCE + 1
+    assert min(counts[1:]) > counts[0] > 0                 # every round was worse
+    assert rec["rounds"] == 0 and rec["new_defects_after"] == rec["new_defects_before"]
+    assert np.array_equal(Vg, V)
+
+
 def test_guard_rescanning_only_the_changed_steps_is_the_full_rescan(sliver_run, monkeypatch):
     """After a round of fading, the guard scans again only the steps next to the frames it
     changed: the sequence and record are those of scanning every step every round (17
