@@ -85,7 +85,7 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
               "workers": ex.workers})
         stop = _execute(ex, todo, on_event, outcomes, run_id, force)
         cleanup_leftovers(root)
-        summary = BatchSummary(job=job.name, output=root, sequences=_collect(job, outcomes),
+        summary = BatchSummary(job=job.name, output=root, sequences=_collect(job, outcomes, todo, run_id),
                                interrupted=stop is not None,
                                interrupt_exit=stop or EXIT_INTERRUPTED, executor=ex.name,
                                workers=ex.workers, scheduler=scheduler)
@@ -208,11 +208,23 @@ def _execute(ex, todo, on_event, outcomes, run_id, force) -> int | None:
     return None
 
 
-def _collect(job: Job, outcomes: dict) -> list:
-    """One outcome per sequence in job order; 'interrupted' for those without one."""
-    return [outcomes.get(spec.name) or
-            outcome(spec, "interrupted", "not finished: the batch was interrupted")
-            for spec in job.sequences]
+def _collect(job: Job, outcomes: dict, todo=(), run_id: str = "") -> list:
+    """One outcome per sequence in job order; 'interrupted' for those without one, unless
+    this run published its output: a stop signal can arrive after a task moved its complete
+    output into place and before its result reached ``outcomes`` (an output exists exactly
+    when it is complete, and is then reported done)."""
+    keys = {spec.name: key for spec, key in todo}
+    out = []
+    for spec in job.sequences:
+        o = outcomes.get(spec.name)
+        key = keys.get(spec.name)
+        m = manifest_matches(spec.out, key) if o is None and key is not None else None
+        if o is None and m is not None and run_id and m.get("run") == run_id:
+            o = outcome(spec, "done", "completed before the interrupt took effect",
+                        warning=m.get("warning", ""), frames=m.get("frames"),
+                        vertices=m.get("vertices"))
+        out.append(o or outcome(spec, "interrupted", "not finished: the batch was interrupted"))
+    return out
 
 
 def _regression(job: Job, seqs: list, write: bool) -> dict | None:

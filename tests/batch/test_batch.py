@@ -347,6 +347,27 @@ def test_interrupt_then_resume(tmp_path, sig):
     assert all(st2[n] == "done" for n in names if n not in done_before)
 
 
+def test_a_sequence_published_before_the_interrupt_took_effect_is_done(tmp_path):
+    """A stop signal can arrive after a task moved its complete output into place and before
+    its result reached the parent (test_interrupt_then_resume[SIGTERM] once found s1 on disk
+    but not done): the summary reports an output this run published as done, and one that
+    another run published as interrupted (it is not this run's work)."""
+    from shellspline.batch import run as batch_run
+    from shellspline.batch.manifest import input_digest, read_manifest, sequence_key
+
+    p = _synth_job(tmp_path, ["s0", "s1"], workers=1)
+    job = ss.load_job(p)
+    assert ss.run_batch(job).exit_code == 0
+    todo = [(spec, sequence_key(spec, input_digest(spec))) for spec in job.sequences]
+    this_run = read_manifest(Path(job.sequences[0].out))["run"]
+    got = batch_run._collect(job, {}, todo, this_run)        # no result arrived for either
+    assert [o["status"] for o in got] == ["done", "done"]
+    assert [o["status"] for o in batch_run._collect(job, {}, todo, "another-run")] == \
+        ["interrupted", "interrupted"]
+    assert [o["status"] for o in batch_run._collect(job, {}, todo[1:], this_run)] == \
+        ["interrupted", "done"]                              # s0 was not to run
+
+
 @pytest.mark.parametrize("kind", ["file", "under_a_file"])
 def test_unusable_output_root_is_one_line_exit_2(tmp_path, capsys, kind):
     p = _synth_job(tmp_path, ["a"])
