@@ -617,3 +617,30 @@ def test_length_and_area_targets_stay_positive_between_keyframes():
         assert np.all(Z[:, s] >= floor - 1e-15)
     assert Z[:, sA][:, t].min() > 0
     assert res.report["gauss_newton"]["converged"] == res.report["gauss_newton"]["frames"]
+
+
+def test_coarse_frames_get_more_gauss_newton_iterations_unless_the_user_says(monkeypatch):
+    """Coarse iterations are cheap: the coarse mesh of a multiresolution run allows
+    COARSE_MAX_ITER per frame, the full-resolution refinement the solver's default, and a
+    user's max_iter holds for both."""
+    from shellspline.pipeline import stages
+    from shellspline.shells import reconstruct
+
+    seen = []
+    init = reconstruct.GaussNewton.__init__
+
+    def spy(self, T, **kw):
+        init(self, T, **kw)
+        seen.append((T.n_vertices, self.max_iter))
+
+    monkeypatch.setattr(reconstruct.GaussNewton, "__init__", spy)
+    d = data_synth.generate("cactus", n_vertices=600)
+    kw = dict(frames=d["frames"], pinned=d["pinned"], coarse=200, fine=True)
+    ss.interpolate((d["V"], d["F"]), **kw)
+    n = d["V"].shape[1]
+    assert {m for v, m in seen if v < n} == {stages.COARSE_MAX_ITER}
+    default = reconstruct.GaussNewton(ss.topology(d["F"])).max_iter
+    assert {m for v, m in seen if v == n} == {default}
+    seen.clear()
+    ss.interpolate((d["V"], d["F"]), gn_options={"max_iter": 7}, **kw)
+    assert {m for _, m in seen} == {7}
