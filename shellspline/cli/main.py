@@ -188,7 +188,9 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="after --coarse, run the spline and Gauss–Newton at full resolution "
                         "initialised from the prolonged result")
     q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
-    q.add_argument("--max-iter", type=int, default=None, help="Gauss–Newton iteration limit")
+    q.add_argument("--max-iter", type=int, default=None,
+                   help="Gauss–Newton iteration limit per frame (default 60; 200 on the "
+                        "coarse mesh of a multiresolution run)")
     q.add_argument("--format", default="obj",
                    choices=["obj", "ply", "glb", "mdd", "pc2", "usd"],
                    help="output: frame_*.obj (default, exact), frame_*.ply (binary, exact), "
