@@ -85,7 +85,8 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
               "workers": ex.workers})
         stop = _execute(ex, todo, on_event, outcomes, run_id, force)
         cleanup_leftovers(root)
-        summary = BatchSummary(job=job.name, output=root, sequences=_collect(job, outcomes, todo, run_id),
+        summary = BatchSummary(job=job.name, output=root,
+                               sequences=_collect(job, outcomes, todo, run_id),
                                interrupted=stop is not None,
                                interrupt_exit=stop or EXIT_INTERRUPTED, executor=ex.name,
                                workers=ex.workers, scheduler=scheduler)
