@@ -52,7 +52,7 @@ class SequenceSpec:
         ``{"name", "vertices", "params"}`` for :func:`data_synth.generate`.
     params : dict
         ``method, bc, K, eta, mu, lam, reference, coarse, fine, max_iter, max_time,
-        fix_boundary, fade_angle, spline`` for :func:`shellspline.interpolate`.
+        fix_boundary, fade_angle, spline, transfer`` for :func:`shellspline.interpolate`.
     formats, render, plots : list of str
     delay : float
         Seconds to sleep between writing the staging directory and publishing it (a testing
@@ -152,7 +152,7 @@ def load_job(path) -> Job:
         [job]        name, output, executor = "local"|"dask", scheduler, workers
         [defaults]   frames, K, bc, method, eta, mu, lam, reference, coarse, fine, max_iter,
                      max_time, pinned, fix_boundary, formats, keyframe_pattern, frames_file,
-                     pinned_file, render, plots, delay, fade_angle, spline
+                     pinned_file, render, plots, delay, fade_angle, spline, transfer
         [[sequences]] one of: glob = "dir/*" (sequence directories) |
                      keyframes = ["a.obj", ...] + name | synth = "ellipsoids" + name
                      (+ vertices, synth_params)

@@ -23,7 +23,7 @@ __all__ = ["JobError", "job_error", "JOB_KEYS", "PARAM_KEYS", "SOURCE_KEYS", "DE
 JOB_KEYS = {"name", "output", "executor", "scheduler", "workers"}
 #: keys allowed in [defaults] and in every [[sequences]] entry (per-sequence overrides)
 PARAM_KEYS = {"frames", "K", "bc", "method", "eta", "mu", "lam", "reference", "coarse", "fine",
-              "fade_angle", "spline",
+              "fade_angle", "spline", "transfer",
               "max_iter", "max_time", "pinned", "fix_boundary", "formats", "keyframe_pattern",
               "frames_file", "pinned_file", "render", "plots", "delay"}
 SOURCE_KEYS = {"name", "glob", "keyframes", "synth", "vertices", "synth_params"}
@@ -32,10 +32,12 @@ DEFAULTS = {"frames": None, "K": None, "bc": "natural", "method": "lta", "eta": 
             "max_iter": None, "max_time": None, "pinned": None, "fix_boundary": False,
             "formats": ["obj"], "keyframe_pattern": "pose_*.obj",
             "frames_file": "frames.txt", "pinned_file": "pinned.txt", "render": [],
-            "plots": [], "delay": 0.0, "fade_angle": 0.5, "spline": DEFAULT_SPLINE}
+            "plots": [], "delay": 0.0, "fade_angle": 0.5, "spline": DEFAULT_SPLINE,
+            "transfer": "gradient"}
 #: the parameters handed to :func:`shellspline.interpolate` (``SequenceSpec.params``)
 INTERPOLATION_KEYS = ("method", "bc", "K", "eta", "mu", "lam", "reference", "coarse", "fine",
-                      "max_iter", "max_time", "fix_boundary", "fade_angle", "spline")
+                      "max_iter", "max_time", "fix_boundary", "fade_angle", "spline",
+                      "transfer")
 #: names a sequence may not take: the job's own files in the output root
 RESERVED_NAMES = {SUMMARY_NAME, LOG_NAME, LOCK_NAME, "half_axes.png"}
 _RENDERS = ("strip", "gif")
@@ -74,8 +76,10 @@ def _check_frames(w, v):
 
 def _check_choice(w, key, v):
     from ..pipeline.interpolation import BOUNDARY_CONDITIONS, METHODS, SPLINES
+    from ..pipeline.options import TRANSFERS
 
-    choices = {"bc": BOUNDARY_CONDITIONS, "method": METHODS, "spline": SPLINES}[key]
+    choices = {"bc": BOUNDARY_CONDITIONS, "method": METHODS, "spline": SPLINES,
+               "transfer": TRANSFERS}[key]
     if not isinstance(v, str) or v.strip().lower() not in choices:
         raise job_error(w, f"must be one of {', '.join(choices)}, got {v!r}")
     return v.strip().lower()
@@ -167,6 +171,7 @@ _CHECKS = {
     "K": lambda w, k, v: _check_count(w, v),
     "max_iter": lambda w, k, v: _check_count(w, v),
     "bc": _check_choice, "method": _check_choice, "spline": _check_choice,
+    "transfer": _check_choice,
     "eta": lambda w, k, v: _check_weight(w, v),
     "mu": lambda w, k, v: _check_weight(w, v),
     "lam": lambda w, k, v: _check_weight(w, v),

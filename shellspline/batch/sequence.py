@@ -294,7 +294,7 @@ class _Task:
                           pinned=pinned, workers=self.inner, gn_options=gn_options,
                           solver_options=solver_options, coarse=p["coarse"],
                           fine=p["fine"], fade_angle=p["fade_angle"], spline=p["spline"],
-                          progress=progress)
+                          transfer=p["transfer"], progress=progress)
         res.report["timings"]["read"] = t_read
         return res, sequence_metrics(res.V, kf.V, res.frames, res.report)
 

@@ -184,6 +184,10 @@ def _build_parser() -> argparse.ArgumentParser:
                         f"resolution; 'auto' (default) = {AUTO_COARSE_VERTICES} vertices for "
                         f"meshes above {AUTO_COARSE_ABOVE} (above {AUTO_NONLINEAR_ABOVE} with "
                         "--method nonlinear)")
+    q.add_argument("--transfer", choices=("gradient", "displacement"), default="gradient",
+                   help="how --coarse carries the fine detail onto the coarse frames: gradient "
+                        "(default) fits the fine edge vectors carried on the base frames; "
+                        "displacement adds the paper's per-vertex offsets (§8)")
     q.add_argument("--fine", action="store_true",
                    help="after --coarse, run the spline and Gauss–Newton at full resolution "
                         "initialised from the prolonged result")
@@ -321,7 +325,7 @@ def _interpolate(args) -> int:
                          solver_options=solver_options, coarse=args.coarse, fine=args.fine,
                          fixpoint=args.fixpoint, rigid_track=args.rigid_track,
                          rigid_subset=rigid_subset, fade_angle=args.fade_angle,
-                         spline=args.spline, progress=bar)
+                         spline=args.spline, transfer=args.transfer, progress=bar)
     res.report["timings"]["read"] = t_read
     t0 = time.perf_counter()
     if res.source is not None:  # the input's polygons and numbering, written back

@@ -70,7 +70,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 warm_start: bool = True, solver_options: dict | None = None,
                 coarse="auto", fine: bool = False, fixpoint: int = 0,
                 rigid_track: str = "fit", rigid_subset=None, fade_angle: float = 0.5,
-                spline: str = DEFAULT_SPLINE, progress=None) -> InterpolationResult:
+                spline: str = DEFAULT_SPLINE, transfer: str = "gradient",
+                progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 
     Parameters
@@ -125,6 +126,14 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         ``"none"`` runs at full resolution. Applies to ``method="lta"``, ``"nonlinear"`` and
         ``"geodesic"`` (the nonlinear spline or the geodesics then run on the coarse meshes,
         started from their LΘA spline, and are prolonged).
+    transfer : {"gradient", "displacement"}
+        How a multiresolution run carries the fine detail onto the coarse frames
+        (:meth:`shellspline.shells.prolong.Prolongation.encode`). ``"gradient"`` (default):
+        every fine edge vector is carried on the frames of the base surface at its two
+        vertices and the fine positions are their least-squares fit with the coarse vertices
+        held. ``"displacement"``: the paper's per-vertex offsets from the base surface
+        (§8), which turn small and thin faces over where the base frames of neighbouring
+        vertices rotate differently (README "Multiresolution").
     fine : bool
         After the coarse run, run the LΘA spline and Gauss–Newton at full resolution,
         initialised from the prolonged sequence (paper Table 2, last column).
@@ -191,7 +200,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                 reference=reference, workers=workers, gn_options=gn_options,
                                 warm_start=warm_start, solver_options=solver_options,
                                 coarse=coarse, fine=fine, fixpoint=fixpoint,
-                                rigid_track=rigid_track, fade_angle=fade_angle, spline=spline)
+                                rigid_track=rigid_track, fade_angle=fade_angle, spline=spline,
+                                transfer=transfer)
     kf = _keyframes(keyframes, prog)
     prob = interpolation_problem(opts, kf, frames=frames, K=K, pinned=pinned,
                                  rigid_subset=rigid_subset)

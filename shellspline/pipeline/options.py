@@ -22,7 +22,8 @@ from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
 __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_problem", "notices",
            "coarse_target", "canonical_choice", "METHODS", "REFERENCES", "RIGID_TRACKS",
            "BOUNDARY_CONDITIONS", "AUTO_COARSE_ABOVE", "AUTO_COARSE_VERTICES",
-           "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN", "SPLINES", "DEFAULT_SPLINE"]
+           "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN", "SPLINES", "DEFAULT_SPLINE",
+           "TRANSFERS"]
 
 METHODS = ("lta", "linear", "geodesic", "nonlinear")
 REFERENCES = ("constant", "keyframe", "geodesic")
@@ -35,6 +36,11 @@ REFERENCES = ("constant", "keyframe", "geodesic")
 #: ``pipelines/regression_ellipsoids.toml``). The low-level
 #: :func:`~shellspline.shells.lta_spline.lta_spline` keeps the paper's spline as its default.
 DEFAULT_SPLINE = "continuous"
+#: How a multiresolution run carries the fine detail onto the coarse frames
+#: (:meth:`shellspline.shells.prolong.Prolongation.encode`): ``"gradient"`` (default) fits the
+#: fine edge vectors carried on the base frames, ``"displacement"`` adds the paper's per-vertex
+#: offsets (§8).
+TRANSFERS = ("gradient", "displacement")
 #: Where in-between frames are placed rigidly (:func:`shellspline.pipeline.placement_track`).
 RIGID_TRACKS = ("fit", "spline", "linear")
 #: ``coarse="auto"`` decimates meshes above this many vertices to :data:`AUTO_COARSE_VERTICES`:
@@ -106,6 +112,7 @@ class InterpolationOptions:
     rigid_track: str = "fit"
     fade_angle: float = 0.5
     spline: str = DEFAULT_SPLINE
+    transfer: str = "gradient"
 
     def __post_init__(self):
         put = object.__setattr__.__get__(self)
@@ -140,6 +147,7 @@ class InterpolationOptions:
                                    f"radians, got {self.fade_angle!r}")
         put("fade_angle", fade)
         put("spline", canonical_spline(self.spline))
+        put("transfer", canonical_choice(self.transfer, "transfer", TRANSFERS))
 
     @property
     def periodic(self) -> bool:

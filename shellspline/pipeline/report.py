@@ -209,7 +209,7 @@ def start_report(opts, prob) -> dict:
             "gn_options": dict(opts.gn_options), "solver_options": dict(opts.solver_options),
             "coarse": opts.coarse, "fine": opts.fine, "fixpoint": opts.fixpoint,
             "rigid_track": opts.rigid_track, "fade_angle": opts.fade_angle,
-            "spline": opts.spline,
+            "spline": opts.spline, "transfer": opts.transfer,
             "rigid_subset_vertices": 0 if prob.rigid_subset is None else
             int(prob.rigid_subset.size),
         },

@@ -400,7 +400,8 @@ def prolonged(prob, opts, prog, dec, Vc, multires):
     Vkey, T, pinned, frames, K, bc = prob.Vkey, prob.T, prob.pinned, prob.frames, prob.K, opts.bc
     with prog.stage("prolong"):
         moving = pinned is not None and bool(np.any(Vkey[:, pinned] != Vkey[0, pinned]))
-        P = Prolongation.encode(Vkey, T, dec, frames, pinned=None if moving else pinned)
+        P = Prolongation.encode(Vkey, T, dec, frames, pinned=None if moving else pinned,
+                                transfer=opts.transfer)
         V = parallel_decode(P, Vc, frames, K, bc, opts.workers)
         # no defect that the coarse frames do not have: the detail fades where it adds one
         V, multires["guard"] = P.guard(V, Vc, K, bc=bc)

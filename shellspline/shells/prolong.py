@@ -155,6 +155,8 @@ class Prolongation:
 
     def __init__(self, F, n, kept, frames, keyframes, coeffs, pinned, solver, B_fc, free,
                  ref_nbr, coarse_F=None, collapse_map=None):
+        self.transfer = "displacement"
+        self._grad = None
         self.F = F
         self.coarse_F = coarse_F
         self.collapse_map = collapse_map
@@ -172,7 +174,7 @@ class Prolongation:
     # -- construction ----------------------------------------------------------------------
     @classmethod
     def encode(cls, Vs_fine, F_fine, dec: Decimation, frames=None, *, pinned=None,
-               backend: str = "auto") -> "Prolongation":
+               backend: str = "auto", transfer: str = "gradient") -> "Prolongation":
         """Precompute the base-surface solver and encode the keyframes' fine detail.
 
         Parameters
@@ -190,6 +192,11 @@ class Prolongation:
             Fine vertices returned at their (identical) keyframe position in every frame.
         backend : {"auto", "cholmod", "splu"}
             Sparse factorization backend (see :class:`~shellspline.numerics.linalg.SparseCholesky`).
+        transfer : {"gradient", "displacement"}
+            How the fine detail is carried (see the module docstring): ``"gradient"`` (default)
+            carries every fine edge vector on the base frames of its two vertices and solves
+            for the positions that fit them best; ``"displacement"`` is the paper's per-vertex
+            offset from the base surface.
 
         Returns
         -------
@@ -251,10 +258,17 @@ class Prolongation:
         obj = cls(T.F, n, dec.kept, fr.astype(np.int64), Vs.copy(), None,
                   np.flatnonzero(pin).astype(np.int64), solver, B_fc, free, ref_nbr,
                   dec.F, dec.collapse_map)
+        tr = str(transfer).strip().lower()
+        if tr not in ("gradient", "displacement"):
+            raise ShellsplineError(f"`transfer` must be 'gradient' or 'displacement', got "
+                                   f"{transfer!r}")
         S = obj.base(Vs[:, dec.kept])
         D = Vs - S
-        obj.coeffs = np.stack([np.einsum("jni,jni->jn", a, D) for a in obj._frame_vectors(S)],
-                              axis=-1)
+        R = obj._frame_vectors(S)
+        obj.coeffs = np.stack([np.einsum("jni,jni->jn", a, D) for a in R], axis=-1)
+        if tr == "gradient":
+            obj._grad = _GradientTransfer(Vs, R, E, w, is_kept, pin, backend)
+        obj.transfer = tr
         return obj
 
     # -- evaluation ----------------------------------------------------------------------------
@@ -427,6 +441,10 @@ class Prolongation:
             ks = todo[s:s + step]
             St = self._base_vm(Vc[ks])                          # (n,B,3)
             t, b, nrm = self._frames_vm(St)
+            if self._grad is not None:
+                out[ks] = self._grad.solve((t, b, nrm), W[ks], Vc[ks], self.kept,
+                                           self.keyframes[0]).transpose(1, 0, 2)
+                continue
             c = np.einsum("kj,jna->nka", W[ks], self.coeffs)
             St += t * c[..., :1]
             St += b * c[..., 1:2]
@@ -500,6 +518,68 @@ class Prolongation:
                                 self.frames, fallback, bc=bc, rings=rings, taper=taper,
                                 max_rounds=max_rounds, pinned=self.pinned,
                                 pinned_at=self.keyframes[0, self.pinned])
+
+
+class _GradientTransfer:
+    """The gradient-domain decode of :class:`Prolongation` (``transfer="gradient"``).
+
+    Every fine edge ``e = (a, b)`` keeps its keyframe vector ``g_e^j = x_b^j − x_a^j`` in the
+    base frames of both its vertices, ``α_e^j = R_a(S_j)ᵀ g_e^j`` and ``β_e^j = R_b(S_j)ᵀ g_e^j``.
+    A frame ``k`` rotates the time-interpolated coordinates back,
+    ``h_e(k) = ½ (R_a(S_k) α_e(k) + R_b(S_k) β_e(k))``, and its positions are the least-squares
+    fit of these edge vectors with the coarse (and pinned) vertices held,
+
+        min_x Σ_e w_e ‖x_b − x_a − h_e(k)‖²,   x_kept = Vc_k:
+        L_ff x_f = (Dᵀ W h)_f − L_fc Vc_k,
+
+    ``D`` the edge-vertex incidence, ``L = Dᵀ W D`` the graph Laplacian with the base's edge
+    weights (:func:`_edge_weights`), factorized once. At a keyframe ``h = g``: the keyframe is
+    the exact solution.
+    """
+
+    def __init__(self, Vs, R, E, w, is_kept, pin, backend):
+        n, ne = is_kept.shape[0], E.shape[0]
+        self.n, self.E = n, E
+        self.pinned = np.flatnonzero(pin & ~is_kept)
+        self.free = np.flatnonzero(~(is_kept | pin))
+        rows = np.r_[np.arange(ne), np.arange(ne)]
+        D = sp.csr_matrix((np.r_[-np.ones(ne), np.ones(ne)], (rows, np.r_[E[:, 0], E[:, 1]])),
+                          shape=(ne, n))
+        DtW = (D.T @ sp.diags(w)).tocsr()                               # (n, ne)
+        L = (DtW @ D).tocsr()
+        Lf = L[self.free]
+        self.DtW_f = DtW[self.free]
+        self.L_fk = Lf[:, np.flatnonzero(is_kept)].tocsr()
+        self.L_fp = Lf[:, self.pinned].tocsr()
+        self.solver = SparseCholesky(Lf[:, self.free].tocsc(), backend=backend) \
+            if self.free.size else None
+        g = Vs[:, E[:, 1]] - Vs[:, E[:, 0]]                              # (J, ne, 3)
+        self.alpha = np.stack([np.einsum("jei,jei->je", a[:, E[:, 0]], g) for a in R], axis=-1)
+        self.beta = np.stack([np.einsum("jei,jei->je", a[:, E[:, 1]], g) for a in R], axis=-1)
+
+    def solve(self, frame_vectors, Wk, Vc, kept, rest):
+        """Positions ``(n,B,3)`` of ``B`` frames: ``frame_vectors`` the base frames ``t, b, n``
+        (each ``(n,B,3)``), ``Wk (B,J)`` their time weights, ``Vc (B,nc,3)`` the coarse
+        poses, ``rest (n,3)`` a keyframe (for pinned vertices)."""
+        E = self.E
+        nb = Wk.shape[0]
+        h = np.zeros((E.shape[0], nb, 3))
+        for end, coef in ((E[:, 0], self.alpha), (E[:, 1], self.beta)):
+            c = np.einsum("kj,jea->eka", Wk, coef)                       # (ne, B, 3)
+            for axis, a in enumerate(frame_vectors):
+                h += a[end] * c[..., axis:axis + 1]
+        h *= 0.5
+        x = np.zeros((self.n, nb, 3))
+        x[kept] = Vc.transpose(1, 0, 2)
+        if self.pinned.size:
+            x[self.pinned] = rest[self.pinned, None]
+        if self.free.size:
+            rhs = self.DtW_f @ h.reshape(E.shape[0], 3 * nb)
+            rhs -= self.L_fk @ x[kept].reshape(kept.shape[0], 3 * nb)
+            if self.pinned.size:
+                rhs -= self.L_fp @ x[self.pinned].reshape(self.pinned.shape[0], 3 * nb)
+            x[self.free] = self.solver.solve(rhs).reshape(self.free.shape[0], nb, 3)
+        return x
 
 
 #: The guard stops after this many rounds in a row without fewer new defects than its best
@@ -711,7 +791,7 @@ def _edge_weights(Vs, E):
 
 
 def prolong(Vc, Vs_fine, F_fine, dec: Decimation, frames=None, *, pinned=None,
-            time_weights="linear", bc: str = "natural") -> np.ndarray:
+            time_weights="linear", bc: str = "natural", transfer: str = "gradient") -> np.ndarray:
     """One-call detail transfer: :meth:`Prolongation.encode` then :meth:`~Prolongation.decode`.
 
     Parameters
@@ -726,10 +806,12 @@ def prolong(Vc, Vs_fine, F_fine, dec: Decimation, frames=None, *, pinned=None,
     pinned : optional
     time_weights, bc
         See :meth:`Prolongation.decode`.
+    transfer : {"gradient", "displacement"}
+        See :meth:`Prolongation.encode`.
 
     Returns
     -------
     (K+1,n,3) float64 numpy array
     """
-    P = Prolongation.encode(Vs_fine, F_fine, dec, frames, pinned=pinned)
+    P = Prolongation.encode(Vs_fine, F_fine, dec, frames, pinned=pinned, transfer=transfer)
     return P.decode(Vc, time_weights=time_weights, bc=bc)
