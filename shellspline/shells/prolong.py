@@ -510,9 +510,14 @@ class Prolongation:
                                    f"{Vc.shape}")
         if self.coarse_F is None:
             raise ShellsplineError("guard needs the coarse faces (encode from a Decimation)")
-        if fallback is None:  # the base surface, only of the frames that fade
+        if fallback is None:  # the base surface, only of the frames that fade, each once
+            cache = {}
+
             def fallback(ks):
-                return self.base(Vc[ks])
+                need = [int(k) for k in ks if int(k) not in cache]
+                if need:
+                    cache.update(zip(need, self.base(Vc[need])))
+                return np.stack([cache[int(k)] for k in ks])
         return fade_new_defects(V, Vc, topology(self.F, self.n_vertices),
                                 topology(self.coarse_F, self.kept.shape[0]), self.collapse_map,
                                 self.frames, fallback, bc=bc, rings=rings, taper=taper,
