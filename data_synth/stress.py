@@ -7,6 +7,9 @@
   angle goes from flat to within a few degrees of ±π.
 * :func:`slivers` — the joint tube with every odd ring moved next to the following one, so
   half of its triangles are slivers (1 % of the median area).
+* :func:`dense_slivers` — :func:`slivers` on a longer, finer tube, midpoint-subdivided: a mesh
+  above the multiresolution threshold (24 192 vertices by default) whose coarse mesh is 24
+  times coarser, slivers everywhere (the detail carried over long distances from the base).
 * :func:`squeezed_face` — a sphere one of whose triangles is squeezed to 2 % of its height at
   an early keyframe and grows back: the extrapolated start of the frames after it pushes the
   triangle past its hinge.
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["joint", "fold_over", "slivers", "squeezed_face", "tube"]
+__all__ = ["joint", "fold_over", "slivers", "dense_slivers", "squeezed_face", "tube"]
 
 
 def tube(rings: int = 24, segments: int = 16, length: float = 2.0, radius: float = 0.2,
@@ -97,6 +100,33 @@ def slivers(rings: int = 24, segments: int = 16, squeeze: float = 0.99) -> dict:
     True
     """
     return joint(rings=rings, segments=segments, squeeze=squeeze)
+
+
+def dense_slivers(rings: int = 48, segments: int = 32, subdivisions: int = 2,
+                  squeeze: float = 0.99) -> dict:
+    """:func:`slivers` with ``rings × segments`` vertices, every triangle then split into four
+    ``subdivisions`` times (midpoints, the same in every keyframe): slivers stay slivers
+    (1 % of the median area), and the default run decimates it to 1000 vertices (the first
+    ring of the tube, x = 0, pinned).
+
+    Examples
+    --------
+    >>> d = dense_slivers(rings=12, segments=8, subdivisions=1)
+    >>> d["V"].shape, d["F"].shape, d["pinned"].tolist()
+    ((3, 368, 3), (704, 3), [0, 1, 2, 3, 4, 5, 6, 7, 96, 97, 98, 99, 100, 101, 102, 103])
+    """
+    from trimesh.remesh import subdivide
+
+    d = joint(rings=rings, segments=segments, squeeze=squeeze)
+    V, F = list(d["V"]), d["F"]
+    for _ in range(int(subdivisions)):
+        out = [subdivide(v, F) for v in V]
+        V, F = [v for v, _ in out], out[0][1]
+    V = np.stack(V)
+    rest, _ = tube(rings, segments, squeeze=squeeze)
+    pinned = np.flatnonzero(np.abs(V[0, :, 0] - rest[0, 0]) < 1e-12).astype(np.int64)
+    return {"V": V, "F": np.asarray(F, dtype=np.int64), "frames": d["frames"],
+            "pinned": pinned}
 
 
 def fold_over(n: int = 12, angles=(0.0, 150.0, 176.0), frames=(0, 10, 20)) -> dict:
