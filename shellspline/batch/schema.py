@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ShellsplineError
-from ..pipeline.options import DEFAULT_SPLINE
+from ..pipeline.options import DEFAULT_SPLINE, DEFAULT_TRANSFER
 from .outroot import LOCK_NAME, LOG_NAME, SUMMARY_NAME
 
 __all__ = ["JobError", "job_error", "JOB_KEYS", "PARAM_KEYS", "SOURCE_KEYS", "DEFAULTS",
@@ -33,7 +33,7 @@ DEFAULTS = {"frames": None, "K": None, "bc": "natural", "method": "lta", "eta": 
             "formats": ["obj"], "keyframe_pattern": "pose_*.obj",
             "frames_file": "frames.txt", "pinned_file": "pinned.txt", "render": [],
             "plots": [], "delay": 0.0, "fade_angle": 0.5, "spline": DEFAULT_SPLINE,
-            "transfer": "gradient"}
+            "transfer": DEFAULT_TRANSFER}
 #: the parameters handed to :func:`shellspline.interpolate` (``SequenceSpec.params``)
 INTERPOLATION_KEYS = ("method", "bc", "K", "eta", "mu", "lam", "reference", "coarse", "fine",
                       "max_iter", "max_time", "fix_boundary", "fade_angle", "spline",

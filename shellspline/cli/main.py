@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..errors import ShellsplineError
 from ..pipeline.options import (AUTO_COARSE_ABOVE, AUTO_COARSE_VERTICES, AUTO_NONLINEAR_ABOVE,
-                                DEFAULT_SPLINE, SPLINES)
+                                DEFAULT_SPLINE, DEFAULT_TRANSFER, SPLINES, TRANSFERS)
 from ..version import __version__
 
 __all__ = ["main"]
@@ -184,7 +184,7 @@ def _build_parser() -> argparse.ArgumentParser:
                         f"resolution; 'auto' (default) = {AUTO_COARSE_VERTICES} vertices for "
                         f"meshes above {AUTO_COARSE_ABOVE} (above {AUTO_NONLINEAR_ABOVE} with "
                         "--method nonlinear)")
-    q.add_argument("--transfer", choices=("gradient", "displacement"), default="gradient",
+    q.add_argument("--transfer", choices=TRANSFERS, default=DEFAULT_TRANSFER,
                    help="how --coarse carries the fine detail onto the coarse frames: gradient "
                         "(default) fits the fine edge vectors carried on the base frames; "
                         "displacement adds the paper's per-vertex offsets (§8)")

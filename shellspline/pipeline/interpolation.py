@@ -18,7 +18,7 @@ from ..io.keyframes import Keyframes, keyframes_from_arrays, read_keyframes
 from ..io.sequences import jsonable
 from ..progress import Progress
 from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
-from .options import (DEFAULT_SPLINE, METHODS, REFERENCES, RIGID_TRACKS, SPLINES,
+from .options import (DEFAULT_SPLINE, DEFAULT_TRANSFER, METHODS, REFERENCES, RIGID_TRACKS, SPLINES,
                       InterpolationOptions, interpolation_problem, notices)
 from .placement import placement_track
 from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
@@ -70,7 +70,7 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                 warm_start: bool = True, solver_options: dict | None = None,
                 coarse="auto", fine: bool = False, fixpoint: int = 0,
                 rigid_track: str = "fit", rigid_subset=None, fade_angle: float = 0.5,
-                spline: str = DEFAULT_SPLINE, transfer: str = "gradient",
+                spline: str = DEFAULT_SPLINE, transfer: str = DEFAULT_TRANSFER,
                 progress=None) -> InterpolationResult:
     """Interpolate keyframe poses of one triangle mesh by a spline in shell space.
 

@@ -16,6 +16,7 @@ from ..io.keyframes import Keyframes
 from ..metrics import length_scale
 from ..mesh.topology import Topology
 from ..shells.lta_spline import SPLINES, canonical_spline
+from ..shells.prolong import DEFAULT_TRANSFER, TRANSFERS
 from ..shells.reconstruct import LARGE_MESH
 from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
 
@@ -23,7 +24,7 @@ __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_proble
            "coarse_target", "canonical_choice", "METHODS", "REFERENCES", "RIGID_TRACKS",
            "BOUNDARY_CONDITIONS", "AUTO_COARSE_ABOVE", "AUTO_COARSE_VERTICES",
            "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN", "SPLINES", "DEFAULT_SPLINE",
-           "TRANSFERS"]
+           "TRANSFERS", "DEFAULT_TRANSFER"]
 
 METHODS = ("lta", "linear", "geodesic", "nonlinear")
 REFERENCES = ("constant", "keyframe", "geodesic")
@@ -36,11 +37,6 @@ REFERENCES = ("constant", "keyframe", "geodesic")
 #: ``pipelines/regression_ellipsoids.toml``). The low-level
 #: :func:`~shellspline.shells.lta_spline.lta_spline` keeps the paper's spline as its default.
 DEFAULT_SPLINE = "continuous"
-#: How a multiresolution run carries the fine detail onto the coarse frames
-#: (:meth:`shellspline.shells.prolong.Prolongation.encode`): ``"gradient"`` (default) fits the
-#: fine edge vectors carried on the base frames, ``"displacement"`` adds the paper's per-vertex
-#: offsets (§8).
-TRANSFERS = ("gradient", "displacement")
 #: Where in-between frames are placed rigidly (:func:`shellspline.pipeline.placement_track`).
 RIGID_TRACKS = ("fit", "spline", "linear")
 #: ``coarse="auto"`` decimates meshes above this many vertices to :data:`AUTO_COARSE_VERTICES`:
@@ -112,7 +108,7 @@ class InterpolationOptions:
     rigid_track: str = "fit"
     fade_angle: float = 0.5
     spline: str = DEFAULT_SPLINE
-    transfer: str = "gradient"
+    transfer: str = DEFAULT_TRANSFER
 
     def __post_init__(self):
         put = object.__setattr__.__get__(self)
