@@ -69,10 +69,12 @@ whose time interpolation costs it.
 **Horse** (``--no-horse`` skips it): ``../shared/data/horse`` keyframes ``horse-reference,
 horse-03, horse-07`` at frames 0, 20, 40 (K = 40): full resolution (``coarse="none"``),
 ``coarse=1000`` and ``coarse=1000, fine=True``, and linear blending: wall time, Gauss–Newton
-frames converged / stalled, iterations median / max, new defects, pop, keyframes exact.
+frames converged / stalled, iterations median / max, new defects, pop, ``strain99``
+(:func:`length_strain`), keyframes exact.
 ``--subdivided`` adds the same keyframes midpoint-subdivided twice (134 782 vertices) through
-the default options (above 20 000 vertices: multiresolution with 1000 coarse vertices), and
-their linear blending.
+the default options (above 20 000 vertices: multiresolution with 1000 coarse vertices), the
+same with the paper's detail transfer (``transfer="displacement"``), and their linear
+blending.
 ``--nonlinear`` adds five horse poses (reference, 02, 04, 06, 08) at frames 0, 12, 24, 36,
 48 with ``method="nonlinear"``, ``coarse=1000``, ``solver_options={"max_time_s": 120}``.
 
