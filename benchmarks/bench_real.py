@@ -651,7 +651,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-gt", action="store_true", help="skip the ground-truth runs")
     ap.add_argument("--subdivided", action="store_true",
                     help="also the horse subdivided twice (134 782 vertices) through the "
-                         "default path (multiresolution, 1000 coarse vertices), ~1 min")
+                         "default path (multiresolution, 1000 coarse vertices), and with "
+                         "transfer=\"displacement\", ~2 min")
     ap.add_argument("--nonlinear", action="store_true",
                     help="also the nonlinear spline on five horse poses (minutes)")
     ap.add_argument("--cold", action="store_true",
