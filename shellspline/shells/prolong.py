@@ -440,8 +440,10 @@ class Prolongation:
         if only is not None:
             todo = np.intersect1d(todo, np.asarray(only, dtype=np.int64))
         self._decode_into(out, Vc, W, todo, chunk)
-        if self.pinned.size:
-            out[:, self.pinned] = self.keyframes[0, self.pinned]
+        if self.pinned.size:  # only the rows decoded here (the others stay zero)
+            rows = todo if only is None else np.union1d(
+                todo, np.intersect1d(np.flatnonzero(key_of >= 0), np.asarray(only)))
+            out[rows[:, None], self.pinned] = self.keyframes[0, self.pinned]
         done = np.flatnonzero(key_of >= 0)
         if only is not None:
             done = np.intersect1d(done, np.asarray(only, dtype=np.int64))

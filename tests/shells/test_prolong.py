@@ -655,3 +655,17 @@ def test_gradient_transfer_keeps_dense_slivers_without_spikes_or_stretch():
     assert rg["new_defects_before"]["folded"] <= 10
     assert rg["new_defects_after"]["collapsed"] == 0
     assert sg < 0.3 and sd > 10
+
+
+@pytest.mark.parametrize("transfer", ["gradient", "displacement"])
+def test_decoding_only_some_frames_fills_only_those(sliver_run, transfer):
+    """``decode(only=...)`` (how parallel_decode splits the frames) gives the full decode's
+    rows for the frames asked for, keyframes and pins included, and zeros elsewhere."""
+    c, T, dec, Vc, _, _ = sliver_run
+    P = Prolongation.encode(c["V"], T, dec, c["frames"], pinned=c["pinned"], transfer=transfer)
+    full = P.decode(Vc)
+    ask = np.array([3, int(c["frames"][1]), 15])
+    part = P.decode(Vc, only=ask)
+    assert np.array_equal(part[ask], full[ask])
+    others = np.setdiff1d(np.arange(full.shape[0]), ask)
+    assert not part[others].any()
