@@ -294,8 +294,8 @@ class Prolongation:
         R = obj._frame_vectors(S)
         obj.coeffs = np.stack([np.einsum("jni,jni->jn", a, D) for a in R], axis=-1)
         if tr == "gradient":
-            obj._grad = _GradientTransfer(Vs, R, E, w, is_kept, pin, B, (free, solver, B_fc),
-                                          backend)
+            obj._grad = _GradientTransfer(Vs, R, E, w, L, is_kept, pin, B,
+                                          (free, solver, B_fc), backend)
         obj.transfer = tr
         return obj
 
@@ -589,7 +589,7 @@ class _GradientTransfer:
     solution of both steps.
     """
 
-    def __init__(self, Vs, R, E, w, is_kept, pin, B, base, backend):
+    def __init__(self, Vs, R, E, w, L, is_kept, pin, B, base, backend):
         n, ne = is_kept.shape[0], E.shape[0]
         self.n, self.E = n, E
         held = pin & ~is_kept
@@ -599,8 +599,7 @@ class _GradientTransfer:
         rows = np.r_[np.arange(ne), np.arange(ne)]
         D = sp.csr_matrix((np.r_[-np.ones(ne), np.ones(ne)], (rows, np.r_[E[:, 0], E[:, 1]])),
                           shape=(ne, n))
-        DtW = (D.T @ sp.diags(w)).tocsr()                               # (n, ne)
-        L = (DtW @ D).tocsr()
+        DtW = (D.T @ sp.diags(w)).tocsr()                   # (n, ne); DtW @ D is the base's L
         eps = ANCHOR * float(L.diagonal().mean()) if n else 0.0
         anchor = np.zeros(n)
         anchor[is_kept] = eps
