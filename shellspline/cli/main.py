@@ -431,6 +431,13 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
             f"{q['flipped_faces']}, collapsed {q.get('collapsed_faces', 0)}, folded edges "
             f"{q.get('folded_edges', 0)}, degenerate {q['degenerate_faces']}, pop "
             f"{q.get('pop', 0.0):.2f}")
+    from ..pipeline.report import seam_defects
+
+    at = seam_defects(rep)
+    if at["flipped"] or at["folded"] or at["collapsed"]:
+        line += (f"; at the seams (steps into frames {at['frames'][:12]}"
+                 f"{' …' if len(at['frames']) > 12 else ''}): {at['flipped']} flipped, "
+                 f"{at['folded']} folded, {at['collapsed']} collapsed")
     if q.get("worst_frames"):
         line += f"; worst frames {q['worst_frames']} (report.json quality.per_frame)"
     lines.append(line)

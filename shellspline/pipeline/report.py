@@ -23,6 +23,7 @@ from ..mesh.topology import Topology
 from ..version import __version__
 
 __all__ = ["start_report", "energies_record", "finish_report", "sequence_quality", "quality_record", "quality_ok",
+           "seam_defects",
            "sequence_energies", "gauss_newton_summary", "nonlinear_record", "fixpoint_change",
            "convergence_problems", "start_frames_note", "POP_LIMIT", "ENERGY_TERMS"]
 
@@ -92,6 +93,55 @@ def quality_ok(quality: dict) -> bool:
                 and not quality.get("collapsed_faces", 0) and not quality.get("folded_edges", 0)
                 and not quality["degenerate_faces"]
                 and quality.get("pop", 0.0) <= quality.get("pop_limit", POP_LIMIT))
+
+
+def seam_defects(report: dict) -> dict:
+    """The new defects of a report (``quality.per_frame``) that sit at its seams.
+
+    A seam is where the two runs of a keyframe gap meet in different local minima of the
+    reconstruction (``seam_jump`` in a frame record; a multiresolution run's are in
+    ``multires.coarse_frames``, whose frames are the output's). The switch between the two
+    minima happens in the step into the seam's frame, or, where a bridge was kept, in one of
+    the steps of its window (``bridge.frames``) or the step out of it. On the horse every new
+    flipped face of the full-resolution run is there (benchmarks/README.md, "The seam
+    snaps"): telling them apart from the others says whether a defect is this bistability or
+    something else.
+
+    Returns
+    -------
+    dict
+        ``flipped``, ``folded``, ``collapsed`` (ints) and ``frames`` (the frames counted,
+        sorted: frame ``k`` holds step ``k − 1 → k``).
+
+    Examples
+    --------
+    >>> rep = {"quality": {"per_frame": {"flipped": [0, 0, 2, 0, 1], "folded": [0] * 5,
+    ...                                  "collapsed": [0] * 5}},
+    ...        "frames": [{"frame": 2, "seam_jump": 3.1}]}
+    >>> seam_defects(rep)
+    {'flipped': 2, 'folded': 0, 'collapsed': 0, 'frames': [2]}
+    """
+    per = (report.get("quality") or {}).get("per_frame") or {}
+    out = {"flipped": 0, "folded": 0, "collapsed": 0, "frames": []}
+    if not per.get("flipped"):
+        return out
+    K = len(per["flipped"]) - 1
+    records = list(report.get("frames") or []) + \
+        list((report.get("multires") or {}).get("coarse_frames") or [])
+    at = set()
+    for rec in records:
+        if "seam_jump" not in rec:
+            continue
+        br = rec.get("bridge") or {}
+        if br.get("kept") and br.get("frames"):
+            at.update(range(int(min(br["frames"])), int(max(br["frames"])) + 2))
+        else:
+            at.add(int(rec["frame"]))
+    out["frames"] = sorted(k for k in at if 0 < k <= K)
+    for key in ("flipped", "folded", "collapsed"):
+        counts = per.get(key) or [0] * (K + 1)
+        out[key] = int(sum(counts[k] for k in out["frames"]))
+    return out
 
 
 def convergence_problems(report: dict) -> list[str]:
