@@ -83,7 +83,7 @@ def sequence_metrics(V, keyframes_V, frames, report) -> dict:
 def quality_warning(report: dict) -> str:
     """One line listing the quality or convergence problems of an interpolation report
     ("" when there are none)."""
-    from ..pipeline.report import convergence_problems
+    from ..pipeline.report import convergence_problems, seam_defects
 
     q = report.get("quality", {})
     parts = convergence_problems(report)
@@ -93,6 +93,12 @@ def quality_warning(report: dict) -> str:
                       ("folded_edges", "folded edges"), ("degenerate_faces", "degenerate faces")):
         if q.get(key):
             parts.append(f"{q[key]} {what}")
+    at = seam_defects(report)
+    n_at = at["flipped"] + at["folded"] + at["collapsed"]
+    if n_at:
+        fr = at["frames"]
+        parts.append(f"{n_at} of these at the seams between two minima (steps into frames "
+                     f"{fr[:10]}{' …' if len(fr) > 10 else ''})")
     if q.get("pop", 0.0) > q.get("pop_limit", float("inf")):
         parts.append(f"a pop of {q['pop']:.1f}x the neighbouring steps at frame {q['pop_frame']}")
     return "; ".join(parts)

@@ -110,6 +110,14 @@ def test_seam_defects_count_the_steps_of_each_seam_and_its_kept_bridge():
     mr = {"quality": {"per_frame": per}, "frames": [],
           "multires": {"coarse_frames": [{"frame": 7, "seam_jump": 4.0}]}}
     assert seam_defects(mr) == {"flipped": 4, "folded": 0, "collapsed": 0, "frames": [7]}
+    # the batch's one-line warning says it too
+    from shellspline.batch.sequence import quality_warning
+
+    q = {"keyframes_exact": True, "flipped_faces": 14, "folded_edges": 9, "per_frame": per}
+    line = quality_warning({"quality": q, "frames": frames})
+    assert "14 flipped faces" in line and "12 of these at the seams" in line
+    assert "[2, 3, 4, 5, 6, 9]" in line
+    assert "seams" not in quality_warning({"quality": q, "frames": []})
     # no seam, no per-frame record: nothing
     assert seam_defects({"quality": {"per_frame": per}, "frames": []})["flipped"] == 0
     assert seam_defects({})["frames"] == []
