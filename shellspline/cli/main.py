@@ -193,8 +193,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         "initialised from the prolonged result")
     q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
     q.add_argument("--max-iter", type=int, default=None,
-                   help="Gauss–Newton iteration limit per frame (default 60; 200 on the "
-                        "coarse mesh of a multiresolution run)")
+                   help="Gauss–Newton iteration limit per frame (default 60, and 40 more "
+                        "for a frame still converging steadily there; 200 on the coarse mesh "
+                        "of a multiresolution run); a limit given here holds")
     q.add_argument("--format", default="obj",
                    choices=["obj", "ply", "glb", "mdd", "pc2", "usd"],
                    help="output: frame_*.obj (default, exact), frame_*.ply (binary, exact), "
@@ -405,7 +406,8 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
         line = (f"Gauss–Newton: {gn['converged']}/{gn['frames']} frames converged, "
                 f"{gn['iterations_total']} iterations (median {gn.get('iterations_median', 0):g}"
                 f", max {gn['iterations_max']}), {gn['factorizations_total']} factorizations")
-        for key, what in (("stalled", "stalled"), ("iteration_limit", "at the iteration limit")):
+        for key, what in (("stalled", "stalled"), ("iteration_limit", "at the iteration limit"),
+                          ("resumed", "resumed (still converging at the limit)")):
             if gn.get(key):
                 fr = gn[key]
                 line += f"; {what}: frames {fr[:8]}{' …' if len(fr) > 8 else ''}"

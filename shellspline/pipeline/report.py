@@ -340,6 +340,8 @@ def gauss_newton_summary(records: list) -> dict:
         "converged": int(sum(r["success"] for r in records)),
         "stalled": [int(r["frame"]) for r in records if r.get("status") == "stalled"],
         "iteration_limit": [int(r["frame"]) for r in records if r.get("status") == "limit"],
+        # frames given more iterations after the passes (still converging at their limit)
+        "resumed": [int(r["frame"]) for r in records if r.get("resumed")],
         "iterations_median": float(np.median(nits)),
         "iterations_total": int(sum(nits)),
         "iterations_max": int(max(nits)),

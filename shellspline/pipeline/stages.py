@@ -17,8 +17,9 @@ from ..shells.lta_spline import lta_spline
 from ..timeline import linear_blend
 from .describe import SplineRows, describe_and_solve
 from .placement import place
-from .reconstruction import (POP_DEFECTS, SEAM_POP, parallel_decode, reconstruct_frames,
-                             run_reconstruction, safe_init)
+from .reconstruction import (POP_DEFECTS, RESUME_ITER, SEAM_POP, parallel_decode,
+                             reconstruct_frames, resume_steady, run_reconstruction,
+                             safe_init)
 from .report import fixpoint_change, nonlinear_record
 
 __all__ = ["StageResult", "run_method", "in_input_units", "linear_stage", "geodesic_stage", "lta_stage",
@@ -221,7 +222,8 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
                                  workers=opts.workers, warm=warm, prog=prog,
                                  stage_prefix=stage_prefix,
                                  pop_defects=1 if refine else POP_DEFECTS,
-                                 tube_of=tg.tube_of)
+                                 tube_of=tg.tube_of,
+                                 resume=_resume_budget(opts))
     del Vinit
     Z = tg.Z[:] if isinstance(tg.Z, SplineRows) else tg.Z
     with prog.stage(stage_prefix + "place"):
@@ -292,6 +294,12 @@ def given_starts(Vinit, Vkey, T, ks, tg, pinned, prob, opts):
     return V, rec
 
 
+def _resume_budget(opts) -> int:
+    """Iterations :func:`~.reconstruction.resume_steady` may add: none where the user (or
+    the coarse mesh's own :data:`COARSE_MAX_ITER`) set the limit, which then holds."""
+    return 0 if "max_iter" in opts.gn_options else RESUME_ITER
+
+
 def fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix="",
                         log=None) -> StageResult:
     """The fixpoint iterations of the LΘA model (paper §9, Fig. 9), on ``seq`` in place:
@@ -310,6 +318,9 @@ def fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix
             results = run_reconstruction(T, ks, Znew, lambda k: W_spline[k], seq.V, pinned,
                                          opts.gn_options, opts.workers, prog, False,
                                          stage=stage)
+        resume_steady(T, results, Znew, lambda k: W_spline[k], pinned, opts.gn_options,
+                      opts.workers, prog, stage_prefix + f"fixpoint {it + 1} ",
+                      budget=_resume_budget(opts))
         Vnew = linear_blend(Vkey, frames, K, bc)
         for k in ks:
             Vnew[k] = results[k][0]
