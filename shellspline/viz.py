@@ -1185,21 +1185,34 @@ def _lta_energy(seq: _Sequence) -> tuple[np.ndarray, str]:
     if e is not None and en.get("resolution", "full") == "full" and len(e) == seq.K + 1:
         return np.asarray(e, dtype=np.float64), "report"
     from .metrics import lta_energies
-    from .mesh.topology import topology
 
     p = seq.parameters
-    T = topology(seq.F, seq.V.shape[1], name=seq.label)
-    return lta_energies(seq.V, T, bc=p.get("bc", "natural"), mu=p.get("mu", 1.0),
+    V, T = _solve_sequence(seq)
+    return lta_energies(V, T, bc=p.get("bc", "natural"), mu=p.get("mu", 1.0),
                         lam=p.get("lam", 1.0), eta=p.get("eta", 1e-3)), "recomputed"
+
+
+def _solve_sequence(seq: _Sequence):
+    """The poses and topology of ``seq`` as ``interpolate`` solves them: UV-seam duplicates
+    welded, fin faces and isolated vertices set aside
+    (:func:`~shellspline.mesh.source_mesh.solve_mesh`), so that an output written back with
+    its input's polygons can be measured like the solve."""
+    from .mesh.source_mesh import solve_mesh
+    from .mesh.topology import topology
+
+    F = np.asarray(seq.F, dtype=np.int64)
+    offsets = np.arange(0, 3 * F.shape[0] + 1, 3, dtype=np.int64)
+    V, Fs, _, _ = solve_mesh(np.asarray(seq.V, dtype=np.float64), offsets, F.ravel(),
+                             name=seq.label)
+    return V, topology(Fs, V.shape[1], name=seq.label)
 
 
 def _shell_energy(seq: _Sequence, mode: str) -> np.ndarray:
     from .metrics import shell_energies
-    from .mesh.topology import topology
 
     p = seq.parameters
-    T = topology(seq.F, seq.V.shape[1], name=seq.label)
-    return shell_energies(seq.V, T, bc=p.get("bc", "natural"), mu=p.get("mu", 1.0),
+    V, T = _solve_sequence(seq)
+    return shell_energies(V, T, bc=p.get("bc", "natural"), mu=p.get("mu", 1.0),
                           lam=p.get("lam", 1.0), eta=p.get("eta", 1e-3),
                           midpoints=(mode == "midpoint"))
 

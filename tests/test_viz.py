@@ -581,3 +581,32 @@ def test_render_glb_follows_the_up_override(seq, tmp_path):
     assert q == list(UP_ROTATIONS["x"])
     with pytest.raises(ss.ShellsplineError, match="up must be"):
         ss.export_glb(d, tmp_path / "bad.glb", up="w")
+
+
+def test_plot_energies_of_an_output_written_with_a_fin_face(tmp_path):
+    """An output written back with its input's polygons keeps the input's fin face (three
+    faces on one edge) and UV-seam duplicates; the plot measures it as interpolate solved
+    it (fin set aside, seams welded) instead of refusing it as non-manifold, and its
+    recomputed energies agree with the report's."""
+    from data_synth.dcc import write_dcc
+
+    paths = write_dcc("dcc_tube", tmp_path / "in")
+    keys = [p for p in paths if p.suffix == ".obj"]
+    frames = [int(x) for x in (tmp_path / "in" / "frames.txt").read_text().split()]
+    res = ss.interpolate(ss.read_keyframes(keys, frames=frames), eta=0.1)
+    out = tmp_path / "out"
+    assert res.source is not None and res.source.fin_polygons.size
+    ss.write_sequence(out, res.source.expand(res.V, res.frames, res.K, "natural"), res.F,
+                      res.report, source=res.source)
+    seq = viz.load_source(out)
+    with pytest.raises(ShellsplineError, match="non-manifold"):
+        ss.topology(seq.F, seq.V.shape[1])          # the written polygons: the fin is there
+    seq.report.pop("energies")                       # force the recomputation
+    e, how = viz._lta_energy(seq)
+    assert how == "recomputed"
+    # (the written quads are triangulated again when read back, from the whole sequence
+    # rather than the keyframes: a few diagonals differ, by 0.1 % in the energies)
+    np.testing.assert_allclose(e, res.report["energies"]["lta_output_energy_per_frame"],
+                               rtol=1e-2, atol=1e-12)
+    fig = viz.plot_figure(out, "energy")
+    assert len(fig.axes) == 2 and np.all(np.isfinite(_data_lines(fig.axes[1])[0].get_ydata()))

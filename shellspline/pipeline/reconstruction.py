@@ -101,8 +101,8 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
             break
         prev2, prev, prev_init = prev, r.V, v0
         rec = r.summary()
-        if r.status == "limit" and steady_tail(r.energies, gn.dtol, RESUME_ITER):
-            rec["resumable"] = True
+        if r.status == "limit":   # for resume_steady
+            rec["to_go"] = iterations_to_go(r.energies, gn.dtol)
         rec["frame"] = int(k)
         rec["seconds"] = time.perf_counter() - t0
         out.append((int(k), r.V, rec))
@@ -111,32 +111,49 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
     return out
 
 
-#: Gauss–Newton iterations a frame stopped at its limit while still converging steadily is
-#: given after the reconstruction passes (see :func:`resume_steady`).
+#: Gauss–Newton iterations a frame stopped at its limit while still converging steadily may
+#: be given after the reconstruction passes (see :func:`resume_steady`) ...
 RESUME_ITER = 40
+#: ... in rounds of this many, each granted only while the frame's tail still projects to
+#: convergence within what is left.
+RESUME_ROUND = 10
+
+
+def iterations_to_go(energies, dtol: float, window: int = 10) -> float:
+    """How many more Gauss–Newton iterations a frame whose energies were ``energies`` needs
+    to meet the decrement criterion, projected from its tail: its last ``window`` energy
+    decreases (≈ the Gauss–Newton decrements) must all be positive and shrink, and at their
+    geometric rate the decrease falls below ``dtol`` times the energy after the returned
+    number of iterations (0 where it already has; ``inf`` for a tail that is not steady).
+
+    >>> e = 1.0 + 0.5 ** np.arange(25)          # halves the gap every iteration
+    >>> round(iterations_to_go(e, 1e-12), 2)     # log2(0.5 ** 24 / 1e-12)
+    15.86
+    >>> iterations_to_go(1.0 + 1e-3 * np.arange(30, 0, -1), 1e-12)   # a constant pace
+    inf
+    """
+    e = np.asarray(energies, dtype=np.float64)
+    if e.size < window + 1 or not np.all(np.isfinite(e[-window - 1:])):
+        return np.inf
+    d = -np.diff(e[-window - 1:])
+    if not np.all(d > 0) or not d[-1] < d[0]:
+        return np.inf
+    goal = dtol * e[-1]
+    if d[-1] <= goal:
+        return 0.0
+    rate = (d[-1] / d[0]) ** (1.0 / (window - 1))
+    return float(np.log(goal / d[-1]) / np.log(rate))
 
 
 def steady_tail(energies, dtol: float, budget: int = RESUME_ITER, window: int = 10) -> bool:
-    """Whether a frame stopped at its iteration limit is still converging steadily: its last
-    ``window`` energy decreases all positive and shrinking geometrically, at a rate that
-    brings the decrease per iteration (≈ the Gauss–Newton decrement) below ``dtol`` times
-    the energy within ``budget`` more iterations.
+    """Whether a frame stopped at its limit projects to convergence within ``budget`` more
+    iterations (:func:`iterations_to_go`).
 
-    >>> e = 1.0 + 0.5 ** np.arange(40)          # halves the gap every iteration
+    >>> e = 1.0 + 0.5 ** np.arange(40)
     >>> steady_tail(e, 2e-6), steady_tail(1.0 + 0.99 ** np.arange(40), 2e-6)
     (True, False)
     """
-    e = np.asarray(energies, dtype=np.float64)
-    if budget <= 0 or e.size < window + 1 or not np.all(np.isfinite(e[-window - 1:])):
-        return False
-    d = -np.diff(e[-window - 1:])
-    if not np.all(d > 0) or not d[-1] < d[0]:
-        return False
-    goal = dtol * e[-1]
-    if d[-1] <= goal:
-        return True
-    rate = (d[-1] / d[0]) ** (1.0 / (window - 1))
-    return bool(np.log(goal / d[-1]) / np.log(rate) <= budget)
+    return budget > 0 and iterations_to_go(energies, dtol, window) <= budget
 
 
 class _FrameStarts:
@@ -154,44 +171,63 @@ class _FrameStarts:
 def resume_steady(T, results, Z, W_of, pinned, gn_options, workers, prog, stage_prefix="",
                   tube_of=None, budget: int = RESUME_ITER):
     """Give the frames that stopped at their iteration limit while still converging steadily
-    (``record["resumable"]``, :func:`steady_tail`) up to ``budget`` more Gauss–Newton
-    iterations, each from where it stopped, after every run has been solved.
+    up to ``budget`` more Gauss–Newton iterations, each from where it stopped, after every
+    run has been solved: in rounds of :data:`RESUME_ROUND`, a frame taking part in a round
+    only while its tail (the first round: ``record["to_go"]``, set by :func:`solve_run`;
+    later: the last round's) projects to convergence within the iterations left
+    (:func:`iterations_to_go`).
 
     Why after, not in place: slow tails on real meshes are motion, not round-off (horse,
     eleven poses every 10th frame: three frames stopped at 60 iterations with vertices still
-    up to 0.8 edge lengths from their minimum; they converge at 61–74). Granting the
-    iterations inside the runs changes the warm start of every later frame of the run, and on
-    a sliver tube whose chain of warm starts is chaotic that sent frames 14–17 of
-    ``data_synth.stress.dense_slivers`` (decimated) into basins 10–50× higher. Resumed here,
-    no other frame's start changes. A flat higher limit would also spend it on frames that
-    cross a soft mode at a constant pace (a 6k-vertex sliver tube: ~270 → 495 s for 5
-    instead of 3 converged frames of 18); those are not steady and keep their status.
+    up to 0.8 edge lengths from their minimum; resumed, they converge within 11 more).
+    Granting the iterations inside the runs changes the warm start of every later frame of
+    the run, and on a sliver tube whose chain of warm starts is chaotic that sent frames
+    14–17 of ``data_synth.stress.dense_slivers`` (decimated) into basins 10–50× higher.
+    Resumed here, no other frame's start changes. Why in rounds: a tail's rate can slow
+    down; on the 6k-vertex sliver tube (``dense_slivers(subdivisions=1)``) six frames
+    projected within 40 and none converged in 40 more (+40 s of 650). A flat higher limit
+    spends the most there (~270 → 495 s for 5 instead of 3 converged frames of 18).
 
     Updates ``results`` in place; a resumed frame's record says ``"resumed": true`` and
-    counts the iterations, CG iterations, factorizations and seconds of both solves.
+    counts the iterations, CG iterations, factorizations and seconds of all its solves.
+    Returns the frames resumed.
     """
-    todo = [k for k, (_, rec) in results.items() if rec.pop("resumable", False)]
-    if not todo or budget <= 0:
-        return []
-    todo = np.array(sorted(todo))
-    starts = _FrameStarts({int(k): results[int(k)][0] for k in todo})
+    left = int(budget)
+    todo = sorted(int(k) for k, (_, rec) in results.items()
+                  if rec.pop("to_go", np.inf) <= left)
+    resumed = []
     stage = stage_prefix + "reconstruct (resume steady frames)"
-    with prog.stage(stage, total=len(todo)):
-        more = run_reconstruction(T, todo, Z, W_of, starts, pinned,
-                                  {**gn_options, "max_iter": int(budget)}, workers, prog,
-                                  False, stage=stage,
-                                  runs=[(np.array([k]), int(k)) for k in todo],
-                                  tube_of=tube_of)
-    for k, (Vk, rec) in more.items():
-        old = results[k][1]
-        new = {**old, **{key: rec[key] for key in ("success", "status", "message",
-                                                  "energy_final", "grad_norm_final")}}
-        for key in ("nit", "cg_iterations", "factorizations", "seconds"):
-            if key in old or key in rec:
-                new[key] = old.get(key, 0) + rec.get(key, 0)
-        new["resumed"] = True
-        results[k] = (Vk, new)
-    return [int(k) for k in todo]
+    while todo and left > 0:
+        step = min(RESUME_ROUND, left)
+        left -= step
+        resumed += [k for k in todo if k not in resumed]
+        starts = _FrameStarts({k: results[k][0] for k in todo})
+        with prog.stage(stage, total=len(todo)):
+            more = run_reconstruction(T, np.array(todo), Z, W_of, starts, pinned,
+                                      {**gn_options, "max_iter": step}, workers, prog,
+                                      False, stage=stage,
+                                      runs=[(np.array([k]), k) for k in todo],
+                                      tube_of=tube_of)
+        todo = []
+        for k, (Vk, rec) in more.items():
+            old = results[k][1]
+            new = {**old, **{key: rec[key] for key in ("success", "status", "message",
+                                                      "energy_final", "grad_norm_final")}}
+            for key in ("nit", "cg_iterations", "factorizations", "seconds"):
+                if key in old or key in rec:
+                    new[key] = old.get(key, 0) + rec.get(key, 0)
+            new["resumed"] = True
+            if new.get("status") == "limit":
+                # the tail this round saw (its energies start where the last round stopped)
+                new["message"] = rec["message"].replace(
+                    f"({step})", f"({new['nit']}, resumed)")
+                if rec.pop("to_go", np.inf) <= left:
+                    todo.append(int(k))
+            rec.pop("to_go", None)
+            new.pop("to_go", None)
+            results[k] = (Vk, new)
+        todo.sort()
+    return sorted(resumed)
 
 
 def warm_start(gn: GaussNewton, z, w, tube, v, prev, prev2, prev_init, warm):

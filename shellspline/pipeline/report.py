@@ -216,7 +216,16 @@ def sequence_energies(V, Z, T: Topology, bc: str, W, chunk: int | None = None) -
     K1 = V.shape[0]
     if chunk is None:
         chunk = 1 if V.shape[1] > LARGE_MESH else 8
-    Zout = np.concatenate([lta_descriptors(V[i:i + chunk], T) for i in range(0, K1, chunk)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Zout = np.concatenate([lta_descriptors(V[i:i + chunk], T) for i in range(0, K1, chunk)])
+    bad = np.flatnonzero(~np.isfinite(Zout).all(axis=1))
+    if bad.size:
+        # a triangle collapsed to a segment or point has no dihedral angle: the energies of
+        # the sequence are undefined (a linear blend through a half-turn; the quality check
+        # reports the collapsed faces)
+        return {"error": f"degenerate triangles (no dihedral angle) at frames "
+                         f"{bad[:10].tolist()}{' …' if bad.size > 10 else ''}: the LΘA "
+                         f"energies are undefined"}
     Zout[:, sT] = unwrap_angles(Zout[:, sT])
     out = {"lta_output_energy_per_frame": lta_energy_per_frame(Zout, bc=bc, weights=W).tolist()}
     if Z is not None:

@@ -371,6 +371,11 @@ class PathSolver:
             g = self.gradient(A, X, B)[:, self.free] if g_next is None else g_next
             g_next = None
             gn = float(np.abs(g).max())
+            if not (np.isfinite(gn) and np.isfinite(E)):
+                # a shell with a collapsed triangle (an exact half-turn's straight average):
+                # no Hessian to factor there
+                res.stop("failed", "degenerate shell on the path (non-finite energy)")
+                break
             res.record(grad_norm=gn)
             if nit:
                 res.record(energy=K * E)

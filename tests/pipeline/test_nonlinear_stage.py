@@ -67,3 +67,36 @@ def test_nonlinear_stage_returns_its_start_when_the_result_is_worse(monkeypatch)
     res = ss.interpolate((d["V"], d["F"]), frames=[0, 6, 12], K=12, eta=0.1, method="nonlinear",
                          solver_options={"max_iter": 2})
     assert res.report["nonlinear"]["start_returned"] is False
+
+
+def _tet_half_turn():
+    V0 = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    return np.stack([V0, V0 * [-1.0, -1.0, 1.0]]), F
+
+
+def test_nonlinear_spline_through_an_exact_half_turn():
+    """Two keyframes a half-turn apart about z: the straight average of the end shells (the
+    midpoint solves' default start) collapses every face but the base to a segment, where
+    the midpoint solve had no Hessian (it crashed with "Eigenvalues did not converge",
+    reported as an internal error). The spline now starts those midpoints elsewhere and
+    gives a fold-free sequence."""
+    from shellspline.metrics import sequence_defects
+
+    Vs, F = _tet_half_turn()
+    res = ss.interpolate((Vs, F), K=6, method="nonlinear", solver_options={"max_time_s": 30})
+    assert res.report["nonlinear"]["success"]
+    d = sequence_defects(res.V, ss.topology(F), [0, 6])
+    assert d["collapsed_faces"] == 0 and d["flipped_faces"] == 0
+    np.testing.assert_array_equal(res.V[[0, 6]], Vs)
+
+
+def test_geodesic_from_a_degenerate_start_fails_instead_of_raising():
+    """A path solve started at a shell with collapsed triangles says "failed"."""
+    from shellspline.shells.geodesic import discrete_geodesic
+
+    Vs, F = _tet_half_turn()
+    init = 0.5 * (Vs[0] + Vs[1])[None]           # three faces collapse to segments
+    with np.errstate(all="ignore"):
+        g = discrete_geodesic(Vs[0], Vs[1], 2, ss.topology(F), init=init)
+    assert g.status == "failed" and not g.success and "degenerate" in g.message

@@ -644,3 +644,20 @@ def test_coarse_frames_get_more_gauss_newton_iterations_unless_the_user_says(mon
     seen.clear()
     ss.interpolate((d["V"], d["F"]), gn_options={"max_iter": 7}, **kw)
     assert {m for _, m in seen} == {7}
+
+
+def test_a_linear_blend_through_a_half_turn_is_written_and_flagged_not_refused():
+    """A cube turned 180° about z: the per-vertex blend passes every vertex through the
+    axis, and the middle frame collapses every face to a segment. That is a result to
+    report (collapsed faces, energies undefined), not bad input or a crash."""
+    V0 = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+                   [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=np.float64)
+    F = np.array([[0, 3, 2], [0, 2, 1], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+                  [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
+    V1 = V0 * np.array([-1.0, -1.0, 1.0])
+    res = ss.interpolate((np.stack([V0, V1]), F), K=10, method="linear")
+    assert "degenerate triangles" in res.report["energies"]["error"]
+    assert "[5]" in res.report["energies"]["error"]
+    q = res.report["quality"]
+    assert q["collapsed_faces"] >= 12 and q["per_frame"]["collapsed"][5] == 12
+    np.testing.assert_array_equal(res.V[5], np.zeros_like(V0) + V0 * [0, 0, 1])

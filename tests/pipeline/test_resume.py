@@ -7,6 +7,7 @@ import pytest
 import data_synth.stress as stress
 import shellspline as ss
 from shellspline.pipeline import reconstruction as R
+from shellspline.pipeline import stages
 from shellspline.shells import reconstruct
 
 LIMIT = 12
@@ -61,7 +62,7 @@ def sliver_runs():
     try:
         mp.setattr(reconstruct.GaussNewton, "__init__", low_default)
         for budget in (R.RESUME_ITER, 0):
-            mp.setattr(R, "RESUME_ITER", budget)
+            mp.setattr(stages, "RESUME_ITER", budget)
             out[budget] = ss.interpolate((d["V"], d["F"]), frames=list(d["frames"]),
                                          pinned=d.get("pinned"), coarse="none")
     finally:
@@ -80,7 +81,7 @@ def test_resumed_frames_converge_and_no_other_frame_changes(sliver_runs):
     bridged = {k for k in rec_on if rec_on[k].get("bridged") or rec_off[k].get("bridged")}
     alone = [k for k in resumed if k not in bridged]
     assert len(alone) >= 3                    # the case exercises the resume
-    assert not any("resumable" in r for r in rec_on.values())
+    assert not any("to_go" in r for r in rec_on.values())
     assert not any(r.get("resumed") for r in rec_off.values())
     for k, r in rec_on.items():
         if k in bridged:
@@ -113,5 +114,5 @@ def test_a_user_limit_holds(monkeypatch):
                          coarse="none", gn_options={"max_iter": LIMIT})
     recs = res.report["frames"]
     assert any(r["status"] == "limit" for r in recs)
-    assert all(r["nit"] <= LIMIT and not r.get("resumed") and "resumable" not in r
+    assert all(r["nit"] <= LIMIT and not r.get("resumed") and "to_go" not in r
                for r in recs)

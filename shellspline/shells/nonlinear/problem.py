@@ -134,9 +134,24 @@ class NonlinearSplineProblem:
         return M
 
     def _warm(self, S):
-        if self.midpoints is None:
-            return 0.5 * (S[self.terms[:, 0]] + S[self.terms[:, 2]])
-        return self.midpoints.copy()
+        """Initial midpoints: the last evaluation's, or the average of each term's two
+        shells, except where that average collapses a triangle (two shells a half-turn
+        apart average to a segment, where the midpoint solve has no Hessian): there the
+        first of the two."""
+        if self.midpoints is not None:
+            return self.midpoints.copy()
+        A, B = S[self.terms[:, 0]], S[self.terms[:, 2]]
+        M = 0.5 * (A + B)
+        T = getattr(self.energy, "T", None)   # shell energies; the Euclidean one has none
+        if T is not None:
+            F = T.F
+
+            def areas(X):
+                e1, e2 = X[:, F[:, 1]] - X[:, F[:, 0]], X[:, F[:, 2]] - X[:, F[:, 0]]
+                return np.linalg.norm(np.cross(e1, e2), axis=-1)
+            flat = (areas(M) <= 1e-3 * np.minimum(areas(A), areas(B))).any(axis=1)
+            M[flat] = A[flat]
+        return M
 
     def evaluate(self, S, *, gradient: bool = True, keep: bool = False, warm=None,
                  max_newton: int = MIDPOINT_MAX_NEWTON, abort_on_failure: bool = False, slot_set: int = 0):
