@@ -21,6 +21,8 @@ from ..errors import ShellsplineError
 from ..pipeline.options import (AUTO_COARSE_ABOVE, AUTO_COARSE_VERTICES, AUTO_NONLINEAR_ABOVE,
                                 DEFAULT_SPLINE, DEFAULT_TRANSFER, SPLINES, TRANSFERS)
 from ..version import __version__
+from .startup import EXIT_INTERRUPTED, INTERRUPTED
+from .startup import release as release_startup_guard
 
 __all__ = ["main"]
 
@@ -227,17 +229,33 @@ def _build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _source_line(summary: dict) -> str:
-    """One line on what reading a real export changed (only the non-zero counts)."""
+def _source_line(summary: dict, fmt: str = "obj") -> str:
+    """One line on what reading a real export changed (only the non-zero counts) and what the
+    output format ``fmt`` writes back of it."""
     words = [("non_triangle_polygons", "polygons triangulated"),
              ("welded_vertices", "seam vertices welded"),
              ("reoriented_polygons", "faces reoriented"),
              ("fin_polygons", "fin faces set aside"),
-             ("set_aside_vertices", "vertices set aside"),
-             ("texture_coordinates", "texture coordinates kept")]
+             ("set_aside_vertices", "vertices set aside")]
     parts = [f"{summary[k]} {w}" for k, w in words if summary.get(k)]
-    return (f"{summary['source_vertices']} vertices, {summary['polygons']} faces; "
-            + (", ".join(parts) or "unchanged") + "; written back as given")
+    uv = summary.get("texture_coordinates", 0)
+    n = summary["source_vertices"]
+    polygons = summary.get("non_triangle_polygons", 0)
+    if fmt == "obj":
+        back = "written back as given" + (f" ({uv} texture coordinates kept)" if uv else "")
+    elif fmt in ("mdd", "pc2"):
+        back = (f"the cache written on its {n} vertices, mesh.obj as given"
+                + (f" ({uv} texture coordinates kept)" if uv else ""))
+    elif fmt == "glb":
+        back = (f"written back on its {n} vertices"
+                + (", as triangles" if polygons else "")
+                + (f"; its {uv} texture coordinates are not written (GLB)" if uv else ""))
+    else:  # ply, usd: polygons and numbering, no texture coordinates
+        back = (f"written back with its polygons and {n} vertices"
+                + (f"; its {uv} texture coordinates are not written ({fmt.upper()})"
+                   if uv else ""))
+    return (f"{n} vertices, {summary['polygons']} faces; "
+            + (", ".join(parts) or "unchanged") + "; " + back)
 
 
 def _interpolate(args) -> int:
@@ -259,6 +277,10 @@ def _interpolate(args) -> int:
     except OverflowError:
         raise ShellsplineError(f"--frames {args.frames!r}: a frame number is too "
                                "large") from None
+    caches = [k for k in args.keyframes if Path(k).suffix.lower() in (".mdd", ".pc2")]
+    if caches and not args.topology:
+        raise ShellsplineError(f"'{caches[0]}' is a point cache (vertex positions only, no "
+                               "faces): give the mesh it animates with --topology MESH")
     if args.topology:
         from ..io.pointcache import keyframes_from_cache
 
@@ -314,12 +336,14 @@ def _interpolate(args) -> int:
                                       if p and Path(p).is_file()]
     _, K_out = canonical_frames(kf.J, kf.frames, args.K, args.bc)
     check_output_dir(args.out, n_frames=K_out + 1, n_vertices=kf.n, n_faces=kf.m,
-                        fmt=args.format, overwrite=args.overwrite, protect=protect)
+                     fmt=args.format, overwrite=args.overwrite, protect=protect,
+                     overwrite_hint="--overwrite")
     if not args.quiet:
         print(f"shellspline {__version__}: {kf.J} keyframes, "
               f"{kf.V.shape[1]} vertices, method={args.method}, bc={args.bc}", file=sys.stderr)
         if kf.source is not None:
-            print(f"  input: {_source_line(kf.source.summary())}", file=sys.stderr)
+            print(f"  input: {_source_line(kf.source.summary(), args.format)}",
+                  file=sys.stderr)
     res = interpolate(kf, K=args.K, method=args.method, bc=args.bc, eta=args.eta, mu=args.mu,
                          lam=args.lam, reference=reference, pinned=pinned,
                          workers=args.workers, gn_options=gn_options,
@@ -334,7 +358,8 @@ def _interpolate(args) -> int:
     V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K, args.bc)
     out = write_sequence(args.out, V_out, res.F, res.report, overwrite=args.overwrite,
                             protect=protect, fmt=args.format, fps=args.fps, source=res.source,
-                            up_axis=_usd_up_axis(args.topology or args.keyframes[0]))
+                            up_axis=_usd_up_axis(args.topology or args.keyframes[0]),
+                            overwrite_hint="--overwrite")
     res.report["timings"]["write"] = time.perf_counter() - t0
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)
@@ -549,8 +574,15 @@ def _warnings_as_notes(stream=None):
 
 def main(argv=None) -> int:
     """Entry point of the ``shellspline`` console script; returns the exit code."""
-    parser = _build_parser()
-    args = parser.parse_args(_protect_negative_values(argv, parser))
+    try:
+        # a Ctrl-C from here on is a KeyboardInterrupt, reported in one line (while the
+        # package was imported, startup.guard did the same)
+        release_startup_guard()
+        parser = _build_parser()
+        args = parser.parse_args(_protect_negative_values(argv, parser))
+    except KeyboardInterrupt:
+        print(INTERRUPTED, file=sys.stderr)
+        return EXIT_INTERRUPTED
     _notes_seen.clear()
     if args.version:
 
@@ -577,7 +609,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as exc:
-        print("shellspline: interrupted; no output was written", file=sys.stderr)
+        print(INTERRUPTED, file=sys.stderr)
         return interrupt_exit_code(exc)
     except Exception as exc:  # not the input: a bug, never passed off as bad input
         return _internal_error(exc)

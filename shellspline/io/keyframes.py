@@ -20,7 +20,8 @@ from ..errors import MeshError, ShellsplineError, one_line, tol
 from ..mesh.geometry import cross
 from ..mesh.source_mesh import SourceMesh, solve_mesh
 from ..mesh.topology import Topology, topology
-from .meshes import MESH_EXTENSIONS, check_indices, polygon_offsets, read_polygons
+from .meshes import (MESH_EXTENSIONS, check_indices, obj_face, polygon_offsets, read_polygons,
+                     wide_text_encoding)
 from .usd import USD_EXTENSIONS
 
 __all__ = ["Keyframes", "read_keyframes", "keyframes_from_arrays", "read_indices", "read_frames"]
@@ -185,23 +186,40 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
     names = [str(p) for p in paths]
     if len(paths) == 1 and Path(paths[0]).suffix.lower() in USD_EXTENSIONS:
         return _usd_keyframes(paths[0], frames, pinned)
+    bad = [n for n in names if Path(n).suffix.lower() in (".mdd", ".pc2")]
+    if bad:
+        raise MeshError(f"'{bad[0]}' is a point cache (vertex positions only, no faces): read "
+                        "it with the mesh it animates (keyframes_from_cache; on the command "
+                        "line --topology MESH)")
     if len(paths) < 2:
         got = f" ('{names[0]}')" if names else ""
         raise MeshError(f"need at least 2 keyframes, got {len(paths)}{got}")
     frames = _canonical_frames(frames, len(paths))
     Vs: list[np.ndarray] = []
+    info: dict = {}
     for j, p in enumerate(paths):
-        V, offsets, indices, uv = _read_pose(p)
+        V, offsets, indices, uv = _read_pose(p, info if j == 0 else None)
         _check_not_empty(V, offsets[:-1], names[j])
         if j == 0:
             off0, idx0, uv0 = offsets, indices, uv
+            texture_warning(info)
         else:
             if V.shape[0] != Vs[0].shape[0]:
                 raise MeshError(f"{names[j]} has {V.shape[0]} vertices but {names[0]} has "
                                 f"{Vs[0].shape[0]}")
             check_same_polygons(offsets, indices, off0, idx0, names[j], names[0])
         Vs.append(V)
-    return _validated(np.stack(Vs), off0, idx0, frames, names, pinned, uv0)
+    return _validated(np.stack(Vs), off0, idx0, frames, names, pinned, uv0,
+                      statements=info.get("statements"), faces_file=names[0])
+
+
+def texture_warning(info: dict) -> None:
+    """Warn (a :class:`UserWarning`; the command line prints it as a note) when
+    :func:`~shellspline.io.meshes.read_polygons` left texture coordinates out."""
+    if info.get("texture_note"):
+        import warnings
+
+        warnings.warn(info["texture_note"], UserWarning, stacklevel=3)
 
 
 def _read_usd(path):
@@ -217,15 +235,16 @@ def _read_usd(path):
         raise MeshError(str(exc)) from None
 
 
-def _read_pose(path):
+def _read_pose(path, info=None):
     """One keyframe file: ``(V (n,3), offsets, indices, uv or None)``; a USD file must hold
-    one pose (its points with at most one time sample)."""
+    one pose (its points with at most one time sample). ``info``: see
+    :func:`~shellspline.io.meshes.read_polygons`."""
     ext = Path(path).suffix.lower()
     if ext not in USD_EXTENSIONS:
         if ext not in MESH_EXTENSIONS:
             raise MeshError(f"cannot read '{path}': unknown extension '{Path(path).suffix}' "
                             f"(supported: {', '.join(MESH_EXTENSIONS + USD_EXTENSIONS)})")
-        return read_polygons(path)
+        return read_polygons(path, info)
     V, offsets, indices, info = _read_usd(path)
     if V.shape[0] != 1:
         raise MeshError(f"'{path}' holds {V.shape[0]} poses (time samples of "
@@ -346,6 +365,25 @@ def keyframes_from_arrays(V, F, frames=None, names=None, pinned=None) -> Keyfram
                       frames, names, pinned)
 
 
+def keyframes_from_polygons(V, offsets, indices, frames=None, names=None, pinned=None, *,
+                            uv=None, statements=None, faces_file=None) -> Keyframes:
+    """Validate keyframe poses ``V`` (J,n,3) of one polygon mesh (``offsets``, ``indices``, as
+    :func:`~shellspline.io.meshes.read_polygons` returns them) as :func:`read_keyframes`
+    does: ``uv`` and ``statements`` (texture coordinates and OBJ material/group lines) are
+    carried to the output, ``faces_file`` (the file the polygons come from) names faces in
+    its own terms in messages. Used for point caches on a mesh
+    (:func:`shellspline.io.pointcache.keyframes_from_cache`)."""
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    J = V.shape[0]
+    names = [f"keyframe {j}" for j in range(J)] if names is None else [str(x) for x in names]
+    if J < 2:
+        raise MeshError(f"need at least 2 keyframes, got {J}" + (f" ('{names[0]}')" if J else ""))
+    _check_not_empty(V[0], offsets[:-1], faces_file or names[0])
+    check_indices(offsets, indices, V.shape[1], faces_file or names[0])
+    return _validated(V, offsets, indices, _canonical_frames(frames, J), names, pinned, uv,
+                      statements=statements, faces_file=faces_file)
+
+
 def _check_not_empty(V: np.ndarray, F: np.ndarray, name: str) -> None:
     if V.shape[0] == 0:
         raise MeshError(f"{name}: empty mesh (no vertices)")
@@ -370,10 +408,16 @@ def check_same_polygons(offsets, indices, off0, idx0, name: str, name0: str) -> 
             return
         diff = np.add.reduceat(indices != idx0, offsets[:-1]) > 0 if P else diff
     t = int(np.flatnonzero(diff)[0])
-    raise MeshError(f"{name}: face list differs from {name0} (first difference at face {t}: "
-                    f"{indices[offsets[t]:offsets[t + 1]].tolist()} vs "
-                    f"{idx0[off0[t]:off0[t + 1]].tolist()}); every keyframe must be the same "
-                    "mesh with the same vertex order (Blender: Keep Vertex Order)")
+    here, there = obj_face(name, t), obj_face(name0, t)  # OBJ files: in their own terms
+    a, b = (indices[offsets[t]:offsets[t + 1]].tolist(), idx0[off0[t]:off0[t + 1]].tolist())
+    if here is None and there is None:
+        where = f"face {t} (counted from 0): {a} vs {b}"
+    else:
+        where = (f"{here or f'face {t} {a} (counted from 0)'} vs "
+                 f"{there or f'face {t} {b} (counted from 0)'}")
+    raise MeshError(f"{name}: face list differs from {name0} (first difference at {where}); "
+                    "every keyframe must be the same mesh with the same vertex order "
+                    "(Blender: Keep Vertex Order)")
 
 
 def polygons_from_lowest(offsets: np.ndarray, indices: np.ndarray) -> np.ndarray:
@@ -397,10 +441,13 @@ MAX_COORDINATE = 1e75
 
 
 def _validated(Vs: np.ndarray, offsets: np.ndarray, indices: np.ndarray, frames,
-               names: list[str], pinned, uv=None) -> Keyframes:
+               names: list[str], pinned, uv=None, *, statements=None,
+               faces_file=None) -> Keyframes:
     """Checks shared by both constructors; ``Vs`` (J,n,3) float64, shapes already agree;
     the polygons (``offsets``, ``indices``) are those of every keyframe; ``uv`` the first
-    keyframe's texture coordinates (carried to the output) or ``None``."""
+    keyframe's texture coordinates and ``statements`` its OBJ material and group lines
+    (carried to the output) or ``None``; ``faces_file`` the file the polygons were read from
+    (messages name its faces in its own terms)."""
     J, n = Vs.shape[:2]
     for j in range(J):
         finite = np.isfinite(Vs[j]).all(axis=1)
@@ -414,9 +461,10 @@ def _validated(Vs: np.ndarray, offsets: np.ndarray, indices: np.ndarray, frames,
                             f"{big:.3g}, above {MAX_COORDINATE:g} squared areas do not fit a "
                             "float64 (rescale the mesh)")
     check_indices(offsets, indices, n, names[0])
-    V, F, source, tri_poly = solve_mesh(Vs, offsets, indices, names[0], uv)
+    V, F, source, tri_poly = solve_mesh(Vs, offsets, indices, names[0], uv,
+                                        statements=statements)
     for j in range(J):
-        _check_degenerate(V[j], F, names[j], source, tri_poly)
+        _check_degenerate(V[j], F, names[j], source, tri_poly, faces_file)
     T = topology(F, V.shape[1], name=names[0])
     pinned = _canonical_pinned(pinned, n)
     if source is not None and pinned is not None:
@@ -427,7 +475,7 @@ def _validated(Vs: np.ndarray, offsets: np.ndarray, indices: np.ndarray, frames,
 
 
 def _check_degenerate(V: np.ndarray, F: np.ndarray, name: str, source=None,
-                      tri_poly=None) -> None:
+                      tri_poly=None, faces_file=None) -> None:
     """Raise for faces with area below ``tol.degenerate_area * mean_edge_length**2``."""
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     e1, e2 = b - a, c - a
@@ -438,12 +486,15 @@ def _check_degenerate(V: np.ndarray, F: np.ndarray, name: str, source=None,
     if bad.any():
         idx = np.flatnonzero(bad)
         t = int(idx[0])
+        in_file = obj_face(faces_file, int(tri_poly[t]) if source is not None else t) \
+            if faces_file is not None else None
         if source is None:
-            what = f"face {t} {F[t].tolist()}"
+            what = in_file or f"face {t} {F[t].tolist()} (counted from 0)"
         else:
             p = int(tri_poly[t])
             corners = source.poly_indices[source.poly_offsets[p]:source.poly_offsets[p + 1]]
-            what = f"face {t} (of input face {p} {corners.tolist()})"
+            what = (f"a triangle of {in_file}" if in_file else
+                    f"face {t} (of input face {p} {corners.tolist()}, counted from 0)")
         raise MeshError(f"{name}: {idx.size} degenerate (zero-area) faces, first is {what} "
                         f"(area {area[t]:.3g} <= {tol.degenerate_area:g} x "
                         f"mean edge length^2 = {tol.degenerate_area * mean_len ** 2:.3g})")
@@ -585,10 +636,17 @@ def read_frames(spec) -> np.ndarray:
 def _read_integers(path, what: str) -> np.ndarray:
     name = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8", errors="replace")
+        data = Path(path).read_bytes()
     except OSError as exc:
         raise MeshError(f"cannot read '{name}': {exc.strerror or exc}") from None
-    return _parse_integers(text, f"{what} '{name}'")
+    wide = wide_text_encoding(data[:4])
+    if wide:
+        raise MeshError(f"{what} '{name}' is {wide} encoded; save it as UTF-8")
+    if b"\0" in data:
+        raise MeshError(f"{what} '{name}' is not a text file (it holds NUL bytes; UTF-16 "
+                        "without a byte-order mark? save it as UTF-8)")
+    # utf-8-sig: a byte-order mark (Windows editors) is not part of the first number
+    return _parse_integers(data.decode("utf-8-sig", errors="replace"), f"{what} '{name}'")
 
 
 def _parse_integers(text: str, what: str) -> np.ndarray:

@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import MeshError, one_line
 from ..mesh.source_mesh import triangulate_polygons
 
-__all__ = ["read_mesh", "MESH_EXTENSIONS"]
+__all__ = ["read_mesh", "MESH_EXTENSIONS"]  # and helpers for shellspline.io's own modules
 
 MESH_EXTENSIONS = (".obj", ".off", ".ply")
 """File extensions :func:`read_mesh` understands (case-insensitive)."""
@@ -82,9 +82,18 @@ def read_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     return V, F
 
 
-def read_polygons(path):
+def read_polygons(path, info: dict | None = None):
     """``V (n,3)``, polygon ``offsets (P+1,)``, corner ``indices (N,)`` of a mesh file and its
-    texture coordinates ``(uv (t,2), corner_uv (N,))`` or ``None`` (OBJ ``f v/vt`` only)."""
+    texture coordinates ``(uv (t,2), corner_uv (N,))`` or ``None`` (OBJ ``f v/vt`` only).
+
+    An OBJ file's faces are checked here, in the file's own terms (its line numbers, 1-based
+    indices): at least 3 corners, vertex and texture indices in range, no vertex repeated.
+
+    ``info``, a dict, receives what else an OBJ file says: ``"statements"``, its
+    ``mtllib/usemtl/o/g/s`` lines (:func:`obj_statements`, written back with the polygons),
+    and ``"texture_note"``, a sentence saying why texture coordinates were not read when
+    some face corners name one and others do not (else ``None``).
+    """
     name = str(path)
     p = Path(path)
     ext = p.suffix.lower()
@@ -96,8 +105,12 @@ def read_polygons(path):
             raise _Unreadable("no such file")
         if p.is_dir():
             raise _Unreadable("is a directory")
+        with open(p, "rb") as fh:
+            wide = wide_text_encoding(fh.read(4))
+        if wide:
+            raise _Unreadable(f"the file is {wide} encoded; save it as UTF-8")
         if ext == ".obj":
-            V, offsets, indices, uv = _parse_obj(p.read_bytes(), name)
+            V, offsets, indices, uv = _parse_obj(p.read_bytes(), name, info)
         else:
             (V, offsets, indices), uv = _read_with_trimesh(p, ext, name), None
     except MeshError:
@@ -113,34 +126,46 @@ def read_polygons(path):
     return V, offsets, indices, uv
 
 
+def wide_text_encoding(head: bytes) -> str | None:
+    """``"UTF-16"`` or ``"UTF-32"`` when ``head`` (a file's first bytes) starts with that
+    encoding's byte-order mark (Windows editors save text so), else ``None``."""
+    if head[:4] in (b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff"):
+        return "UTF-32"
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        return "UTF-16"
+    return None
+
+
 def check_indices(offsets: np.ndarray, indices: np.ndarray, n: int, name: str) -> None:
     """A polygon has at least 3 corners, which are vertices, none repeated."""
     sizes = np.diff(offsets)
     if (sizes < 3).any():
         t = int(np.flatnonzero(sizes < 3)[0])
         raise MeshError(f"{name}: face {t} has {int(sizes[t])} vertices (a face needs at "
-                        f"least 3; {int((sizes < 3).sum())} such faces)")
+                        f"least 3; {int((sizes < 3).sum())} such faces; faces counted from 0)")
     if indices.size and (indices.min() < 0 or indices.max() >= n):
-        raise MeshError(f"{name}: face indices must lie in [0, {n}), got range "
-                        f"[{indices.min()}, {indices.max()}]")
-    if sizes.size and (sizes == 3).all():
-        F = indices.reshape(-1, 3)
-        bad = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
-    else:
-        key = np.sort(np.repeat(np.arange(sizes.size), sizes) * np.int64(max(n, 1)) + indices)
-        bad = np.zeros(sizes.size, dtype=bool)
-        bad[key[1:][key[1:] == key[:-1]] // max(n, 1)] = True
+        out = (indices < 0) | (indices >= n)
+        c = int(np.flatnonzero(out)[0])
+        t = int(np.searchsorted(offsets, c, side="right") - 1)
+        faces = np.unique(np.searchsorted(offsets, np.flatnonzero(out), side="right") - 1)
+        raise MeshError(f"{name}: face indices must lie in [0, {n}) (vertices and faces "
+                        f"counted from 0), got vertex {int(indices[c])} in face {t} "
+                        f"{indices[offsets[t]:offsets[t + 1]].tolist()} ({faces.size} such "
+                        "faces)")
+    bad = repeating_faces(offsets, indices, n)
     if bad.any():
         t = int(np.flatnonzero(bad)[0])
         raise MeshError(f"{name}: face {t} {indices[offsets[t]:offsets[t + 1]].tolist()} "
-                        f"repeats a vertex ({int(bad.sum())} such faces)")
+                        f"repeats a vertex (faces and vertices counted from 0; "
+                        f"{int(bad.sum())} such faces)")
 
 
 
 
-def _parse_obj(data: bytes, name: str):
+def _parse_obj(data: bytes, name: str, info: dict | None = None):
     """Vectorised OBJ reader: ``v``, ``vt`` and ``f`` lines, global numbering; returns ``V``,
-    polygon offsets, corner indices and the texture coordinates (see :func:`_obj_texture`)."""
+    polygon offsets, corner indices and the texture coordinates (see :func:`_obj_texture`).
+    Problems with the faces are said in the file's terms (:func:`_obj_face_problem`)."""
     if data[:3] == b"\xef\xbb\xbf":  # UTF-8 byte-order mark (Windows editors, exporters)
         data = data[3:]
     if b"\0" in data:
@@ -155,21 +180,77 @@ def _parse_obj(data: bytes, name: str):
     vlines = [ln for ln in lines if ln[:2] == b"v "]
     flines = [ln for ln in lines if ln[:2] == b"f "]
     vtlines = [ln for ln in lines if ln[:3] == b"vt "] if b"vt " in data else []
-    V = _obj_vertices(vlines)
-    offsets, indices, ttok = _obj_faces(flines, lines, name, slashes=b"/" in data,
-                                        texture=bool(vtlines))
-    uv = None if ttok is None else _obj_texture(vtlines, ttok, offsets, lines)
+    V = _obj_vertices(vlines, lines)
+    offsets, indices, ttok = _obj_faces(flines, lines, name, V.shape[0],
+                                        slashes=b"/" in data)
+    uv = None
+    if ttok is not None:
+        uv, note = _obj_texture(vtlines, ttok, offsets, lines, name)
+        if info is not None:
+            info["texture_note"] = note
+    if info is not None:
+        info.setdefault("texture_note", None)
+        info["statements"] = obj_statements(lines)
     return V, offsets, indices, uv
 
 
-def _obj_texture(vtlines: list[bytes], ttok: list[bytes], offsets: np.ndarray,
-                 lines: list[bytes]):
-    """``(uv (t,2), corner_uv (N,))`` when every face corner names a valid texture
-    coordinate (``f v/vt ...``), else ``None`` (texture coordinates are then not carried)."""
-    if not all(ttok):
+_STATEMENTS = (b"mtllib ", b"usemtl ", b"o ", b"g ", b"s ")
+
+
+def obj_statements(lines: list[bytes]):
+    """The ``mtllib/usemtl/o/g/s`` lines of an OBJ file (comments stripped) as
+    ``(head, body)``: ``head`` the tuple of those before the first ``v`` and ``f`` line,
+    ``body`` a tuple of ``(p, line)``, each line standing before polygon ``p`` (``p`` = the
+    number of ``f`` lines before it); ``None`` when there are none."""
+    at = [i for i, ln in enumerate(lines)
+          if ln[:2] in (b"o ", b"g ", b"s ") or ln[:7] in (b"usemtl ", b"mtllib ")
+          or ln.rstrip() == b"g"]
+    if not at:
         return None
+    faces = [i for i, ln in enumerate(lines) if ln[:2] == b"f "]
+    first_v = next((i for i, ln in enumerate(lines) if ln[:2] == b"v "), len(lines))
+    first = min(first_v, faces[0] if faces else len(lines))
+    pos = np.searchsorted(np.array(faces, dtype=np.int64), np.array(at), side="left")
+    text = [b" ".join(lines[i].split()) for i in at]
+    head = tuple(t for i, t in zip(at, text) if i < first)
+    body = tuple((int(p), t) for i, p, t in zip(at, pos, text) if i >= first)
+    return head, body
+
+
+def _obj_texture(vtlines: list[bytes], ttok: list[bytes], offsets: np.ndarray,
+                 lines: list[bytes], name: str):
+    """``((uv (t,2), corner_uv (N,)), None)`` when every face corner names a texture
+    coordinate (``f v/vt ...``); ``(None, note)`` when some do and others do not (``note``
+    says so; ``None`` when no corner names one). A texture index that is not an integer or
+    out of range, or a ``vt`` line that is not numbers, is a :class:`MeshError` naming the
+    line."""
+    has = np.fromiter(map(bool, ttok), dtype=bool, count=len(ttok))
+    if not has.any():
+        return None, None
     try:
-        ti = np.array(list(map(int, ttok)), dtype=np.int64)
+        ti = np.array([int(t) if t else 1 for t in ttok], dtype=np.int64)
+    except (ValueError, OverflowError):
+        raise MeshError(_obj_face_problem(lines, name)) from None
+    if (ti == 0).any():
+        raise MeshError(_obj_face_problem(lines, name))
+    nvt = len(vtlines)
+    if (ti < 0).any():  # relative: counted back from the last vt line before the face line
+        kinds = [ln[:3] for ln in lines if ln[:3] == b"vt " or ln[:2] == b"f "]
+        is_t = np.array([k == b"vt " for k in kinds], dtype=bool)
+        before = np.repeat(np.cumsum(is_t)[~is_t], np.diff(offsets))
+        ti = np.where(ti < 0, ti + before, ti - 1)
+    else:
+        ti -= 1
+    if ti.size and (ti.min() < 0 or ti.max() >= nvt):
+        raise MeshError(_obj_face_problem(lines, name))
+    if not has.all():
+        t = int(np.searchsorted(offsets, np.flatnonzero(~has)[0], side="right") - 1)
+        line, _ = _face_line(lines, t)
+        return None, (f"{name}: {int((~has).sum())} of {has.size} face corners name no "
+                      f"texture coordinate (the first on line {line}, face {t + 1}); texture "
+                      "coordinates are kept only when every corner names one, so none are "
+                      "written back")
+    try:
         tokens = _regular_tokens(vtlines, 3)  # "vt u v" everywhere: the fast path
         if tokens is not None:
             del tokens[::3]
@@ -178,17 +259,14 @@ def _obj_texture(vtlines: list[bytes], ttok: list[bytes], offsets: np.ndarray,
             uv = np.array([[float(x) for x in (ln.split()[1:3] + [b"0"])[:2]]
                            for ln in vtlines], dtype=np.float64).reshape(-1, 2)
     except ValueError:
-        return None
-    if (ti < 0).any():  # relative: counted back from the last vt line before the face line
-        kinds = [ln[:3] for ln in lines if ln[:3] == b"vt " or ln[:2] == b"f "]
-        is_t = np.array([k == b"vt " for k in kinds])
-        before = np.repeat(np.cumsum(is_t)[~is_t], np.diff(offsets))
-        ti = np.where(ti < 0, ti + before, ti - 1)
-    else:
-        ti -= 1
-    if ti.size and (ti.min() < 0 or ti.max() >= uv.shape[0]):
-        return None
-    return uv, ti
+        for k, ln in enumerate(vtlines):
+            try:
+                [float(x) for x in ln.split()[1:3]]
+            except ValueError:
+                raise MeshError(f"{name}: line {_nth_line(lines, b'vt ', k)}: texture "
+                                f"coordinate {k + 1} ({_shown(ln)}) is not numbers u v") from None
+        raise  # pragma: no cover
+    return (uv, ti), None
 
 
 def _regular_tokens(rows: list[bytes], width: int) -> list[bytes] | None:
@@ -203,7 +281,7 @@ def _regular_tokens(rows: list[bytes], width: int) -> list[bytes] | None:
     return tokens
 
 
-def _obj_vertices(vlines: list[bytes]) -> np.ndarray:
+def _obj_vertices(vlines: list[bytes], lines: list[bytes]) -> np.ndarray:
     if not vlines:
         return np.zeros((0, 3))
     tokens = _regular_tokens(vlines, 4)
@@ -214,7 +292,8 @@ def _obj_vertices(vlines: list[bytes]) -> np.ndarray:
         for i, ln in enumerate(vlines):
             t = ln.split()
             if len(t) < 4:
-                raise _Unreadable(f"vertex {i + 1} has {len(t) - 1} coordinates, expected 3")
+                raise _Unreadable(f"line {_nth_line(lines, b'v ', i)}: vertex {i + 1} has "
+                                  f"{len(t) - 1} coordinates, expected 3")
             tokens.extend(t[1:4])  # extra values (w, colours) are ignored
     try:
         return np.array(list(map(float, tokens)), dtype=np.float64).reshape(-1, 3)
@@ -224,15 +303,16 @@ def _obj_vertices(vlines: list[bytes]) -> np.ndarray:
                 list(map(float, tokens[i:i + 3]))
             except ValueError:
                 bad = b" ".join(tokens[i:i + 3]).decode("ascii", "replace")
-                raise _Unreadable(f"vertex {i // 3 + 1} has non-numeric coordinates "
-                                  f"'{bad}'") from None
+                raise _Unreadable(f"line {_nth_line(lines, b'v ', i // 3)}: vertex "
+                                  f"{i // 3 + 1} has non-numeric coordinates '{bad}'") from None
         raise  # pragma: no cover
 
 
-def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *, slashes: bool,
-               texture: bool = False):
-    """Polygon offsets and vertex indices of the ``f`` lines, and (with ``texture``) every
-    corner's texture-index token (``b""`` where a corner has none) or ``None``."""
+def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, n: int, *, slashes: bool):
+    """Polygon offsets and zero-based vertex indices of the ``f`` lines, and (with
+    ``slashes``) every corner's texture-index token (``b""`` where a corner has none) or
+    ``None``. Any problem (fewer than 3 corners, an index that is not an integer, 0, out of
+    range, a vertex repeated in a face) is a :class:`MeshError` in the file's terms."""
     if not flines:
         return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), None
     tokens = _regular_tokens(flines, 4)
@@ -244,55 +324,154 @@ def _obj_faces(flines: list[bytes], lines: list[bytes], name: str, *, slashes: b
         starts = [i for i, t in enumerate(tokens) if t == b"f"]
         sizes = np.diff(np.array(starts + [len(tokens)], dtype=np.int64)) - 1
         if (sizes < 3).any():
-            t = int(np.flatnonzero(sizes < 3)[0])
-            raise _Unreadable(f"face {t} on line {_line_number(lines, t)} has {sizes[t]} "
-                              "vertices (a face needs at least 3)")
+            raise MeshError(_obj_face_problem(lines, name))
         tokens = [t for t in tokens if t != b"f"]
     ttok = None
-    if slashes and texture:
+    if slashes:
         parts = [t.split(b"/", 2) for t in tokens]
         tokens = [q[0] for q in parts]
         ttok = [q[1] if len(q) > 1 else b"" for q in parts]
-    elif slashes:
-        tokens = [t.split(b"/", 1)[0] for t in tokens]
     try:
         idx = np.array(list(map(int, tokens)), dtype=np.int64)
-    except OverflowError:
-        bad = next(t for t in tokens if abs(int(t)) >= 2 ** 63)
-        raise _Unreadable(f"face index '{bad.decode('ascii', 'replace')}' is too "
-                          "large") from None
-    except ValueError:
-        bad = next(t for t in tokens if not re.fullmatch(rb"[+-]?\d+", t))
-        raise _Unreadable(f"face index '{bad.decode('ascii', 'replace')}' is not an "
-                          "integer") from None
+    except (OverflowError, ValueError):
+        raise MeshError(_obj_face_problem(lines, name)) from None
     if sizes is None:
         sizes = np.full(len(flines), 3, dtype=np.int64)
     offsets = np.zeros(sizes.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=offsets[1:])
     if (idx == 0).any():
-        t = int(np.searchsorted(offsets, np.flatnonzero(idx == 0)[0], side="right") - 1)
-        raise _Unreadable(f"face {t} uses vertex index 0 (OBJ indices start at 1)")
+        raise MeshError(_obj_face_problem(lines, name))
     neg = idx < 0
     if neg.any():
         # relative indices count back from the last vertex defined before the face line
         kinds = [ln[:2] for ln in lines if ln[:2] in (b"v ", b"f ")]
-        is_v = np.array([k == b"v " for k in kinds])
+        is_v = np.array([k == b"v " for k in kinds], dtype=bool)
         v_before = np.repeat(np.cumsum(is_v)[~is_v], sizes)
         idx = np.where(neg, idx + v_before, idx - 1)
     else:
         idx -= 1
+    if idx.size and (idx.min() < 0 or idx.max() >= n) or repeating_faces(offsets, idx,
+                                                                          n).any():
+        raise MeshError(_obj_face_problem(lines, name))
     return offsets, idx, ttok
 
 
-def _line_number(lines: list[bytes], occurrence: int) -> int:
-    """1-based number of the ``occurrence``-th face line (best effort, error path only)."""
+def _obj_face_problem(lines: list[bytes], name: str) -> str:
+    """The message for the first bad face of an OBJ file, in its own terms: line number,
+    1-based face number, the line as written, the index as written (error path only: one
+    pass over the file in Python), and how many faces have such problems."""
+    n = sum(1 for ln in lines if ln[:2] == b"v ")
+    nvt = sum(1 for ln in lines if ln[:3] == b"vt ")
+    v_seen = vt_seen = face = bad = 0
+    first = None
+    for i, ln in enumerate(lines):
+        if ln[:2] == b"v ":
+            v_seen += 1
+            continue
+        if ln[:3] == b"vt ":
+            vt_seen += 1
+            continue
+        if ln[:2] != b"f ":
+            continue
+        face += 1
+        why = _bad_face(ln.split()[1:], n, v_seen, nvt, vt_seen)
+        if why is None:
+            continue
+        bad += 1
+        if first is None:
+            first = f"{name}: line {i + 1}, face {face} ({_shown(ln)}): {why}"
+    if first is None:  # pragma: no cover - the vectorised checks and this scan agree
+        return f"{name}: bad face indices"
+    return first + (f" ({bad} faces have such problems)" if bad > 1 else "")
+
+
+def _bad_face(corners: list[bytes], n: int, v_seen: int, nvt: int, vt_seen: int) -> str | None:
+    """What is wrong with one ``f`` line's corners, or None."""
+    if len(corners) < 3:
+        return f"has {len(corners)} vertices (a face needs at least 3)"
+    used = set()
+    for c in corners:
+        parts = c.split(b"/")
+        for k, (tok, what, total, before) in enumerate(
+                ((parts[0], "vertex", n, v_seen),
+                 (parts[1] if len(parts) > 1 else b"", "texture coordinate", nvt, vt_seen))):
+            if k == 1 and not tok:
+                continue
+            shown = tok.decode("utf-8", "replace")
+            if not re.fullmatch(rb"[+-]?\d+", tok):
+                return f"{what} index '{shown}' is not an integer"
+            i = int(tok)
+            if abs(i) >= 2 ** 63:
+                return f"{what} index '{shown}' is too large"
+            if i == 0:
+                return f"uses {what} index 0 (OBJ indices start at 1)"
+            kind = "vertices" if k == 0 else "vt lines"
+            if i < 0 and -i > before:
+                return (f"relative {what} index {i} reaches before the first one (only "
+                        f"{before} {kind} are defined above this line)")
+            if i > total:
+                return f"{what} {i} does not exist (the file has {total} {kind})"
+            if k == 0:
+                a = i if i > 0 else before + i + 1  # the file's 1-based number
+                if a in used:
+                    return f"repeats vertex {a}"
+                used.add(a)
+    return None
+
+
+def _shown(line: bytes, limit: int = 60) -> str:
+    """A line of the file as written (whitespace collapsed, long lines cut)."""
+    text = " ".join(line.decode("utf-8", "replace").split())
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def _nth_line(lines: list[bytes], key: bytes, occurrence: int) -> int:
+    """1-based number of the ``occurrence``-th line starting with ``key`` (error paths)."""
     seen = 0
     for i, ln in enumerate(lines):
-        if ln[:2] == b"f ":
+        if ln[:len(key)] == key:
             if seen == occurrence:
                 return i + 1
             seen += 1
     return -1  # pragma: no cover
+
+
+def _face_line(lines: list[bytes], t: int) -> tuple[int, str]:
+    """Line number and text of face ``t`` (zero-based) of an OBJ file's lines."""
+    at = _nth_line(lines, b"f ", t)
+    return at, _shown(lines[at - 1]) if at > 0 else ""
+
+
+def obj_face(path, t: int) -> str | None:
+    """Face ``t`` (zero-based) of the OBJ file ``path`` in the file's own terms, e.g.
+    ``"face 5 on line 212 (f 1 2 3 4)"``; ``None`` if ``path`` is not a readable OBJ file
+    (error paths only: the file is read again)."""
+    p = Path(str(path))
+    if p.suffix.lower() != ".obj" or not p.is_file():
+        return None
+    try:
+        data = p.read_bytes()
+    except OSError:
+        return None
+    if b"\\\n" in data or b"\\\r\n" in data:
+        data = re.sub(rb"\\\r?\n", b" ", data)
+    lines = [ln.strip().replace(b"\t", b" ") for ln in data.lstrip(b"\xef\xbb\xbf").splitlines()]
+    at, text = _face_line(lines, t)
+    if at < 0:
+        return None
+    return f"face {t + 1} on line {at} ({text})"
+
+
+def repeating_faces(offsets: np.ndarray, indices: np.ndarray, n: int) -> np.ndarray:
+    """Mask of the polygons that name a vertex twice."""
+    sizes = np.diff(offsets)
+    if sizes.size and (sizes == 3).all():
+        F = indices.reshape(-1, 3)
+        return (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
+    key = np.sort(np.repeat(np.arange(sizes.size), sizes) * np.int64(max(n, 1)) + indices)
+    bad = np.zeros(sizes.size, dtype=bool)
+    bad[key[1:][key[1:] == key[:-1]] // max(n, 1)] = True
+    return bad
 
 
 def _read_with_trimesh(p: Path, ext: str, name: str):

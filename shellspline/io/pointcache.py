@@ -29,6 +29,7 @@ skips that first block.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -314,15 +315,19 @@ def keyframes_from_cache(cache, mesh, frames=None, *, fps: float = 24.0, pinned=
     """Keyframes from the samples of a point cache on the vertices of a mesh file.
 
     Every sample of ``cache`` is a keyframe pose of ``mesh`` (same vertex count and order, as
-    Blender's Mesh Cache modifier and other tools read them); polygons are triangulated once
-    for all poses (:func:`shellspline.mesh.source_mesh.triangulate_polygons`).
+    Blender's Mesh Cache modifier and other tools read them). The mesh's polygons are read
+    as keyframe files are (:func:`shellspline.io.read_keyframes`): triangulated once for all
+    poses, seams welded, fins and isolated vertices set aside, and ``source`` maps back to
+    the mesh's own vertices, polygons, texture coordinates and OBJ material/group lines, so
+    the output is written on the mesh as given.
 
     Parameters
     ----------
     cache : str or path-like
         A ``.mdd`` or ``.pc2`` file.
     mesh : str or path-like
-        The mesh the cache animates (OBJ, PLY or OFF); only its faces are used.
+        The mesh the cache animates (OBJ, PLY or OFF); its faces (and an OBJ's texture
+        coordinates and material/group lines) are used, its vertex positions are not.
     frames : (J,) int array-like, optional
         Keyframe frames; default the samples' own frames (:func:`read_point_cache`) less the
         first, which must be whole numbers.
@@ -355,15 +360,20 @@ def keyframes_from_cache(cache, mesh, frames=None, *, fps: float = 24.0, pinned=
     >>> kf.V.shape, kf.frames.tolist()
     ((2, 4, 3), [0, 10])
     """
-    from ..mesh.source_mesh import triangulate_polygons
-    from .keyframes import keyframes_from_arrays
+    from .keyframes import keyframes_from_polygons, texture_warning
     from .meshes import read_polygons
 
     try:
         V, at = read_point_cache(cache, fps=fps)
     except ShellsplineError as exc:
         raise MeshError(str(exc)) from None
-    V0, offsets, indices, _ = read_polygons(mesh)
+    if isinstance(frames, (str, os.PathLike)):
+        from .keyframes import read_frames
+
+        frames = read_frames(frames)
+    info: dict = {}
+    V0, offsets, indices, uv = read_polygons(mesh, info)
+    texture_warning(info)
     if V0.shape[0] != V.shape[1]:
         raise MeshError(f"{cache} holds {V.shape[1]} points but {mesh} has {V0.shape[0]} "
                         "vertices")
@@ -381,6 +391,8 @@ def keyframes_from_cache(cache, mesh, frames=None, *, fps: float = 24.0, pinned=
             k = int(np.argmax(np.diff(frames) <= 0))
             raise MeshError(f"{cache}: sample {k + 1} lies at frame {at[k + 1]:g}, not after "
                             f"sample {k} at {at[k]:g}; give the keyframe frames")
-    F, _ = triangulate_polygons(V, offsets, indices, str(mesh))
     names = [f"{cache} sample {i}" for i in range(V.shape[0])]
-    return keyframes_from_arrays(V, F, frames=frames, names=names, pinned=pinned)
+    if V.shape[0] < 2:
+        raise MeshError(f"need at least 2 keyframes, got 1 ('{cache}' holds one sample)")
+    return keyframes_from_polygons(V, offsets, indices, frames, names, pinned, uv=uv,
+                                   statements=info.get("statements"), faces_file=str(mesh))

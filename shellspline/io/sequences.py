@@ -60,7 +60,7 @@ def frame_files(folder) -> list[Path]:
 # ----------------------------------------------------------------------------------------
 def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: bool = False,
                    protect=(), workers: int = 1, fps: float = 24.0, source=None,
-                   up_axis: str = "y") -> Path:
+                   up_axis: str = "y", overwrite_hint: str = "overwrite=True") -> Path:
     """Write a sequence of poses as ``frame_0000.obj ...`` plus ``report.json``, atomically.
 
     Everything is written into a temporary sibling directory
@@ -107,10 +107,15 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     source : SourceMesh, optional
         Write the input's mesh back (:attr:`Keyframes.source`): ``V`` is then
         ``(K+1,n_source,3)`` in the input's vertex indexing (:meth:`SourceMesh.expand`), and
-        OBJ and PLY frames get the input's polygons, GLB its triangles; ``F`` is not used.
+        OBJ and PLY frames get the input's polygons (OBJ also its texture coordinates and
+        ``mtllib/usemtl/o/g/s`` lines), as does the ``mesh.obj`` of a point cache (whose
+        points are the input's vertices); USD gets the polygons, GLB the triangles; ``F``
+        is not used.
     up_axis : {"y", "z"}
         The up axis of ``V``'s coordinates: the USD stage's ``upAxis`` (``fmt="usd"``) and the
         GLB node's rotation onto glTF's y-up (``fmt="glb"``; the vertex data are unchanged).
+    overwrite_hint : str
+        As for :func:`check_output_dir`.
 
     Returns
     -------
@@ -153,8 +158,11 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
             raise ShellsplineError(f"with `source`, V must hold the input's {source.n_source} "
                                    f"vertices (SourceMesh.expand), got shape {V.shape}")
         F = source.triangles
-        if (np.diff(source.poly_offsets) != 3).any() or source.uv is not None:
-            polygons = (source.poly_offsets, source.poly_indices, source.uv, source.corner_uv)
+        statements = getattr(source, "statements", None)
+        if (np.diff(source.poly_offsets) != 3).any() or source.uv is not None or \
+                statements is not None:
+            polygons = (source.poly_offsets, source.poly_indices, source.uv, source.corner_uv,
+                        statements)
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3 or (F.size and not np.issubdtype(F.dtype, np.integer)):
         raise ShellsplineError(f"F must be an (m,3) integer array, got shape {F.shape} and "
@@ -183,7 +191,8 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
 
     out = Path(out_dir)
     target = check_output_dir(out, n_frames=V.shape[0], n_vertices=n, n_faces=F.shape[0],
-                              fmt=fmt, overwrite=overwrite, protect=protect)
+                              fmt=fmt, overwrite=overwrite, protect=protect,
+                              overwrite_hint=overwrite_hint)
     parent = target.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -228,7 +237,8 @@ _BYTES_PER_FACE = {"obj": 8, "ply": 13, "glb": 0, "mdd": 0, "pc2": 0, "usd": 0}
 
 
 def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces: int = 0,
-                     fmt: str = "obj", overwrite: bool = False, protect=()) -> Path:
+                     fmt: str = "obj", overwrite: bool = False, protect=(),
+                     overwrite_hint: str = "overwrite=True") -> Path:
     """Check, before any computing, that :func:`write_sequence` can write ``out_dir``.
 
     Nothing is created: the nearest existing ancestor of ``out_dir`` must be a directory
@@ -249,6 +259,9 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
         Output format (bytes per vertex differ; ``"usd"`` also needs ``pxr``).
     overwrite, protect
         As for :func:`write_sequence`.
+    overwrite_hint : str
+        How the message for an existing ``out_dir`` says to replace it (the command line
+        passes ``"--overwrite"``).
 
     Returns
     -------
@@ -282,7 +295,7 @@ def check_output_dir(out_dir, *, n_frames: int = 0, n_vertices: int = 0, n_faces
         from .usd import require_usd
         require_usd()
     target = out.resolve()
-    _check_destination(target, out, overwrite, protect)
+    _check_destination(target, out, overwrite, protect, overwrite_hint)
     base = target.parent
     while not base.is_dir():
         if base.exists() or base.is_symlink():
@@ -312,7 +325,8 @@ def _megabytes(nbytes: int) -> str:
     return f"{nbytes / 1e6:,.1f} MB" if nbytes < 1e9 else f"{nbytes / 1e9:,.1f} GB"
 
 
-def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> None:
+def _check_destination(target: Path, out: Path, overwrite: bool, protect,
+                       hint: str = "overwrite=True") -> None:
     for p in protect:
         rp = Path(p).resolve()
         if rp == target or target in rp.parents:
@@ -323,8 +337,8 @@ def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> Non
     if not target.is_dir():
         raise FileExistsError(f"'{out}' exists and is not a directory")
     if not overwrite:
-        raise FileExistsError(f"output directory '{out}' already exists (use overwrite=True "
-                              "to replace it)")
+        raise FileExistsError(f"output directory '{out}' already exists (use {hint} to "
+                              "replace it)")
     cwd = Path.cwd().resolve()
     if cwd == target or target in cwd.parents:
         raise ShellsplineError(f"refusing to replace '{out}': it contains the current working "
@@ -336,18 +350,21 @@ def _check_destination(target: Path, out: Path, overwrite: bool, protect) -> Non
 
 def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
                   workers: int, polygons=None) -> None:
+    head = b""
     if polygons is None:
         block = _obj_faces_block(F) if fmt == "obj" else _ply_faces_bytes(F)
         m = F.shape[0]
-    else:  # the input's polygons (offsets, indices)
-        block = (_obj_polygons_block(*polygons) if fmt == "obj"
-                 else _ply_polygons_bytes(*polygons[:2]))
+    else:  # the input's polygons (offsets, indices, uv, corner_uv, OBJ statements)
+        if fmt == "obj":
+            head, block = _obj_polygons_block(*polygons)
+        else:
+            block = _ply_polygons_bytes(*polygons[:2])
         m = polygons[0].size - 1
     workers = min(workers, len(paths))
     if workers <= 1:
         for k, p in enumerate(paths):
             if fmt == "obj":
-                write_obj_frame(p, V[k], block)
+                _obj_frame(p, V[k], block, head)
             else:
                 write_ply_frame(p, V[k], block, m)
         return
@@ -356,7 +373,7 @@ def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
     chunks = np.array_split(np.arange(len(paths)), workers)
     with process_pool(workers) as ex:  # workers stopped at once on Ctrl-C/SIGTERM
         futures = [ex.submit(_write_frames_chunk, [paths[k] for k in c], V[c], block, fmt,
-                             m) for c in chunks]
+                             m, head) for c in chunks]
         try:
             for fut in futures:
                 fut.result()
@@ -366,12 +383,20 @@ def _write_frames(paths: list[Path], V: np.ndarray, F: np.ndarray, fmt: str,
             raise
 
 
-def _write_frames_chunk(paths, Vc, block, fmt, m) -> None:
+def _write_frames_chunk(paths, Vc, block, fmt, m, head=b"") -> None:
     for p, X in zip(paths, Vc):
         if fmt == "obj":
-            write_obj_frame(p, X, block)
+            _obj_frame(p, X, block, head)
         else:
             write_ply_frame(p, X, block, m)
+
+
+def _obj_frame(path, X, block, head) -> None:
+    """:func:`write_obj_frame`, called with ``head`` only when there is one."""
+    if head:
+        write_obj_frame(path, X, block, head)
+    else:
+        write_obj_frame(path, X, block)
 
 
 def _obj_faces_block(F: np.ndarray) -> bytes:
@@ -380,16 +405,30 @@ def _obj_faces_block(F: np.ndarray) -> bytes:
 
 
 def _obj_polygons_block(offsets: np.ndarray, indices: np.ndarray, uv=None,
-                        corner_uv=None) -> bytes:
-    """The ``f a b c ...`` lines (1-based) of polygons, formatted once; with texture
-    coordinates the ``vt`` lines first and ``f a/ta b/tb ...`` corners."""
+                        corner_uv=None, statements=None) -> tuple[bytes, bytes]:
+    """``(head, block)``: the input's OBJ lines that go before the vertices (``mtllib``,
+    ``o``...) and the ``f a b c ...`` lines (1-based) of polygons, formatted once; with
+    texture coordinates the ``vt`` lines first and ``f a/ta b/tb ...`` corners; the input's
+    ``usemtl/g/o/s`` lines (``statements``, :attr:`SourceMesh.statements`) where they stood
+    among the faces."""
+    sizes = np.diff(offsets)
+    corner = " %d" if uv is None else " %d/%d"
+    lines = ["f" + corner * int(s) + "\n" for s in sizes]
+    head = b""
+    if statements is not None:
+        top, body = statements
+        head = b"".join(t + b"\n" for t in top)
+        for p, t in reversed(body):  # later positions first: earlier ones stay valid
+            text = t.decode("utf-8", "surrogateescape").replace("%", "%%")
+            lines.insert(min(int(p), len(lines)), text + "\n")
+    fmt = "".join(lines)
     if uv is None:
-        fmt = "".join("f" + " %d" * int(s) + "\n" for s in np.diff(offsets))
-        return (fmt % tuple((indices + 1).tolist())).encode("ascii")
-    vt = ("vt %.17g %.17g\n" * uv.shape[0]) % tuple(uv.ravel().tolist())
-    fmt = "".join("f" + " %d/%d" * int(s) + "\n" for s in np.diff(offsets))
-    corners = np.stack([indices + 1, corner_uv + 1], axis=1).ravel()
-    return (vt + fmt % tuple(corners.tolist())).encode("ascii")
+        text = fmt % tuple((indices + 1).tolist())
+    else:
+        vt = ("vt %.17g %.17g\n" * uv.shape[0]) % tuple(uv.ravel().tolist())
+        corners = np.stack([indices + 1, corner_uv + 1], axis=1).ravel()
+        text = vt + fmt % tuple(corners.tolist())
+    return head, text.encode("utf-8", "surrogateescape")
 
 
 def _ply_polygons_bytes(offsets: np.ndarray, indices: np.ndarray) -> bytes:
@@ -403,7 +442,7 @@ def _ply_polygons_bytes(offsets: np.ndarray, indices: np.ndarray) -> bytes:
     return out.tobytes()
 
 
-def write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes) -> None:
+def write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes, head: bytes = b"") -> None:
     """Write one OBJ frame (a plain write into :func:`write_sequence`'s temporary directory).
 
     Parameters
@@ -413,9 +452,12 @@ def write_obj_frame(path: Path, V: np.ndarray, faces_block: bytes) -> None:
         The pose; ``%.17g`` round-trips every float64 exactly.
     faces_block : bytes
         The ``f`` lines, formatted once for all frames.
+    head : bytes
+        Lines written before the vertices (the input's ``mtllib``, ``o`` ...).
     """
     verts = ("v %.17g %.17g %.17g\n" * V.shape[0]) % tuple(V.ravel().tolist())
     with open(path, "wb") as fh:
+        fh.write(head)
         fh.write(verts.encode("ascii"))
         fh.write(faces_block)
 
@@ -490,7 +532,9 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
     ``animation.glb`` (float32 coordinates, see :func:`shellspline.io.gltf.read_glb`), else
     ``animation.mdd`` / ``animation.pc2`` with ``mesh.obj``, else ``animation.usdc``. Frames
     written with the input's polygons are triangulated once for the whole sequence
-    (:func:`shellspline.mesh.source_mesh.triangulate_polygons`).
+    (:func:`shellspline.mesh.source_mesh.triangulate_polygons`), on the keyframes that
+    ``report.json`` names (``parameters.frames``: the triangles the solve used) or, without
+    them, on every frame.
 
     Parameters
     ----------
@@ -542,7 +586,8 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
             return Vg, Fg, _read_report(d)
         for fmt in ("mdd", "pc2", "usd"):
             if (d / ANIMATION_NAMES[fmt]).is_file():
-                return (*_read_animation(d, fmt), _read_report(d))
+                report = _read_report(d)
+                return (*_read_animation(d, fmt, report), report)
         raise MeshError(f"{d}: no frame_*.obj, frame_*.ply or "
                         f"{', '.join(ANIMATION_NAMES.values())} files")
     ks = sorted(found)
@@ -564,11 +609,26 @@ def read_sequence(out_dir) -> tuple[np.ndarray, np.ndarray, dict]:
             check_same_polygons(offsets, indices, off0, idx0, name, name0)
         Vs.append(V)
     V = np.stack(Vs)
-    F, _ = triangulate_polygons(V, off0, idx0, name0)
-    return V, F, _read_report(d)
+    report = _read_report(d)
+    F, _ = triangulate_polygons(_keyframe_poses(V, report), off0, idx0, name0)
+    return V, F, report
 
 
-def _read_animation(d: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
+def _keyframe_poses(V: np.ndarray, report: dict) -> np.ndarray:
+    """The poses to triangulate a written sequence's polygons on: its keyframes, when
+    ``report.json`` names them (``parameters.frames``, as :func:`shellspline.interpolate`
+    writes it; the keyframes are written exactly, so the triangles are those it solved on),
+    else every frame."""
+    try:
+        frames = np.asarray(report["parameters"]["frames"], dtype=np.int64).ravel()
+    except (KeyError, TypeError, ValueError, OverflowError):
+        return V
+    if frames.size < 1 or frames.min() < 0 or frames.max() >= V.shape[0]:
+        return V
+    return V[frames]
+
+
+def _read_animation(d: Path, fmt: str, report=None) -> tuple[np.ndarray, np.ndarray]:
     """Poses and triangles of a point cache with its ``mesh.obj``, or of a USD file."""
     p = d / ANIMATION_NAMES[fmt]
     try:
@@ -589,7 +649,7 @@ def _read_animation(d: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     except ShellsplineError as exc:
         raise MeshError(str(exc)) from None
     check_indices(offsets, indices, V.shape[1], name)
-    F, _ = triangulate_polygons(V, offsets, indices, name)
+    F, _ = triangulate_polygons(_keyframe_poses(V, report or {}), offsets, indices, name)
     return V, F
 
 

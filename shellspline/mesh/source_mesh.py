@@ -24,7 +24,8 @@ one triangle mesh for the solve, and a :class:`SourceMesh` maps its results back
   frame, its coordinates in the frame blended linearly between keyframes; an isolated vertex
   (no face uses it, so nothing ties it to the surface) follows the per-vertex linear blend of
   its keyframe positions (:meth:`SourceMesh.expand`).
-* **Texture coordinates** (OBJ ``vt``, when every corner names one) are carried to the output.
+* **Texture coordinates** (OBJ ``vt``, when every corner names one) and OBJ material and group
+  lines (``mtllib/usemtl/o/g/s``) are carried to the output.
 
 Examples
 --------
@@ -49,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import MeshError, tol
+from ..errors import MeshError
 from .geometry import cross, normalized
 
 __all__ = ["SourceMesh", "solve_mesh", "triangulate_polygons", "WELD_TOLERANCE"]
@@ -98,6 +99,11 @@ class SourceMesh:
         Texture coordinates of the input (OBJ ``vt``), written back with the polygons.
     corner_uv : (N,) int64 numpy array or None
         Texture coordinate of every polygon corner (aligned with ``poly_indices``).
+    statements : tuple or None
+        The input's OBJ material and group lines (``mtllib/usemtl/o/g/s``) as
+        ``(head, body)``: ``head`` the lines before the vertices, ``body`` ``(p, line)``
+        pairs, each line written before polygon ``p``
+        (:func:`shellspline.io.meshes.obj_statements`); ``None`` if it had none.
     """
 
     n_source: int
@@ -114,6 +120,7 @@ class SourceMesh:
     n_reoriented: int = 0
     uv: np.ndarray | None = None
     corner_uv: np.ndarray | None = None
+    statements: tuple | None = None
 
     @property
     def n_solve(self) -> int:
@@ -270,8 +277,11 @@ def triangulate_polygons(Vs, offsets, indices, name: str = "mesh"):
     A triangle's quality is ``4 sqrt(3) A / (l1² + l2² + l3²)`` (1 for an equilateral
     triangle), with the area ``A`` signed against the polygon's Newell normal in that pose, so
     a triangle that folds over its polygon scores below zero. Among the candidates of a
-    polygon the one whose worst triangle over all poses scores highest is kept; ties keep the
-    first candidate (for a quad ``abcd``: the diagonal ``ac``).
+    polygon the one whose worst triangle over all poses scores highest is kept; ties (scores
+    within :data:`QUALITY_TIE`, 1e-6, of the best) keep the first candidate (for a quad
+    ``abcd``: the diagonal ``ac``). The quality is unit-free and computed on each polygon
+    moved to its centre and divided by its size, so the choice does not depend on the unit
+    or the placement of the poses (round-off cannot break a tie).
 
     Examples
     --------
@@ -318,16 +328,36 @@ def _newell_normals(Vs: np.ndarray, C: np.ndarray) -> np.ndarray:
     return cross(P0, P1).sum(axis=2) * 0.5
 
 
+#: Candidate triangulations whose worst quality (a unit-free number in [-1, 1]) is within
+#: this of the best are tied, and the first of them is kept: round-off must not decide
+#: between the two diagonals of a symmetric quad, or the choice would depend on the unit of
+#: the coordinates (float64 round-off, ~1e-16) or on their precision (float32 point caches,
+#: ~1e-7, against the float64 OBJ of the same poses).
+QUALITY_TIE = 1e-6
+
+
 def _best_candidate(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarray:
     """Per polygon, the candidate triangulation (c of cand (p,c,t,3)) with the best worst
-    signed quality over all poses; returns (p,t,3)."""
+    signed quality over all poses; returns (p,t,3). The quality is unit-free (each pose is
+    divided by its polygon's size first), and candidates within :data:`QUALITY_TIE` of the
+    best count as tied: the first of them is kept, whatever the scale of the poses."""
+    P = Vs[:, C]                                                  # (J,p,s,3)
+    centre = P.mean(axis=2)
+    size = np.sqrt(((P - centre[:, :, None]) ** 2).sum(axis=(2, 3)))   # (J,p)
+    size = np.where(size > 0, size, 1.0)
     N = normalized(_newell_normals(Vs, C))                       # (J,p,3)
-    A, B, Cc = (Vs[:, cand[..., i]] for i in range(3))           # (J,p,c,t,3)
+
+    def corner(i):  # (J,p,c,t,3), unit-free: relative to the polygon's centre and size
+        return (Vs[:, cand[..., i]] - centre[:, :, None, None]) / size[:, :, None, None, None]
+
+    A, B, Cc = corner(0), corner(1), corner(2)
     area2 = np.einsum("jpctx,jpx->jpct", cross(B - A, Cc - A), N)
     l2 = (((B - A) ** 2).sum(-1) + ((Cc - B) ** 2).sum(-1) + ((A - Cc) ** 2).sum(-1))
-    q = 0.5 * _SQRT3x4 * area2 / np.maximum(l2, tol.zero)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = np.where(l2 > 0, 0.5 * _SQRT3x4 * area2 / np.where(l2 > 0, l2, 1.0), -2.0)
     score = q.min(axis=(0, 3))                                    # (p,c)
-    best = np.argmax(score, axis=1)                               # first on ties
+    tied = score >= score.max(axis=1, keepdims=True) - QUALITY_TIE
+    best = np.argmax(tied, axis=1)                                # the first of the tied
     return cand[np.arange(cand.shape[0]), best]
 
 
@@ -505,7 +535,7 @@ def _reoriented(F: np.ndarray, n: int) -> np.ndarray:
     return np.array(parity, dtype=bool)
 
 
-def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
+def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None, *, statements=None):
     """Split an input mesh into the solve mesh and its :class:`SourceMesh` map.
 
     Parameters
@@ -520,6 +550,9 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
         Used in error messages.
     uv : tuple ``(uv (t,2), corner_uv (N,))`` or None
         Texture coordinates to carry back to the output (they make ``source`` not ``None``).
+    statements : tuple or None
+        OBJ material and group lines to carry back (:attr:`SourceMesh.statements`; they
+        make ``source`` not ``None``).
 
     Returns
     -------
@@ -528,8 +561,9 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
     F : (m,3) int64 numpy array
         Solve-mesh triangles.
     source : SourceMesh or None
-        ``None`` when the input is already a triangle mesh without texture coordinates and
-        with nothing welded or set aside (then ``V`` and ``F`` are the inputs).
+        ``None`` when the input is already a triangle mesh without texture coordinates or
+        material and group lines, and with nothing welded or set aside (then ``V`` and ``F``
+        are the inputs).
     tri_polygon : (m,) int64 numpy array
         Input polygon of every solve triangle (for messages).
     """
@@ -548,7 +582,7 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
     used[F[~fins].ravel()] = True
     welded = rep != np.arange(n)
     if (sizes == 3).all() and not welded.any() and not fins.any() and used.all() and \
-            uv is None and not flip.any():
+            uv is None and statements is None and not flip.any():
         return Vs, tris, None, tri_poly
     F = np.where(flip[:, None], F[:, [0, 2, 1]], F)
     keep_v = np.flatnonzero(used & ~welded)     # representatives used by kept faces
@@ -572,5 +606,6 @@ def solve_mesh(Vs, offsets, indices, name: str = "mesh", uv=None):
                      exact_V=np.ascontiguousarray(Vs[:, exact]),
                      fin_polygons=np.unique(tri_poly[fins]), n_welded=int(welded.sum()),
                      n_reoriented=int(np.unique(tri_poly[flip]).size),
-                     uv=None if uv is None else uv[0], corner_uv=None if uv is None else uv[1])
+                     uv=None if uv is None else uv[0], corner_uv=None if uv is None else uv[1],
+                     statements=statements)
     return np.ascontiguousarray(Vs[:, keep_v]), Fs, src, tri_poly[~fins]

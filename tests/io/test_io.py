@@ -193,7 +193,8 @@ def test_ply_header_errors_in_words(tmp_path, header, phrase):
     raises_mesh_error(lambda: sio.read_mesh(q), "no 'vertex_indices' list property")
     r = tmp_path / "big.obj"
     r.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n")
-    raises_mesh_error(lambda: sio.read_mesh(r), "face index '99999999999999999999' is too large")
+    raises_mesh_error(lambda: sio.read_mesh(r), "line 4, face 1 (f 1 2 99999999999999999999)",
+                      "vertex index '99999999999999999999' is too large")
 
 
 @pytest.mark.parametrize("name, content, phrase", [
@@ -298,8 +299,10 @@ def test_mismatched_faces(tmp_path):
     # [1, 2, 0], is the same face: accepted, see test_io_dcc)
     a = write_obj(tmp_path / "a.obj", V, F)
     b = write_obj(tmp_path / "b.obj", V, F2)
+    # in the OBJ files' own terms: the 18th face, on line 42 + 18 (1-based vertex indices)
+    f17 = " ".join(str(i + 1) for i in F2[17])
     raises_mesh_error(lambda: sio.read_keyframes([a, b]), "b.obj", "face list differs",
-                      "a.obj", "first difference at face 17")
+                      "a.obj", f"first difference at face 18 on line 60 (f {f17}) vs face 18")
     c = write_obj(tmp_path / "c.obj", V, F[:-1])
     raises_mesh_error(lambda: sio.read_keyframes([a, c]), "c.obj", "face list differs")
 
