@@ -5,6 +5,11 @@ Turn a handful of keyframe poses of one triangle mesh into a smooth in-between s
 """
 from __future__ import annotations
 
+# first: a Ctrl-C while the command line imports the rest is one line, exit 130
+from .cli import startup as _startup
+
+_startup.guard()
+
 from .version import __version__
 
 from .batch import BatchSummary, Job, load_job, run_batch

@@ -1127,6 +1127,17 @@ def heading_aligned(b: Motion, a: Motion, *, up=None) -> tuple[Motion, float]:
     return _ground_moved(b, ax, th, shift), float(np.degrees(th))
 
 
+def _faced(b: Motion, place) -> Motion:
+    """``b`` turned and moved by the heading fit ``place`` (:func:`_heading_fit`) to face and
+    start like ``a`` (see :func:`heading_aligned`); unchanged when ``place`` is None."""
+    if place is None:
+        return b
+    ax, th, pa, pb = place
+    shift = pa - _turn(ax, th) @ pb
+    shift[ax] = 0.0
+    return _ground_moved(b, ax, th, shift)
+
+
 def _pair(a: Motion, b: Motion, n_frames=None, heading="align", up=None):
     if min(a.n_frames, b.n_frames) < 2:
         raise ShellsplineError(f"the clips have {a.n_frames} and {b.n_frames} frames: "
@@ -1135,11 +1146,7 @@ def _pair(a: Motion, b: Motion, n_frames=None, heading="align", up=None):
         raise ShellsplineError(f"heading must be 'align' or 'keep', got {heading!r}")
     a2, b2 = common_grid(a, b, n_frames)
     place = _heading_fit(b2, a2, up) if heading == "align" else None
-    if place is not None:  # b faces and starts like a (see heading_aligned)
-        ax, th, pa, pb = place
-        shift = pa - _turn(ax, th) @ pb
-        shift[ax] = 0.0
-        b2 = _ground_moved(b2, ax, th, shift)
+    b2 = _faced(b2, place)
     ca, cb = motion_curve(a2), motion_curve(b2)
     for which, m, c in (("a", a, ca), ("b", b, cb)):  # on the clip's own frames
         _check_steps(c if c.template is m else motion_curve(m), f"clip {which}")
@@ -1368,9 +1375,13 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
         ``a``'s channel layout, the finer of the two frame times, duration
         ``(1-s) T_a + s T_b``; its timing is blended too: the result is the blend composed
         with the inverse of ``(1-s) id + s phi``, so that ``s = 1`` plays ``b``'s timing.
+        The blend of the clips themselves (piecewise geodesics through their own frames,
+        :func:`~shellspline.curves.srv.warp_grid`), read once at the output frames: ``s =
+        0`` gives ``a`` and ``s = 1`` gives ``b`` (where recorded) to rounding, at their
+        frames when the frame times agree (else the clip's geodesics at the finer rate).
     report : AlignReport or None
     """
-    from .curves.srv import ProductCurve, reparametrize
+    from .curves.srv import reparametrize, warp_grid
     from .curves.srv import blend as blend_curves
 
     if align not in ("dp", "none"):
@@ -1378,41 +1389,44 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     s = float(s)
     if not np.isfinite(s):
         raise ShellsplineError(f"s must be a finite number, got {s!r}")
-    a2, b2, ca, cb, H, place = _pair(a, b, n_frames, heading, up)
+    a2, _, _, _, H, place = _pair(a, b, n_frames, heading, up)
+    # the blend runs on the clips' own frames (b faced like a on the common grid's fit):
+    # a clip resampled to the common grid's frame count and back is not the clip (s = 0
+    # was 5 degrees off walk_normal blended with the longer walk_happy)
+    ca, cb = motion_curve(a), motion_curve(_faced(with_channel_layout(b, a), place))
     cols = _varying(ca.X, cb.X)
     pa, pb = _product_curve(ca, H, cols=cols), _product_curve(cb, H, cols=cols)
     rep = None
-    phi = pa.t.copy()
+    warp_t = warp = np.array([0.0, 1.0])
     if align == "dp":
         rep = _align_motions(a, b, features=features, up=up, heading=heading, **kw,
-                             n_frames=min(ca.n_frames, MOTION_DP_FRAMES))
-        phi = rep.phi if rep.t.size == pa.t.size else np.interp(pa.t, rep.t, rep.phi)
-    # blend on a grid fine enough that b o phi keeps every frame of b where phi is steep
-    # (on the grid of a alone, s = 1 lost up to 8 % of the body height there)
-    N = pa.t.size
-    k = int(min(max(np.ceil(np.max(np.diff(phi)) * (N - 1) - 1e-9), 1), 8))
-    tf = np.linspace(0.0, 1.0, k * (N - 1) + 1)
-    phi_f = np.interp(tf, pa.t, phi)
-    Ra, Xa, ref_a = _sample_curve(ca, tf * (N - 1))
-    pa_f = ProductCurve(Ra, Xa[:, cols] / H, tf)
-    c = blend_curves(pa_f, pb, s, warp=phi_f)
-    psi = (1 - s) * tf + s * phi_f
-    if np.any(np.diff(psi) <= 0):
-        psi = np.maximum.accumulate(psi + 1e-12 * tf)
-    inv = np.interp(tf, psi, tf)
-    c = reparametrize(c, inv, tf)
-    ref_b = _sample_curve(cb, phi_f * (cb.n_frames - 1))[2]
-    ref = (1 - s) * ref_a + s * ref_b
-    X = np.broadcast_to((1 - s) * ca.X[0] + s * cb.X[0], (tf.size, ca.X.shape[1])).copy()
-    X[:, cols] = c.X * H  # the constant channels keep their blended value
-    out = ca.with_samples(c.R, X, reference=ref)
+                             n_frames=min(a2.n_frames, MOTION_DP_FRAMES))
+        warp_t, warp = rep.t, rep.phi
+    # on a's frames, the warp's breakpoints and the times where it passes a frame of b, a
+    # and b o phi are single geodesics between samples: the blend of these samples is the
+    # SRV geodesic of the clips themselves, for every s (exactly a at s = 0, b at s = 1;
+    # on a's grid alone, b o phi cut off frames of b where phi is steep)
+    t, phi = warp_grid(pa.t, warp_t, warp, pb.t)
+    c = blend_curves(reparametrize(pa, t, t), pb, s, warp=phi)
+    # its timing blended too: the output at u plays the blend at psi^-1(u), psi the blended
+    # clock (1-s) id + s phi (piecewise linear on t), evaluated once at the output frames
     da = (a.n_frames - 1) * a.frame_time
     db = (b.n_frames - 1) * b.frame_time
     dur = max((1 - s) * da + s * db, 0.0)
     ft = min(a.frame_time, b.frame_time)
     n_out = max(int(round(dur / ft)) + 1, 2)
-    R, X, ref = _sample_curve(out, np.linspace(0.0, out.n_frames - 1.0, n_out))
-    m = out.with_samples(R, X, ft, ref).to_motion()
+    u = np.linspace(0.0, 1.0, n_out)
+    psi = (1 - s) * t + s * phi
+    if np.any(np.diff(psi) < 0):  # s outside [0, 1] with a warp that stalls
+        psi = np.maximum.accumulate(psi)
+    tu = _inverse_clock(u, psi, t)
+    cu = reparametrize(c, tu, u)
+    fa = np.interp(tu, pa.t, np.arange(ca.n_frames, dtype=np.float64))
+    fb = np.interp(np.interp(tu, t, phi), pb.t, np.arange(cb.n_frames, dtype=np.float64))
+    ref = (1 - s) * _rows_at(ca.reference, fa) + s * _rows_at(cb.reference, fb)
+    X = np.broadcast_to((1 - s) * ca.X[0] + s * cb.X[0], (n_out, ca.X.shape[1])).copy()
+    X[:, cols] = cu.X * H  # the constant channels keep their blended value
+    m = ca.with_samples(cu.R, X, ft, ref).to_motion()
     if place is not None:  # placed between a and b: turned by s of b's turn, moved by s
         ax, th, pa, pb = place
         d = pb - pa
@@ -1421,6 +1435,25 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
     if plant:
         m = plant_feet(m, foot_contacts(m, up=up))
     return m, rep
+
+
+def _inverse_clock(u, psi, t) -> np.ndarray:
+    """``t`` where the non-decreasing piecewise-linear ``psi (on t)`` reaches ``u``: exactly
+    ``t[j]`` where ``u`` is ``psi[j]`` (a flat piece: its last time), clamped to the ends."""
+    j = np.clip(np.searchsorted(psi, u, side="right") - 1, 0, psi.size - 2)
+    den = psi[j + 1] - psi[j]
+    w = np.clip(np.divide(u - psi[j], den, out=np.zeros_like(u), where=den > 0), 0.0, 1.0)
+    out = np.where(w == 0.0, t[j], t[j] + w * (t[j + 1] - t[j]))
+    out[u >= psi[-1]] = t[-1]
+    out[u <= psi[0]] = t[0]
+    return out
+
+
+def _rows_at(A, pos) -> np.ndarray:
+    """Rows of ``A (N,C)`` linearly interpolated at fractional frame positions ``pos``."""
+    i = np.clip(np.floor(pos).astype(np.int64), 0, max(A.shape[0] - 2, 0))
+    w = (pos - i)[:, None]
+    return A[i] * (1 - w) + A[np.minimum(i + 1, A.shape[0] - 1)] * w
 
 
 def warp_motion(motion: Motion, phi, frame_time: float | None = None) -> Motion:

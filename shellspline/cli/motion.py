@@ -6,18 +6,21 @@ LΘA descriptor curves, frames reconstructed by Gauss–Newton, a sequence folde
 on rigid pose tracks (any file :func:`shellspline.io.posefiles.read_poses` reads: curves in
 SO(3) x R^3, written back in the input's format);
 pictures with ``--render STRIP.png|ANIM.gif`` (stick figures) and ``--plot PNG`` (feet, warp,
-seam gap). Outputs are written atomically and never replace an existing file without
-``--overwrite``. Errors are one line, exit status 2.
+seam gap). Outputs are written atomically, never replace an existing file without
+``--overwrite`` and never an input (with it or not); every output path is checked before any
+work. Errors are one line naming the file, exit status 2.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ShellsplineError
+from .outputs import ANIMATIONS, PICTURES, Output, check_outputs
 
 EXIT_OK, EXIT_WARN = 0, 1
 
@@ -120,7 +123,7 @@ def add_parsers(sub) -> None:
                                   "aligned in time first (--align dp).")
     common(q, out="BVH file to write (a sequence folder for mesh sequences)")
     q.add_argument("--s", type=float, default=0.5, metavar="S",
-                   help="weight of B (0: A, 1: B; default 0.5)")
+                   help="weight of B, from 0 (A) to 1 (B); default 0.5")
     aligning(q)
     q.add_argument("--plant", action="store_true",
                    help="correct the root where the blend's planted feet slide")
@@ -150,26 +153,21 @@ def _say(args):
     return (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
 
 
-def _check_outputs(args, *paths):
-    """Fail before any work on a bad --up, on an output that exists (without --overwrite),
-    whose folder is missing, or whose picture type is unknown."""
+def _check_outputs(args, out=None):
+    """Fail before any work on a bad --up, and on any output (``out`` = ``-o``, ``--plot``,
+    ``--render``) that must not or cannot be written: an input (the clips, the --features
+    file), the same file as another output, one that exists (without --overwrite), whose
+    folder is missing, or whose picture type is unknown
+    (:func:`shellspline.cli.outputs.check_outputs`, shared with ``shellspline path``)."""
     if args.up is not None and args.up.strip().lower().lstrip("+-") not in ("x", "y", "z"):
         raise ShellsplineError(f"--up must be one of x, y, z (optionally signed, e.g. --up=-z), "
                                f"got {args.up!r}")
-    for path in paths:
-        if path is None:
-            continue
-        p = Path(path)
-        if p.exists() and not args.overwrite:
-            raise ShellsplineError(f"{path} exists (use --overwrite to replace it)")
-        if p.is_dir() and not Path(args.a).is_dir():
-            raise ShellsplineError(f"{path} is a folder, expected a file")
-        if not p.parent.is_dir():
-            raise ShellsplineError(f"{path}: the folder {p.parent} does not exist")
-    for path, kinds in ((args.render, (".png", ".svg", ".pdf", ".gif")),
-                        (args.plot, (".png", ".svg", ".pdf"))):
-        if path is not None and Path(path).suffix.lower() not in kinds:
-            raise ShellsplineError(f"{path}: expected one of {', '.join(kinds)}")
+    folder = Path(args.a).is_dir() and args.motion_command in ("blend", "close")  # sequences
+    check_outputs([Output("-o", out, folder=folder),
+                   Output("--plot", args.plot, PICTURES),
+                   Output("--render", args.render, ANIMATIONS)],
+                  [args.a, getattr(args, "b", None), _feature_file_name(args)],
+                  overwrite=args.overwrite)
     if args.render or args.plot:
         import importlib.util
 
@@ -276,7 +274,8 @@ def _read_pair(args):
 def _write_mesh(args, Vs, kf, report):
     from ..io import write_sequence
 
-    write_sequence(args.out, Vs, kf.F, report, overwrite=args.overwrite, source=kf.source)
+    write_sequence(args.out, Vs, kf.F, report, overwrite=args.overwrite, source=kf.source,
+                   protect=[q for q in (args.a, getattr(args, "b", None)) if q])
 
 
 def _feature_kw(args) -> dict:
@@ -291,19 +290,27 @@ def _feature_kw(args) -> dict:
     return {"lam": float(w)}
 
 
-def _read_features(spec):
-    if spec in (None, "none", "contacts"):
-        return None if spec in (None, "none") else "contacts"
+def _feature_file_name(args):
+    """The ``--features`` CSV file (an input), or None for ``contacts``/``none``."""
+    spec = getattr(args, "features", None)
+    return None if spec in (None, "none", "contacts") else spec
+
+
+def _feature_file(spec):
+    """``(pairs (k,2), lines (k,), tokens (k,2))`` of a ``--features`` CSV file: the times as
+    numbers, the file line of each pair and the times as written; one-line errors naming the
+    file and line."""
     p = Path(spec)
     if not p.is_file():
         raise ShellsplineError(f"--features: expected 'contacts', 'none' or a CSV file, got "
                                f"{spec!r} (no such file)")
-    rows = []
+    rows, lines, tokens = [], [], []
     for i, line in enumerate(p.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
         s = line.split("#", 1)[0].strip()
         if not s or s.lower().replace(" ", "") in ("time_a,time_b", "t_a,t_b"):
             continue
-        parts = [x for x in s.replace(";", ",").replace("\t", ",").split(",") if x.strip()]
+        parts = [x.strip() for x in s.replace(";", ",").replace("\t", ",").split(",")
+                 if x.strip()]
         try:
             vals = [float(x) for x in parts]
         except ValueError:
@@ -311,10 +318,53 @@ def _read_features(spec):
                                    f"{s!r}") from None
         if len(vals) != 2:
             raise ShellsplineError(f"{spec}:{i}: expected two times in seconds, got {s!r}")
+        if not np.all(np.isfinite(vals)):
+            raise ShellsplineError(f"{spec}:{i}: a time is not a finite number: {s!r}")
         rows.append(vals)
+        lines.append(i)
+        tokens.append(parts)
     if not rows:
         raise ShellsplineError(f"{spec}: no feature pairs")
-    return np.array(rows)
+    return np.array(rows), lines, tokens
+
+
+def _check_feature_spans(args, P, lines, tokens, spans, unit=""):
+    """Refuse, naming the file and line, the first pair whose time lies outside its clip:
+    ``spans`` ``((lo_a, hi_a, shown_a), (lo_b, hi_b, shown_b))`` in the units of ``P``, shown
+    as the files write them."""
+    for k, (lo, hi, shown), path in zip((0, 1), spans, (args.a, args.b)):
+        bad = np.flatnonzero((P[:, k] < lo) | (P[:, k] > hi))
+        if bad.size:
+            i = int(bad[0])
+            raise ShellsplineError(f"{args.features}:{lines[i]}: time {tokens[i][k]} is "
+                                   f"outside {'AB'[k]} ({path}: {shown[0]}..{shown[1]}{unit})")
+
+
+def _read_features(args, a=None, b=None):
+    """None, ``"contacts"`` or the pairs of the ``--features`` file in seconds, each time
+    within its clip (BVH clips ``a`` and ``b``: from 0 to their durations)."""
+    spec = args.features
+    if spec in (None, "none", "contacts"):
+        return None if spec in (None, "none") else "contacts"
+    P, lines, tokens = _feature_file(spec)
+    if a is not None:
+        spans = [(0.0, d, ("0", f"{d:.10g}")) for d in
+                 ((m.n_frames - 1) * m.frame_time for m in (a, b))]
+        _check_feature_spans(args, P, lines, tokens, spans, " s")
+    return P
+
+
+@contextmanager
+def _clips_named(args):
+    """The library names the two clips "clip a" and "clip b" in its errors: name the files."""
+    try:
+        yield
+    except ShellsplineError as exc:
+        msg = str(exc)
+        for which, path in (("clip a: ", args.a), ("clip b: ", args.b)):
+            if msg.startswith(which):
+                raise ShellsplineError(f"{path}: {msg[len(which):]}") from None
+        raise
 
 
 def _pictures(args, motions, say, *, warp=None, seam=None):
@@ -362,8 +412,9 @@ def _distance(args) -> int:
         print(f"{d:.9g}")
         say(f"  distance    SRV of the LΘA curves, align {args.align}: {d:.6g}")
         return EXIT_OK
-    d = distance(a, b, align=args.align, features=_read_features(args.features), up=args.up,
-                 heading=args.heading or "align", **fkw)
+    with _clips_named(args):
+        d = distance(a, b, align=args.align, features=_read_features(args, a, b), up=args.up,
+                     heading=args.heading or "align", **fkw)
     print(f"{d:.9g}")
     say(f"  distance    SRV, align {args.align}, features {args.features}: {d:.6g}")
     if args.render or args.plot:
@@ -400,8 +451,9 @@ def _align(args) -> int:
             plot_motion(args.plot, warp=(r.t, r.phi))
             say(f"  plot        {args.plot}")
         return EXIT_OK
-    rep = align(a, b, features=_read_features(args.features), up=args.up,
-                heading=args.heading or "align", **fkw)
+    with _clips_named(args):
+        rep = align(a, b, features=_read_features(args, a, b), up=args.up,
+                    heading=args.heading or "align", **fkw)
     lines = ["time_a,time_b"] + [f"{x!r},{y!r}" for x, y in rep.seconds.tolist()]
     write_text_atomic(args.out, "\n".join(lines) + "\n")
     nf = 0 if rep.features is None else rep.features.shape[0]
@@ -428,14 +480,17 @@ def _file_times(track, t) -> list:
 
 
 def _track_features(args, a, b):
-    """``--features`` time pairs in the files' units, as the tracks' seconds."""
-    feats = _read_features(args.features)
-    if feats is None or isinstance(feats, str):
-        return feats
-    feats = feats.copy()
+    """``--features`` time pairs in the files' units, as the tracks' seconds, each within its
+    track's span."""
+    if _feature_file_name(args) is None:
+        return _read_features(args)
+    feats, lines, tokens = _feature_file(args.features)
     for k, tr in enumerate((a, b)):
-        if tr.time_unit == "ns":
-            feats[:, k] = (feats[:, k] - float(tr.origin_ns)) * 1e-9
+        if tr.time_unit == "ns":  # integer nanoseconds subtracted exactly
+            feats[:, k] = [((int(x[k]) if x[k].lstrip("-").isdigit() else float(x[k]))
+                            - tr.origin_ns) * 1e-9 for x in tokens]
+    _check_feature_spans(args, feats, lines, tokens,
+                         [(tr.t[0], tr.t[-1], _file_times(tr, tr.t[[0, -1]])) for tr in (a, b)])
     return feats
 
 
@@ -472,6 +527,8 @@ def _blend(args) -> int:
     from ..animation import blend, foot_skate
     from ..io.bvh import write_bvh
 
+    if not 0 <= args.s <= 1:  # (NaN too)
+        raise ShellsplineError(f"--s must be between 0 (A) and 1 (B), got {args.s:g}")
     _check_outputs(args, args.out)
     fkw = _feature_kw(args)
     say = _say(args)
@@ -481,8 +538,9 @@ def _blend(args) -> int:
         return _blend_tracks(args, a, b, length, fkw, say)
     if _is_mesh(a):
         return _blend_meshes(args, a, b, say)
-    m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args.features),
-                   up=args.up, plant=args.plant, heading=args.heading or "align", **fkw)
+    with _clips_named(args):
+        m, rep = blend(a, b, args.s, align=args.align, features=_read_features(args, a, b),
+                       up=args.up, plant=args.plant, heading=args.heading or "align", **fkw)
     write_bvh(m, args.out)
     sk = foot_skate(m, up=args.up)
     say(f"  blend       s = {args.s:g}, align {args.align}: {m.n_frames} frames at "
@@ -501,11 +559,9 @@ def _blend_tracks(args, a, b, length, fkw, say) -> int:
     from ..animation import track_blend
     from ..io.posefiles import write_poses
 
-    if not np.isfinite(args.s):
-        raise ShellsplineError(f"--s must be a finite number, got {args.s!r}")
-    feats = _track_features(args, a, b)
-    if feats is not None and args.align != "dp":
+    if _feature_file_name(args) is not None and args.align != "dp":
         raise ShellsplineError("--features needs --align dp")
+    feats = _track_features(args, a, b)
     out, rep = track_blend(a, b, args.s, align=args.align, length=length, features=feats,
                            **fkw)
     write_poses(args.out, out.t, out.T, out.format, origin_ns=out.origin_ns,

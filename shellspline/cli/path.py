@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import ShellsplineError
 from ..io.atomic import write_atomically
+from .outputs import PICTURES, Output, check_outputs
 
 EXIT_OK, EXIT_WARN = 0, 1
 # Most poses --rate may ask for: 10 million poses are ~1.3 GB of matrices and a 1.5 GB
@@ -80,10 +81,18 @@ def add_parsers(sub) -> None:
 # more keyframes: the curve between two keyframes turns the short way (the principal
 # logarithm), so where the dropped poses turn 180 degrees or more it went backwards (a
 # camera spinning 20 degrees per pose, every 10th kept: angle errors up to 180 degrees,
-# exit 0). The extra keyframes are the poses where the path's turn since the interval's
-# start (the sum of its steps' angles) passes a multiple of KEY_TURN / 2, so no interval
-# turns 180 degrees. Detection uses the angle from the first pose, not the sum of steps,
-# so that the noise of a jittery track does not add up to a turn.
+# exit 0). The angle is measured along the path: the path lifted to unit quaternions
+# (sign-continuous from pose to pose) and the angle of a pose's lift from the first one's,
+# 0 to 360 degrees, which goes on past 180 where the path does (the principal angle turns
+# back: poses at 0, 119, 250 and 300 degrees, every 2nd kept, had no pose 120 degrees from
+# its interval's start, 250 being 110 the short way, and came out at 0, -81, -110, -60).
+# It is the pose's turn from the start, not the sum of the steps' angles, so the noise of a
+# jittery track does not add up to a turn. The extra keyframes are the poses where the
+# path's turn since the interval's start (the sum of its steps' angles) passes a multiple
+# of KEY_TURN / 2; an interval still turned KEY_TURN or more after that (its last step is
+# longer than KEY_TURN / 2) keeps all its poses. Then in every interval that drops poses,
+# each pose is less than KEY_TURN from its start along the path, so the path never passes
+# 180 degrees from it and the short way between the keyframes is the way the poses went.
 KEY_TURN = 2 * np.pi / 3
 
 
@@ -91,9 +100,10 @@ def keyframe_indices(n: int, every: int, R=None) -> np.ndarray:
     """Every ``every``-th index of ``range(n)``, always with the first and the last.
 
     With the rotations ``R (n, 3, 3)`` of the poses, an interval between two such indices
-    in which a pose is turned by ``KEY_TURN`` or more from its first pose also gets the
-    poses where the turn of the path since its start passes a multiple of ``KEY_TURN / 2``
-    (see ``KEY_TURN``).
+    in which a pose is turned by ``KEY_TURN`` or more from its first pose, measured along
+    the path (past 180 degrees where the path goes on turning), also gets the poses where
+    the turn of the path since its start passes a multiple of ``KEY_TURN / 2``, and all its
+    poses if that leaves a part turned ``KEY_TURN`` or more (see ``KEY_TURN``).
     """
     idx = np.arange(0, n, every)
     idx = idx if idx[-1] == n - 1 else np.append(idx, n - 1)
@@ -103,16 +113,28 @@ def keyframe_indices(n: int, every: int, R=None) -> np.ndarray:
 
     R = np.asarray(R, dtype=np.float64)
     C = np.concatenate([[0.0], np.cumsum(so3.angle(np.swapaxes(R[:-1], -1, -2) @ R[1:]))])
-    k = np.searchsorted(idx, np.arange(n), side="right") - 1     # interval of every pose
-    k = np.minimum(k, idx.size - 2)
-    Rt = np.swapaxes(R[idx], -1, -2)
-    far = so3.angle(Rt[k] @ R)                                   # from the interval's start
-    turn = np.maximum(np.maximum.reduceat(far, idx[:-1]),
-                      so3.angle(Rt[:-1] @ R[idx[1:]]))           # per interval
+    q = so3.quat_continuous(so3.quat_from_matrix(R))        # the path lifted to S^3
+
+    def turned(keys):
+        """Interval of every pose, and per interval the largest angle (0 to 2 pi) of a pose's
+        lift from the lift of the interval's first pose, its last pose included."""
+        k = np.minimum(np.searchsorted(keys, np.arange(n), side="right") - 1, keys.size - 2)
+        far = 2.0 * np.arccos(np.clip(np.einsum("ij,ij->i", q[keys[k]], q), -1.0, 1.0))
+        end = 2.0 * np.arccos(np.clip(np.einsum("ij,ij->i", q[keys[:-1]], q[keys[1:]]),
+                                      -1.0, 1.0))
+        return k, np.maximum(np.maximum.reduceat(far, keys[:-1]), end)
+
+    k, turn = turned(idx)
     level = np.floor((C - C[idx[k]]) / (0.5 * KEY_TURN))
     cross = np.flatnonzero((level[1:] > level[:-1]) & (k[1:] == k[:-1])) + 1
-    cross = cross[turn[k[cross]] >= KEY_TURN]
-    return np.union1d(idx, cross)
+    keys = np.union1d(idx, cross[turn[k[cross]] >= KEY_TURN])
+    if np.any(turn >= KEY_TURN):  # a part that still ends with a long step: all its poses
+        _, turn = turned(keys)
+        bad = np.flatnonzero((turn >= KEY_TURN) & (np.diff(keys) > 1))
+        if bad.size:
+            keys = np.union1d(keys, np.concatenate([np.arange(keys[b] + 1, keys[b + 1])
+                                                    for b in bad]))
+    return keys
 
 
 def _read_times(path, nanoseconds=False):
@@ -166,32 +188,70 @@ def build_curve(t, T, kind="interp", group="so3xr3", bc="natural"):
     from ..groups import group as _group
 
     G = _group(group)
-    if kind != "interp" and bc != "natural":
-        raise ShellsplineError(f"--bc {bc} applies to --kind interp only")
+    _check_kind(kind, bc)
     if kind == "interp":
         return cubic_spline(G, t, T, bc)
     if kind == "bezier":
         return hermite_spline(G, t, T)
-    if kind == "bspline":
-        m = min(3, t.size - 1)
-        return BSpline(G, T, clamped_knots(t, m), m)
-    raise ShellsplineError(f"kind must be interp, bezier or bspline, got {kind!r}")
+    turn = half_turn(G, T)  # de Boor's geodesics need them as interp's and bezier's do
+    if turn is not None:
+        i, deg = turn
+        raise ShellsplineError(f"T: poses {i} and {i + 1} differ by a rotation of {deg:.1f} "
+                               "degrees; consecutive poses must be less than 180 degrees "
+                               "apart (insert intermediate poses)")
+    m = min(3, t.size - 1)
+    return BSpline(G, T, clamped_knots(t, m), m)
+
+
+def _check_kind(kind, bc) -> None:
+    if kind not in ("interp", "bezier", "bspline"):
+        raise ShellsplineError(f"kind must be interp, bezier or bspline, got {kind!r}")
+    if kind != "interp" and bc != "natural":
+        raise ShellsplineError(f"--bc {bc} applies to --kind interp only")
+
+
+# Consecutive keyframes turned this close to 180 degrees apart have no shortest geodesic
+# between them (the curves' own check, curves.interp, uses the same bound).
+HALF_TURN_TOL = 1e-6
+
+
+def half_turn(G, T):
+    """``(i, degrees)`` for the first ``i`` where the poses ``T[i]`` and ``T[i + 1]`` (``(n, 4,
+    4)``) are turned 180 degrees apart (to :data:`HALF_TURN_TOL`), or None. ``G`` is the
+    curve's group (its rotation angle decides, as in the curves' own check)."""
+    from ..groups import group as _group
+
+    G = _group(G)
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape[0] < 2:
+        return None
+    ang = G.rotation_angle(G.log(G.compose(G.inverse(T[:-1]), T[1:])))
+    bad = np.flatnonzero(ang > np.pi - HALF_TURN_TOL)
+    return (int(bad[0]), float(np.degrees(ang[bad[0]]))) if bad.size else None
+
+
+def _pose_names(track, idx) -> str:
+    """The poses ``idx`` of ``track`` as its file shows them: lines, and times in the file's
+    unit (``lines 4 and 5 (t = 1.2 and 1.3)``; KITTI: lines only, its time is the index)."""
+    idx = [int(i) for i in idx]
+    both = " and ".join
+    where = (f"lines {both(str(int(track.lines[i])) for i in idx)}"
+             if track.lines is not None else f"poses {both(str(i) for i in idx)}")
+    if track.format == "kitti":
+        return where
+    if track.time_unit == "ns":
+        times = [str(track.origin_ns + int(round(float(track.t[i]) * 1e9))) for i in idx]
+    else:
+        times = [repr(float(track.t[i])) for i in idx]
+    return f"{where} (t = {both(times)})"
 
 
 def _check_outputs(args) -> None:
     """Fail before any work on an output that is one of the inputs (never overwritten), that
-    exists without ``--overwrite``, or whose folder is missing."""
-    inputs = [Path(q).resolve() for q in (args.poses, args.times) if q]
-    for out in (args.out, args.plot):
-        if not out:
-            continue
-        p = Path(out)
-        if p.resolve() in inputs:
-            raise ShellsplineError(f"{out} is an input of this command: write to another file")
-        if p.exists() and not args.overwrite:
-            raise ShellsplineError(f"{out} exists (use --overwrite to replace it)")
-        if not p.parent.is_dir():
-            raise ShellsplineError(f"{out}: the folder {p.parent} does not exist")
+    is the other output, exists without ``--overwrite``, whose folder is missing, or a
+    picture of an unknown type (:func:`shellspline.cli.outputs.check_outputs`)."""
+    check_outputs([Output("-o", args.out), Output("--plot", args.plot, PICTURES)],
+                  [args.poses, args.times], overwrite=args.overwrite)
 
 
 def _path(args) -> int:
@@ -204,6 +264,7 @@ def _path(args) -> int:
         raise ShellsplineError(f"--keep-every must be >= 1, got {args.keep_every}")
     if args.rate is not None and not args.rate > 0:
         raise ShellsplineError(f"--rate must be > 0, got {args.rate}")
+    _check_kind(args.kind, args.bc)
     _check_outputs(args)
     if args.plot:  # fail before any work when the picture cannot be drawn
         import importlib.util
@@ -217,7 +278,17 @@ def _path(args) -> int:
     keys = keyframe_indices(n, args.keep_every, track.T[:, :3, :3])
     added = keys.size - keyframe_indices(n, args.keep_every).size
     tk, Tk = track.t[keys], track.T[keys]
-    curve = build_curve(tk, Tk, args.kind, args.group, args.bc)
+    turn = half_turn(args.group, Tk)
+    if turn is not None:
+        i, deg = turn
+        raise ShellsplineError(
+            f"{args.poses}: the keyframes at {_pose_names(track, keys[i:i + 2])} differ by a "
+            f"rotation of {deg:.1f} degrees; consecutive keyframes must be less than 180 "
+            "degrees apart (insert intermediate poses)")
+    try:
+        curve = build_curve(tk, Tk, args.kind, args.group, args.bc)
+    except ShellsplineError as exc:  # what the keyframes cannot give (--bc periodic ...)
+        raise ShellsplineError(f"{args.poses}: {exc}") from None
     if args.rate is not None:
         m = np.floor((tk[-1] - tk[0]) * args.rate + 1e-9) + 1
         if not m <= MAX_OUTPUT_POSES:

@@ -32,7 +32,7 @@ from ..errors import ShellsplineError
 from ..groups import so3
 
 __all__ = ["ProductCurve", "srv", "srv_inverse", "srv_distance", "reparametrize", "blend",
-           "normalized_times", "cumulative_product"]
+           "warp_grid", "normalized_times", "cumulative_product"]
 
 # Consecutive samples must rotate every joint by less than this (rad): the principal log, and
 # so the piecewise geodesic between them, is unique only below pi.
@@ -429,8 +429,10 @@ def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None, *,
     Returns
     -------
     ProductCurve
-        On ``curve0.t``. Start point ``c0(0) exp(s log(c0(0)^{-1} c1(0)))`` per rotation,
-        ``(1-s) X0(0) + s X1(0)``; then ``c(t) = R^{-1}(q)(t) c(0)`` (right translation, under
+        On ``curve0.t``: ``curve1 o warp`` is sampled there, so ``s = 1`` gives ``curve1``
+        only where those samples keep ``curve1``'s own; sample ``curve0`` on
+        :func:`warp_grid` for the exact blend of the two piecewise-geodesic curves. Start
+        point ``c0(0) exp(s log(c0(0)^{-1} c1(0)))`` per rotation, ``(1-s) X0(0) + s X1(0)``; then ``c(t) = R^{-1}(q)(t) c(0)`` (right translation, under
         which the SRVT is invariant). ``q1`` is the SRV of ``curve1 o warp`` on ``curve0.t``
         with each joint's increment on the branch of the logarithm that ``curve1``'s path
         takes (a fast joint that turns ``pi`` or more between two samples of ``curve0`` keeps
@@ -469,6 +471,73 @@ def blend(curve0: ProductCurve, curve1: ProductCurve, s, warp=None, *,
     X0 = (1 - s) * curve0.X[0] + s * c1.X[0]
     return _srv_inverse(Q, t0, R0, X0, None, "blend", "resample curve0 on a finer grid "
                         "(reparametrize) so that curve1 o warp turns less than pi per step")
+
+
+def warp_grid(t0, warp_t, warp, t1, *, tol: float = 1e-13) -> tuple[np.ndarray, np.ndarray]:
+    """The grid on which :func:`blend` is the exact SRV geodesic of two piecewise-geodesic
+    curves, and the warp on it.
+
+    :func:`blend` works on ``curve0``'s samples: ``curve1 o warp`` is sampled there and
+    joined by geodesics, so where a sample of ``curve1`` falls between two of them it is cut
+    off (``s = 1`` is then not ``curve1``). On the union of ``t0`` (``curve0``'s samples),
+    ``warp_t`` (the warp's breakpoints) and the times where the warp passes a sample of
+    ``curve1`` (``warp^{-1}(t1)``), both curves are single geodesics between consecutive
+    times, so their SRVs are constant there and the blend of the sampled curves is the blend
+    of the curves themselves, for every ``s``: ``s = 0`` gives ``curve0`` at ``t0`` and
+    ``s = 1`` gives ``curve1`` at the times where the warp meets ``t1``.
+
+    Parameters
+    ----------
+    t0 : (N0,) array_like
+        Strictly increasing times of ``curve0``.
+    warp_t, warp : (K,) array_like
+        The warp, piecewise linear: ``warp(warp_t[k]) = warp[k]`` (values in ``curve1``'s
+        times), ``warp_t`` strictly increasing from ``t0[0]`` to ``t0[-1]``; any direction
+        (a warp that turns back passes a sample of ``curve1`` more than once).
+    t1 : (N1,) array_like
+        Strictly increasing times of ``curve1``.
+    tol : float
+        Added times closer than ``tol`` times the span to a kept one are dropped (``t0`` is
+        kept whole), so that no interval is shorter than rounding.
+
+    Returns
+    -------
+    t : (N,) float64 numpy array
+        Contains ``t0`` exactly.
+    phi : (N,) float64 numpy array
+        The warp at ``t`` (the ``warp=`` of :func:`blend` for ``curve0`` reparametrised onto
+        ``t``).
+
+    Examples
+    --------
+    >>> t, phi = warp_grid([0.0, 0.5, 1.0], [0.0, 1.0], [0.0, 1.0], [0.0, 0.25, 1.0])
+    >>> t.tolist(), phi.tolist()
+    ([0.0, 0.25, 0.5, 1.0], [0.0, 0.25, 0.5, 1.0])
+    """
+    t0, tw, p, t1 = (np.asarray(x, dtype=np.float64).reshape(-1) for x in (t0, warp_t, warp, t1))
+    if tw.shape != p.shape or tw.size < 2 or np.any(np.diff(tw) <= 0):
+        raise ShellsplineError(f"warp_grid: warp_t must be >= 2 strictly increasing times "
+                               f"with one warp value each, got {tw.size} and {p.size}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(t0)) and np.all(np.isfinite(t1))):
+        raise ShellsplineError("warp_grid: times and warp must be finite")
+    lo, hi = np.minimum(p[:-1], p[1:]), np.maximum(p[:-1], p[1:])
+    k0 = np.searchsorted(t1, lo, side="right")   # samples of curve1 strictly inside each
+    cnt = np.maximum(np.searchsorted(t1, hi, side="left") - k0, 0)    # interval of the warp
+    i = np.repeat(np.arange(lo.size), cnt)
+    k = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(k0, cnt)
+    x = tw[i] + (t1[k] - p[i]) / (p[i + 1] - p[i]) * (tw[i + 1] - tw[i])
+    x = np.clip(x, tw[i], tw[i + 1])
+    span = max(t0[-1] - t0[0], 0.0)
+    extra = np.unique(np.concatenate([tw, x]))
+    extra = extra[(extra > t0[0]) & (extra < t0[-1])]
+    if extra.size:  # drop the added times within tol of t0 or of the previous added one
+        j = np.clip(np.searchsorted(t0, extra), 1, t0.size - 1)
+        near = np.minimum(extra - t0[j - 1], t0[j] - extra) <= tol * span
+        extra = extra[~near]
+    if extra.size > 1:
+        extra = extra[np.concatenate([[True], np.diff(extra) > tol * span])]
+    t = np.union1d(t0, extra)
+    return t, np.interp(t, tw, p)
 
 
 def _path_increments(curve: ProductCurve, phi, periodic: bool) -> np.ndarray:

@@ -17,10 +17,12 @@ format     content
 Poses are ``(n, 4, 4)`` rigid motions body -> world. Reading validates once (finite numbers,
 unit quaternions within 1e-2 — then normalised; files written with 2 or 3 digits are not
 exactly unit —, rotation blocks within 1e-3 of orthonormal — then projected —, strictly
-increasing times) and raises a one-line :class:`~shellspline.errors.ShellsplineError` naming
-the file and line. What real exporters add is accepted: a UTF-8 byte-order mark, CRLF, tabs,
-a header line without ``#`` (a first data line with no number on it, e.g. ``timestamp tx ty
-...``), and a line repeated verbatim right after itself (the same time and pose: dropped).
+increasing times, the format's count of numbers on every line: EuRoC's further columns are
+ignored, a missing or an extra number elsewhere is refused) and raises a one-line
+:class:`~shellspline.errors.ShellsplineError` naming the file and line. What real exporters
+add is accepted: a UTF-8 byte-order mark, CRLF, tabs, a header line without ``#`` (a first
+data line with no number on it, e.g. ``timestamp tx ty ...``), a trailing comma in a CSV
+line, and a line repeated verbatim right after itself (the same time and pose: dropped).
 Column names above the data, when they name the quaternion (``qx ... qw``, ``q_RS_w []``),
 are checked against the detected format: integer nanoseconds under scalar-last names are
 ours (``csv``), not EuRoC; a scalar-first header over TUM-like
@@ -37,7 +39,7 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +75,9 @@ class PoseTrack:
     time_unit : str
         The unit of the file's time stamps: ``"ns"`` (EuRoC; TUM or CSV files whose stamps
         are integers of 13 digits or more, as ROS tools write them) or ``"s"``.
+    lines : (n,) int ndarray or None
+        The file line (from 1) of each pose, for messages that name a pose; None when the
+        poses were not read from a text file of lines (JSON, or made in memory).
     """
 
     t: np.ndarray
@@ -80,6 +85,7 @@ class PoseTrack:
     format: str
     origin_ns: int = 0
     time_unit: str = "s"
+    lines: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def _fail(path, line, msg):
@@ -270,6 +276,11 @@ def read_poses(path, format=None) -> PoseTrack:
         elif tns:
             _fail(path, k, f"the first time stamps are integer nanoseconds, this one is "
                            f"{f[0]!r}")
+        if fmt == "csv":
+            while len(f) > n and not f[-1]:
+                f = f[:-1]  # a trailing comma: no column
+        if len(f) > n and fmt != "euroc":  # (EuRoC's further columns are documented: ignored)
+            _fail(path, k, f"expected {n} numbers ({what}), got {len(f)}")
         rows.append(_numbers(path, k, f, n, what))
         lines.append(k)
     if not rows:
@@ -301,7 +312,7 @@ def read_poses(path, format=None) -> PoseTrack:
         q = V[:, [5, 6, 7, 4]] if fmt == "euroc" else V[:, 4:8]
         R, p = so3.matrix_from_quat(_quats(path, lines, q)), V[:, 1:4]
     _check_times(path, t, lines)
-    return PoseTrack(t, se3.from_rt(R, p), fmt, origin, unit)
+    return PoseTrack(t, se3.from_rt(R, p), fmt, origin, unit, np.array(lines, dtype=np.int64))
 
 
 def _is_nanoseconds(x: str) -> bool:

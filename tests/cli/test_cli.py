@@ -260,3 +260,56 @@ def test_summary_names_the_seams_and_their_bridges(tmp_path, capsys):
     line = next(ln for ln in err.splitlines() if ln.startswith("seams: "))
     assert line.startswith(f"seams: {len(seams)} ") and f"{len(kept)} bridged" in line
     assert f"{kept[0]['bridge']['step_ratio_before']:.2f} -> " in line
+
+
+# A child that is the console script (argv[0] .../shellspline) and raises SIGINT at itself
+# while the package is being imported (at its first import of numpy): a Ctrl-C during
+# start-up, made deterministic.
+_CTRL_C_AT_IMPORT = """
+import builtins, signal, sys
+sys.argv = ["/usr/local/bin/shellspline", "motion", "distance", "a.bvh", "b.bvh"]
+real = builtins.__import__
+def hooked(name, *args, **kw):
+    if name == "numpy":
+        builtins.__import__ = real
+        signal.raise_signal(signal.SIGINT)
+    return real(name, *args, **kw)
+builtins.__import__ = hooked
+from shellspline.cli.main import main
+sys.exit(main())
+"""
+
+
+def _sigint_default():
+    """preexec_fn: SIGINT at Python's default (a background runner may ignore it)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def test_ctrl_c_during_start_up_is_one_line_and_exit_130(tmp_path, monkeypatch, capsys):
+    """Ctrl-C while the command started (importing the package, building the parser) printed
+    a KeyboardInterrupt traceback; later ones said "interrupted; no output was written",
+    exit 130. Now the same line and code from the first line of the package on."""
+    import shellspline.cli.main as cli_main
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_main, "_build_parser", interrupted)
+    try:
+        code = main(["motion", "distance", "a.bvh", "b.bvh"])
+    except KeyboardInterrupt:
+        pytest.fail("KeyboardInterrupt escaped main() during start-up")
+    err = capsys.readouterr().err
+    assert code == 130 and err == "shellspline: interrupted; no output was written\n"
+    r = subprocess.run([sys.executable, "-c", _CTRL_C_AT_IMPORT], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120, preexec_fn=_sigint_default)
+    assert r.returncode == 130, r.stderr
+    assert r.stderr == "shellspline: interrupted; no output was written\n", r.stderr
+    assert r.stdout == "" and list(tmp_path.iterdir()) == []
+    # a program of the user's that imports shellspline keeps Python's own Ctrl-C
+    r = subprocess.run([sys.executable, "-c", "import signal, shellspline; print(signal."
+                        "getsignal(signal.SIGINT) is signal.default_int_handler)"],
+                       capture_output=True, text=True, timeout=120, preexec_fn=_sigint_default)
+    assert r.returncode == 0 and r.stdout.strip() == "True", r.stderr

@@ -173,6 +173,18 @@ def test_mesh_sequence_folders(capsys, tmp_path):
     code, _, _ = run(capsys, "align", tmp_path / "a", tmp_path / "b", "-o", tmp_path / "w.csv")
     rows = np.loadtxt(tmp_path / "w.csv", delimiter=",", skiprows=1)
     assert code == 0 and rows.shape == (Vs.shape[0], 2)
+    # align's -o is a file (the outputs of close and blend are folders): replaced when asked
+    code, _, err = run(capsys, "align", tmp_path / "a", tmp_path / "b", "-o",
+                       tmp_path / "w.csv", "--overwrite", "-q")
+    assert code == 0, err
+    # an input folder is never the output, nor inside it
+    before = sorted((p.name, p.read_bytes()) for p in (tmp_path / "a").iterdir())
+    code, _, err = run(capsys, "close", tmp_path / "a", "-o", tmp_path / "a", "--overwrite")
+    assert code == 2 and "is an input of this command" in err
+    code, _, err = run(capsys, "blend", tmp_path / "a", tmp_path / "b", "-o", tmp_path,
+                       "--overwrite")
+    assert code == 2 and "contains the input" in err
+    assert sorted((p.name, p.read_bytes()) for p in (tmp_path / "a").iterdir()) == before
     code, _, _ = run(capsys, "blend", tmp_path / "a", tmp_path / "a", "-o", tmp_path / "mid",
                      "-q")
     assert code == 0 and np.abs(read_sequence(tmp_path / "mid")[0] - Vs).max() <= 1e-8
@@ -385,8 +397,16 @@ def test_close_a_clip_with_a_joint_flip_and_refuse_a_half_turn(capsys, tmp_path)
     code, _, err = run(capsys, "close", tmp_path / "half.bvh", "-o", tmp_path / "h.bvh")
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "half.bvh" in err and "'UpperArm_L'" in err and "frames 99 and 100" in err
+    # distance, align and blend name the file too (they said "clip a"/"clip b")
     code, _, err = run(capsys, "distance", tmp_path / "half.bvh", walk())
-    assert code == 2 and "clip a: joint 'UpperArm_L'" in err
+    assert code == 2 and f"{tmp_path / 'half.bvh'}: joint 'UpperArm_L'" in err
+    assert "clip a" not in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "distance", walk(), tmp_path / "half.bvh")
+    assert code == 2 and f"{tmp_path / 'half.bvh'}: joint 'UpperArm_L'" in err
+    assert "clip b" not in err
+    code, _, err = run(capsys, "blend", walk(), tmp_path / "half.bvh", "-o", tmp_path / "b.bvh")
+    assert code == 2 and f"{tmp_path / 'half.bvh'}: joint 'UpperArm_L'" in err
+    assert not (tmp_path / "b.bvh").exists()
 
 
 def test_heading_option(capsys, tmp_path):
@@ -447,3 +467,124 @@ def test_track_warp_and_features_are_in_the_files_times(capsys, tmp_path):
     ta = (np.array([int(r[0]) for r in rows]) - origin) * 1e-9
     tb = np.array([float(r[1]) for r in rows]) - 1305031098.5
     assert abs(np.interp(2.0, ta, tb) - 2.5) < 0.1      # the feature pair pulled the warp
+
+
+# ----------------------------------------------------------------------------------------
+# outputs checked up front: never an input, never two in one file, nothing replaced unasked
+# ----------------------------------------------------------------------------------------
+def _one_line(err):
+    return len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_an_input_is_never_an_output_even_with_overwrite(capsys, tmp_path):
+    """`close IN -o IN --overwrite` replaced the clip it read (rc 0), as did a --features CSV
+    named as `align -o` and a pose track; now the check `path` has (one for both families):
+    one line, exit 2, the input's bytes unchanged."""
+    import os
+    import shutil
+
+    clip = tmp_path / "wcopy.bvh"
+    shutil.copy(walk(), clip)
+    before = clip.read_bytes()
+    feats = tmp_path / "f.csv"
+    feats.write_text("time_a,time_b\n1.0,1.1\n")
+    os.symlink(clip, tmp_path / "link.bvh")
+    os.link(clip, tmp_path / "hard.bvh")
+    cam = camera_window(tmp_path, 500, 600, "cam.txt")
+    cam_before = cam.read_bytes()
+    cases = [("close", clip, "-o", clip), ("blend", walk(), clip, "-o", clip),
+             ("close", clip, "-o", tmp_path / "link.bvh"),
+             ("close", clip, "-o", tmp_path / "hard.bvh"),
+             ("align", clip, walk(), "-o", feats, "--features", feats),
+             ("close", cam, "-o", cam), ("blend", cam, cam, "-o", cam)]
+    for argv in cases:
+        code, _, err = run(capsys, *argv, "--overwrite", "-q")
+        assert code == 2 and _one_line(err), (argv, err)
+        assert "is an input of this command" in err and str(argv[-1]) in err, err
+    assert clip.read_bytes() == before and cam.read_bytes() == cam_before
+    assert feats.read_text() == "time_a,time_b\n1.0,1.1\n"
+
+
+def test_pictures_are_not_replaced_without_overwrite(capsys, tmp_path):
+    """--plot/--render replaced an existing file without --overwrite (only -o was checked)."""
+    for name in ("keep.png", "keep2.png", "keep.gif"):
+        (tmp_path / name).write_text("precious\n")
+    out = tmp_path / "c.bvh"
+    cases = [("close", walk(), "-o", out, "--plot", tmp_path / "keep.png"),
+             ("distance", walk(), walk(), "--plot", tmp_path / "keep2.png"),
+             ("blend", walk(), walk(), "-o", out, "--render", tmp_path / "keep.gif")]
+    for argv in cases:
+        code, _, err = run(capsys, *argv, "-q")
+        assert code == 2 and _one_line(err), (argv, err)
+        assert f"{argv[-1]} exists (use --overwrite" in err
+    for name in ("keep.png", "keep2.png", "keep.gif"):
+        assert (tmp_path / name).read_text() == "precious\n"
+    assert not out.exists()  # refused before any work
+
+
+def test_two_outputs_in_one_file_are_refused(capsys, tmp_path):
+    """`-o X --render X`: the picture silently replaced the result (exit 0)."""
+    same = tmp_path / "same.png"
+    cases = [("blend", walk(), walk(), "-o", same, "--render", same),
+             ("align", walk(), walk(), "-o", tmp_path / "w.csv", "--render", same, "--plot",
+              tmp_path / "." / "same.png")]
+    for argv in cases:
+        code, _, err = run(capsys, *argv, "-q")
+        assert code == 2 and _one_line(err), (argv, err)
+        assert "are the same file" in err and "same.png" in err
+    assert not same.exists() and not (tmp_path / "w.csv").exists()
+
+
+def test_every_output_path_is_checked_before_any_work(capsys, tmp_path):
+    """A --plot into a missing folder was refused only after -o was written."""
+    out = tmp_path / "c2.bvh"
+    code, _, err = run(capsys, "close", walk(), "-o", out, "--plot",
+                       tmp_path / "nonexist" / "p.png", "-q")
+    assert code == 2 and _one_line(err) and "nonexist" in err and "does not exist" in err
+    assert not out.exists()
+    code, _, err = run(capsys, "close", walk(), "-o", out, "--plot", tmp_path / "p.xyz", "-q")
+    assert code == 2 and _one_line(err) and "p.xyz: expected one of .png" in err
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_blend_weight_outside_0_and_1_is_refused(capsys, tmp_path):
+    """--s 1.5 wrote a degenerate 2-frame clip with exit 0 (the README documents s from 0
+    to 1, no extrapolation)."""
+    cam = camera_window(tmp_path, 500, 600, "cam.txt")
+    out = tmp_path / "b.bvh"
+    for a, s in ((walk(), "1.5"), (walk(), "-0.25"), (walk(), "nan"), (cam, "2")):
+        code, _, err = run(capsys, "blend", a, a, "--s", s, "-o", out, "-q")
+        assert code == 2 and _one_line(err) and "--s must be between 0 (A) and 1 (B)" in err
+        assert not out.exists()
+    code, _, _ = run(capsys, "blend", walk(), walk(), "--s", "1", "--align", "none", "-o", out,
+                     "-q")
+    assert code == 0 and out.exists()  # the ends are allowed
+
+
+def test_feature_file_errors_name_the_file_and_line(capsys, tmp_path):
+    """A NaN said "expected (k,2) pairs ... got shape (1, 2)", times outside the clips
+    "features: times must lie within the clips" (no file)."""
+    bad = {"nan.csv": "time_a,time_b\n1.0,1.1\nnan,2.0\n",
+           "inf.csv": "1.0,inf\n",
+           "far.csv": "time_a,time_b\n1.0,1.1\n2.0,99\n",
+           "neg.csv": "# pairs\n-1.0,1.1\n"}
+    for name, text in bad.items():
+        (tmp_path / name).write_text(text)
+    dur = (read_bvh(walk()).n_frames - 1) * read_bvh(walk()).frame_time
+    cases = [("nan.csv", "nan.csv:3: a time is not a finite number"),
+             ("inf.csv", "inf.csv:1: a time is not a finite number"),
+             ("far.csv", f"far.csv:3: time 99 is outside B ({walk()}: 0..{dur:.10g} s)"),
+             ("neg.csv", f"neg.csv:2: time -1.0 is outside A ({walk()}: 0..")]
+    for name, msg in cases:
+        for sub in (("align", "-o", tmp_path / "w.csv"), ("distance",)):
+            code, _, err = run(capsys, sub[0], walk(), walk(), *sub[1:], "--features",
+                               tmp_path / name, "-q")
+            assert code == 2 and _one_line(err) and msg in err, (name, err)
+    assert not (tmp_path / "w.csv").exists()
+    # pose tracks: in the files' times
+    a = camera_window(tmp_path, 500, 600, "a.txt")
+    (tmp_path / "t.csv").write_text("1305031000.5,1305031104.0\n")
+    code, _, err = run(capsys, "align", a, a, "-o", tmp_path / "w.csv", "--features",
+                       tmp_path / "t.csv", "-q")
+    assert code == 2 and _one_line(err) and "t.csv:1: time 1305031000.5 is outside A" in err
+    assert not (tmp_path / "w.csv").exists()

@@ -432,3 +432,93 @@ def test_path_never_overwrites_its_input_nor_an_output_unasked(tmp_path, capsys)
     np.testing.assert_allclose(read_poses(out).T, T, atol=1e-9)
     assert main(["path", str(src), "-o", str(tmp_path / "no" / "o.txt"), "-q"]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_path_outputs_are_checked_before_any_work(tmp_path, capsys):
+    """`-o X --plot X`: the picture replaced the poses (exit 0); `--plot p.xyz` was an
+    internal error (exit 3) after the poses were written; an existing picture is kept."""
+    t, T = _track(10)
+    src = tmp_path / "in.txt"
+    write_poses(src, t, T, "tum")
+    same = tmp_path / "same.png"
+    assert main(["path", str(src), "-o", str(same), "--plot", str(same), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "-o" in err and "--plot" in err and "are the same file" in err
+    assert not same.exists()
+    out = tmp_path / "o.txt"
+    assert main(["path", str(src), "-o", str(out), "--plot", str(tmp_path / "p.xyz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "internal error" not in err
+    assert "p.xyz: expected one of .png, .svg, .pdf" in err
+    keep = tmp_path / "keep.png"
+    keep.write_text("precious\n")
+    assert main(["path", str(src), "-o", str(out), "--plot", str(keep)]) == 2
+    assert "keep.png exists (use --overwrite" in capsys.readouterr().err
+    assert main(["path", str(src), "-o", str(out), "--plot", str(tmp_path / "no" / "p.png")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert keep.read_text() == "precious\n" and not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.txt", "keep.png"]
+
+
+def _half_turn_file(tmp_path, name="half.txt"):
+    """Poses at t = 1, 2, 3 (lines 2-4) with a half turn about z between the first two."""
+    p = tmp_path / name
+    p.write_text("# t tx ty tz qx qy qz qw\n1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 1 0\n"
+                 "3.0 2 0 0 0 0 1 0\n")
+    return p
+
+
+@pytest.mark.parametrize("kind", ["interp", "bezier", "bspline"])
+def test_a_half_turn_between_keyframes_is_refused_naming_file_lines_and_times(tmp_path,
+                                                                               capsys, kind):
+    """Two keyframes 180 degrees apart: interp and bezier said "X: poses 0 and 1 differ..."
+    (X: an internal name), bspline accepted them (the turn's direction is arbitrary)."""
+    src = _half_turn_file(tmp_path)
+    out = tmp_path / "o.txt"
+    for group in ("so3xr3", "se3"):
+        assert main(["path", str(src), "-o", str(out), "--kind", kind, "--group", group]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "X:" not in err
+        assert (f"{src}: the keyframes at lines 2 and 3 (t = 1.0 and 2.0) differ by a rotation "
+                "of 180.0 degrees") in err
+    assert not out.exists()
+    track = read_poses(src)
+    with pytest.raises(ShellsplineError, match="poses 0 and 1 differ by a rotation of 180"):
+        build_curve(track.t, track.T, kind)
+
+
+def test_curve_errors_of_the_keyframes_name_the_file(tmp_path, capsys):
+    t, T = _track(10)
+    src = tmp_path / "in.txt"
+    write_poses(src, t, T, "tum")
+    assert main(["path", str(src), "-o", str(tmp_path / "o.txt"), "--bc", "periodic"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{src}: " in err and "needs the last pose equal" in err
+
+
+def test_extra_numbers_on_a_pose_line_are_refused_documented_extras_kept(tmp_path):
+    """A TUM line with a 9th number was read silently (a missing one was refused); KITTI's
+    and ours likewise. EuRoC's further columns (velocities, biases) stay documented and read,
+    a trailing comma in a CSV line stays accepted."""
+    cases = [("a.txt", "1 0 0 0 0 0 0 1\n2 1 0 0 0 0 0 1 7\n",
+              r"a\.txt:2: expected 8 numbers \(t tx ty tz qx qy qz qw\), got 9"),
+             ("k.txt", "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1 0 9\n",
+              r"k\.txt:2: expected 12 numbers \(a 3x4 matrix row by row\), got 13"),
+             ("c.csv", "t,tx,ty,tz,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,1,0,0,0,0,0,1,5\n",
+              r"c\.csv:3: expected 8 numbers \(t tx ty tz qx qy qz qw\), got 9")]
+    for name, text, match in cases:
+        (tmp_path / name).write_text(text)
+        with pytest.raises(ShellsplineError, match=match) as exc:
+            read_poses(tmp_path / name)
+        assert "\n" not in str(exc.value)
+    ok = tmp_path / "t.csv"
+    ok.write_text("t,tx,ty,tz,qx,qy,qz,qw\n0,0,0,0,0,0,0,1,\n1,1,0,0,0,0,0,1,\n")
+    assert read_poses(ok).t.tolist() == [0.0, 1.0]
+    e = tmp_path / "e.csv"
+    e.write_text("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],"
+                 "q_RS_y [],q_RS_z [],v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1]\n"
+                 "1403636579758555392,1,2,3,1,0,0,0,0.1,0.2,0.3\n"
+                 "1403636579763555584,4,5,6,1,0,0,0,0.1,0.2,0.3\n")
+    tr = read_poses(e)
+    assert tr.format == "euroc" and tr.T[:, :3, 3].tolist() == [[1, 2, 3], [4, 5, 6]]
+    assert tr.lines.tolist() == [2, 3]

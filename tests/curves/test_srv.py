@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from shellspline.curves.srv import (ProductCurve, blend, cumulative_product, reparametrize,
-                                    srv, srv_distance, srv_inverse)
+                                    srv, srv_distance, srv_inverse, warp_grid)
 from shellspline.errors import ShellsplineError
 from shellspline.groups import so3
 
@@ -147,6 +147,49 @@ def test_blend_with_warp_uses_curve1_o_phi():
     b = blend(c0, c1, 1.0, warp=phi)
     r = reparametrize(c1, phi, c0.t)
     np.testing.assert_allclose(b.R, r.R, atol=1e-11)
+
+
+def test_warp_grid_blends_the_curves_not_their_samples():
+    """On warp_grid (curve0's times, the warp's breakpoints, the times where the warp meets a
+    sample of curve1) both curves are single geodesics between samples, so the blend is the
+    SRV geodesic of the piecewise-geodesic curves: s = 0 is curve0 at its samples, s = 1 is
+    curve1 at all of its samples, and any s gives the same curve on any finer grid (oracle:
+    the blend on the grid plus 200 random times). On curve0's grid alone the steep end of
+    the warp skips samples of curve1 (control)."""
+    c0, c1 = random_curve(N=30, seed=3), random_curve(N=47, seed=4)
+    tw = np.linspace(c0.t[0], c0.t[-1], 9)        # breakpoints that are not curve0's times
+    pw = c1.t[0] + (c1.t[-1] - c1.t[0]) * ((tw - tw[0]) / (tw[-1] - tw[0])) ** 2.5
+    t, phi = warp_grid(c0.t, tw, pw, c1.t)
+    assert np.isin(c0.t, t).all() and np.isin(tw, t).all()
+    span = c1.t[-1] - c1.t[0]
+    hit = np.abs(phi[:, None] - c1.t[None, :]).argmin(axis=0)   # where the warp meets c1
+    assert np.abs(phi[hit] - c1.t).max() <= 1e-12 * span
+    extra = np.random.default_rng(5).uniform(c0.t[0], c0.t[-1], 200)
+    fine = np.union1d(t, extra)
+    on_t = np.searchsorted(fine, t)
+    assert np.array_equal(fine[on_t], t)
+
+    def on(grid, s):
+        return blend(reparametrize(c0, grid, grid), c1, s, warp=np.interp(grid, tw, pw))
+    for s in (0.0, 0.3, 0.7, 1.0):
+        b, bf = on(t, s), on(fine, s)
+        np.testing.assert_allclose(bf.R[on_t], b.R, atol=1e-11)
+        np.testing.assert_allclose(bf.X[on_t], b.X, atol=1e-11)
+    b0, b1 = on(t, 0.0), on(t, 1.0)
+    at0 = np.searchsorted(t, c0.t)
+    np.testing.assert_allclose(b0.R[at0], c0.R, atol=1e-12)
+    np.testing.assert_allclose(b0.X[at0], c0.X, atol=1e-12)
+    np.testing.assert_allclose(b1.R[hit], c1.R, atol=1e-11)
+    np.testing.assert_allclose(b1.X[hit], c1.X, atol=1e-11)
+    # control: sampled on curve0's times only, b o phi cuts the corners of curve1
+    coarse = blend(c0, c1, 1.0, warp=np.interp(c0.t, tw, pw))
+    assert np.abs(reparametrize(coarse, t, t).X - b1.X).max() > 1e-3
+    # the warp met more than once when it turns back; a bad warp is refused
+    t2, phi2 = warp_grid([0.0, 1.0], [0.0, 0.5, 1.0], [0.0, 1.0, 0.5], [0.0, 0.25, 0.75, 1.0])
+    assert t2.tolist() == [0.0, 0.125, 0.375, 0.5, 0.75, 1.0]
+    assert phi2.tolist() == [0.0, 0.25, 0.75, 1.0, 0.75, 0.5]
+    with pytest.raises(ShellsplineError, match="warp_t"):
+        warp_grid(c0.t, [0.0, 0.0], [0.0, 1.0], c1.t)
 
 
 def test_reparametrize_matches_slerp_and_identity():
