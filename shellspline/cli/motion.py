@@ -240,6 +240,24 @@ def _track_options(args, a):
     return L
 
 
+def _pictures_possible(args, a) -> None:
+    """Refuse, before any work, a picture the command cannot draw for this kind of input
+    (it was silently not drawn): ``--render`` draws stick figures of BVH clips only; for pose
+    tracks and mesh sequences ``--plot`` draws the alignment's warp (``align``, ``blend``
+    with ``--align dp``) or the seam gap (``close``), and ``distance`` has none to draw."""
+    kind = {"mesh": "mesh sequences", "poses": "pose tracks"}.get(_kind(a))
+    if kind is None:
+        return
+    cmd = args.motion_command
+    if getattr(args, "render", None):
+        raise ShellsplineError(f"--render draws stick figures of BVH clips; for {kind} give "
+                               "--plot or none")
+    if getattr(args, "plot", None) and (cmd == "distance" or
+                                        (cmd == "blend" and args.align == "none")):
+        what = "has no picture" if cmd == "distance" else "draws the warp of --align dp"
+        raise ShellsplineError(f"--plot: for {kind}, motion {cmd} {what}")
+
+
 def _read_pair(args):
     a, b = _read(args.a), _read(args.b)
     if _kind(a) != _kind(b):
@@ -256,6 +274,7 @@ def _read_pair(args):
                                    "need at least 2")
     if _kind(a) != "bvh" and getattr(args, "heading", None) is not None:
         raise ShellsplineError("--heading: BVH clips only")
+    _pictures_possible(args, a)
     if _kind(a) == "bvh":
         from ..animation import skeleton_mismatch
 
@@ -659,6 +678,7 @@ def _close(args) -> int:
     _check_outputs(args, args.out)
     say = _say(args)
     m = _read(args.a)
+    _pictures_possible(args, m)
     length = _track_options(args, m)
     if _is_track(m):
         return _close_track(args, m, length, say)

@@ -588,3 +588,29 @@ def test_feature_file_errors_name_the_file_and_line(capsys, tmp_path):
                        tmp_path / "t.csv", "-q")
     assert code == 2 and _one_line(err) and "t.csv:1: time 1305031000.5 is outside A" in err
     assert not (tmp_path / "w.csv").exists()
+
+
+def test_pictures_the_command_cannot_draw_for_tracks_are_refused_up_front(capsys, tmp_path):
+    """For pose tracks, `distance --plot`, `blend --align none --plot` and any `--render`
+    were silently not drawn (exit 0); they are refused before any work, nothing written."""
+    from shellspline.groups import se3, so3
+    from shellspline.io.posefiles import write_poses
+
+    t = np.linspace(0.0, 2.0, 21)
+    for name, w in (("a.txt", 0.3), ("b.txt", 0.35)):
+        T = se3.from_rt(so3.exp(np.c_[0 * t, w * t, 0 * t]), np.c_[np.cos(t), np.sin(t), t])
+        write_poses(tmp_path / name, t, T, "tum")
+    a, b, png = tmp_path / "a.txt", tmp_path / "b.txt", tmp_path / "p.png"
+    for argv, says in ((("distance", a, b, "--plot", png), "has no picture"),
+                       (("blend", a, b, "--align", "none", "-o", tmp_path / "o.txt",
+                         "--plot", png), "--align dp"),
+                       (("close", a, "-o", tmp_path / "c.txt", "--render", tmp_path / "r.gif"),
+                        "stick figures")):
+        code, out, err = run(capsys, *argv)
+        assert code == 2 and _one_line(err) and says in err and "pose tracks" in err
+        assert out == ""
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]
+    # what can be drawn still is: the warp of an alignment
+    if HAVE_MPL:
+        code, _, _ = run(capsys, "blend", a, b, "-o", tmp_path / "o.txt", "--plot", png, "-q")
+        assert code in (0, 1) and png.is_file()
