@@ -201,7 +201,9 @@ class SplineRows:
 
 
 def geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_prefix=""):
-    """LΘA weights ``(K+1, d)`` at the piecewise discrete geodesic through the keyframes."""
+    """LΘA weights ``(K+1, d)`` at the piecewise discrete geodesic through the keyframes, and
+    the geodesic solve's record (``report["reference_geodesic"]``: an unconverged solve gives
+    weights from its last iterates, and the run is not a success)."""
     from ..shells.geodesic import geodesic_interpolation
 
     n_seg = len(frames) - (0 if bc == "periodic" else 1)
@@ -216,7 +218,9 @@ def geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_p
                                        callback=lambda s, r: prog.advance(stage, s + 1, n_seg))
         if not g.success:
             prog.message(f"reference geodesic: {g.message} (weights from the current iterates)")
-    return lta_weights(g.V, T, mu=mu, lam=lam, eta=eta)
+    record = {"success": bool(g.success), "status": g.status, "message": g.message,
+              "resolution": stage_prefix.strip() or "full"}
+    return lta_weights(g.V, T, mu=mu, lam=lam, eta=eta), record
 
 
 @dataclass
@@ -242,6 +246,9 @@ class SplineTargets:
     tube_of : callable(int) -> (i,) float64 array, or None
         Tube weights of frame ``k``'s dihedral angles (:func:`tube_weights`); None without a
         fade.
+    reference : dict or None
+        With ``reference="geodesic"``: the record of its geodesic solve
+        (:func:`geodesic_weights`).
     """
 
     Zkey: np.ndarray
@@ -252,6 +259,7 @@ class SplineTargets:
     W_report: np.ndarray
     faded_edges: int = 0
     tube_of: Callable | None = None
+    reference: dict | None = None
 
 
 def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> SplineTargets:
@@ -282,6 +290,7 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
         clamp = AngleBand(Zkey[:, sT], sT, frames, K, periodic, Zkey=Zkey,
                           slices=T.descriptor_slices())
         ref = opts.reference
+        ref_record = None
         if not isinstance(ref, str) or ref == "constant":
             w_const = lta_weights(Vkey[0 if isinstance(ref, str) else ref], T, **par)
             W_spline, W_report = None, w_const
@@ -289,8 +298,9 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
             def W_of(k):
                 return w_const
         elif ref == "geodesic":
-            W_spline = W_report = geodesic_weights(Vkey, T, pinned, frames, K, bc, prog=prog,
-                                                   stage_prefix=stage_prefix, **par)
+            W_spline, ref_record = geodesic_weights(Vkey, T, pinned, frames, K, bc, prog=prog,
+                                                    stage_prefix=stage_prefix, **par)
+            W_report = W_spline
 
             def W_of(k):
                 return W_spline[k]
@@ -322,7 +332,8 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
         else:
             Z = clamp(lta_spline(Zkey, frames, K, bc=bc, weights=W_spline, spline=opts.spline))
     return SplineTargets(Zkey=Zkey, clamp=clamp, Z=Z, W_of=W_of, W_spline=W_spline,
-                         W_report=W_report, faded_edges=faded, tube_of=tube_of)
+                         W_report=W_report, faded_edges=faded, tube_of=tube_of,
+                         reference=ref_record)
 
 
 def _faded(W_of, fade, gap, depth, sT):

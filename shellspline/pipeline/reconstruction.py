@@ -667,12 +667,14 @@ def _blas_worker_init():
 def _bridge_one(task):
     """Bridge one seam ``(s, a, b)`` (the data in ``_WORKER["bridge"]``) and measure its
     window before and after: ``(s, BridgeResult or None, before, after)``."""
-    from .bridge import bridge_seam
+    from .bridge import BRIDGE_MAX_ITER, bridge_seam
 
     s, a, b = task
     T, frame_of, K, Z, W_of, pinned, gn_options, half, tube_of = _WORKER["bridge"]
     gn = GaussNewton(T, pinned=pinned, **gn_options)
-    br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of, half=half, tube_of=tube_of)
+    # a lower limit on the frames (the user's --max-iter) holds for their bridge too
+    br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of, half=half, tube_of=tube_of,
+                     max_iter=min(BRIDGE_MAX_ITER, gn.max_iter))
     if br is None:
         return s, None, None, None
     new = dict(zip(br.frames.tolist(), br.V))

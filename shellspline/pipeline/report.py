@@ -178,6 +178,10 @@ def convergence_problems(report: dict) -> list[str]:
     for name in ("geodesic", "nonlinear"):
         if name in report and not report[name]["success"]:
             out.append(f"{name} did not converge")
+    ref = report.get("reference_geodesic")
+    if ref and not ref["success"]:
+        # the weights came from an unconverged path: not the reference that was asked for
+        out.append("reference geodesic did not converge (weights from its last iterate)")
     if report.get("nonlinear", {}).get("start_returned"):
         # the output is not what was asked for: not a success, whatever the solve reached
         out.append("nonlinear result refused (more defects than its LΘA start, which was "

@@ -234,6 +234,8 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
     seq = StageResult(V=V, Z=Z, W=tg.W_report, frame_records=[results[k][1] for k in ks])
     seq.report["bending_fade"] = {"fade_angle": opts.fade_angle, "faded_edges": tg.faded_edges,
                                   "interior_edges": int(T.n_interior)}
+    if tg.reference is not None:
+        seq.report["reference_geodesic"] = tg.reference
     if opts.fixpoint:
         fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix,
                             fixpoint_log)
@@ -358,6 +360,8 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
     out = StageResult(V=coarse.V, report={"multires": multires})
     if "bending_fade" in coarse.report:
         multires["bending_fade"] = coarse.report["bending_fade"]
+    if "reference_geodesic" in coarse.report:
+        out.report["reference_geodesic"] = coarse.report["reference_geodesic"]
     if opts.method == "nonlinear" and not opts.fine:
         # the nonlinear spline on the coarse meshes (started from their LΘA spline),
         # prolonged like the LΘA result
@@ -377,6 +381,9 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
             _placed(V, Vkey, T, pinned, prob, opts), bc=bc)
         out.V, out.Z, out.W, out.frame_records = fine.V, fine.Z, fine.W, fine.frame_records
         out.report["bending_fade"] = fine.report.get("bending_fade")
+        if "reference_geodesic" in fine.report and \
+                out.report.get("reference_geodesic", {}).get("success", True):
+            out.report["reference_geodesic"] = fine.report["reference_geodesic"]
     else:
         out.frame_records = coarse.frame_records
         # energies where the spline was solved (full-resolution descriptors of every frame

@@ -149,3 +149,19 @@ def test_keep_rule_counts_a_pop_above_the_seam_bound_as_a_defect():
     assert not bridge_kept(SimpleNamespace(status="failed"), (2.7, d([0, 0, 0])),
                            (1.0, d([0, 0, 0])))
     assert bridge_kept(ok, (SEAM_POP + 0.01, d([0, 0, 0])), (SEAM_POP, d([0, 1, 0])))
+
+
+def test_a_user_iteration_limit_holds_for_the_bridges():
+    """`--max-iter 5`: the bridges took up to 13–35 iterations beyond the user's limit and
+    relabelled frames stopped at it as converged; now they stop at the same limit and say
+    so."""
+    import data_synth.stress as stress
+
+    d = stress.slivers()
+    res = ss.interpolate((d["V"], d["F"]), frames=list(d["frames"]), pinned=d.get("pinned"),
+                         coarse="none", gn_options={"max_iter": 5})
+    bridges = [r["bridge"] for r in res.report["frames"] if "bridge" in r]
+    assert bridges and all(b["iterations"] <= 5 for b in bridges)
+    gn = res.report["gauss_newton"]
+    assert gn["iterations_max"] <= 5
+    assert gn["converged"] < gn["frames"]

@@ -661,3 +661,26 @@ def test_a_linear_blend_through_a_half_turn_is_written_and_flagged_not_refused()
     q = res.report["quality"]
     assert q["collapsed_faces"] >= 12 and q["per_frame"]["collapsed"][5] == 12
     np.testing.assert_array_equal(res.V[5], np.zeros_like(V0) + V0 * [0, 0, 1])
+
+
+def test_reference_geodesic_status_is_recorded_and_decides_success(monkeypatch):
+    """`reference="geodesic"`: the reference path's solve was reported in one mid-run note
+    only; an unconverged one left a run that said it succeeded (exit 0). Its record is in
+    the report, and an unconverged reference is a convergence problem."""
+    from shellspline.pipeline.report import convergence_problems
+    from shellspline.shells import geodesic
+
+    V0, F = icosphere(1)
+    Vs = np.stack([V0, V0 * np.array([1.3, 1.0, 0.8]), V0 * np.array([0.9, 1.2, 1.0])])
+    res = ss.interpolate((Vs, F), frames=[0, 3, 6], reference="geodesic", eta=0.1)
+    ref = res.report["reference_geodesic"]
+    assert ref["success"] and ref["status"] == "converged"
+    assert "reference geodesic" not in " ".join(convergence_problems(res.report))
+    real = geodesic.geodesic_interpolation
+    monkeypatch.setattr(geodesic, "geodesic_interpolation",
+                        lambda *a, **kw: real(*a, **{**kw, "max_iter": 1}))
+    res = ss.interpolate((Vs, F), frames=[0, 3, 6], reference="geodesic", eta=0.1)
+    ref = res.report["reference_geodesic"]
+    assert not ref["success"] and ref["status"] == "limit"
+    assert any("reference geodesic did not converge" in p
+               for p in convergence_problems(res.report))
