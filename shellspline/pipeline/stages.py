@@ -146,6 +146,11 @@ def geodesic_stage(prob, opts, prog) -> StageResult:
                                    progress=progress, init=start.V, **opts.solver_options)
     if not g.success:
         prog.message(f"geodesic: {g.message}")
+    last = int(frames[-1])
+    if not opts.periodic and prob.K > last:
+        # geodesics join keyframes only: the frames after the last one (which
+        # geodesic_interpolation holds there) are the LΘA start's extrapolation, as announced
+        g.V[last + 1:] = start.V[last + 1:]
     rec = {"success": bool(g.success), "nit": int(g.nit), "message": g.message,
            "segment_energies": [float(e) for e in g.segment_energies], "start": "lta",
            "factorizations": int(g.factorizations),

@@ -684,3 +684,17 @@ def test_reference_geodesic_status_is_recorded_and_decides_success(monkeypatch):
     assert not ref["success"] and ref["status"] == "limit"
     assert any("reference geodesic did not converge" in p
                for p in convergence_problems(res.report))
+
+
+def test_geodesic_method_extrapolates_frames_after_the_last_keyframe():
+    """`--method geodesic --K` past the last keyframe said it extrapolates but held those
+    frames at the keyframe (steps 0, then a pop); they are the LΘA start's extrapolation,
+    which keeps moving at the sequence's pace."""
+    V0, F = icosphere(1)
+    Vs = np.stack([V0, V0 * np.array([1.3, 1.0, 0.8])])
+    res = ss.interpolate((Vs, F), frames=[0, 3], K=5, method="geodesic", eta=0.1)
+    step = np.abs(np.diff(res.V, axis=0)).max(axis=(1, 2))
+    assert step.min() > 0.5 * step.max()
+    np.testing.assert_array_equal(res.V[[0, 3]], Vs)
+    lta = ss.interpolate((Vs, F), frames=[0, 3], K=5, eta=0.1)
+    np.testing.assert_allclose(res.V[4:], lta.V[4:], atol=1e-6)
