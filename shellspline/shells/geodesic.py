@@ -672,7 +672,9 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
                 res = GeodesicResult(V=np.concatenate([Vkey[ja][None], X0, Vkey[jb][None]]),
                                      status="limit", energies=[steps * E0],
                                      message="time limit reached before the segment started "
-                                             "(linear blend)")
+                                             "(its initial path kept: " +
+                                             ("the per-vertex blend)" if init is None else
+                                              "the given start)"))
             else:
                 res = solvers[steps].solve(
                     Vkey[ja], Vkey[jb], X0, tol=tol, max_iter=max_iter, deadline=deadline,
