@@ -213,9 +213,13 @@ def geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_p
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            g = geodesic_interpolation(Vkey, frames, K, T, mu=mu, lam=lam, eta=eta,
-                                       pinned=pinned, bc=bc,
-                                       callback=lambda s, r: prog.advance(stage, s + 1, n_seg))
+            # one line per Newton step in logs, as for method="geodesic"
+            g = geodesic_interpolation(
+                Vkey, frames, K, T, mu=mu, lam=lam, eta=eta, pinned=pinned, bc=bc,
+                callback=lambda s, r: prog.advance(stage, s + 1, n_seg),
+                progress=lambda s, it, e, gn: prog.advance(
+                    stage, s, n_seg, text=f"segment {s + 1}/{n_seg}  it {it:3d}  E {e:.6g}  "
+                                          f"|g| {gn:.2e}"))
         if not g.success:
             prog.message(f"reference geodesic: {g.message} (weights from the current iterates)")
     record = {"success": bool(g.success), "status": g.status, "message": g.message,
