@@ -271,8 +271,10 @@ class _Entry:
         merged.update(own)
         self.merged = merged
         params = {k: merged[k] for k in INTERPOLATION_KEYS}
-        if params["max_time"] is not None and params["method"] != "nonlinear":
-            raise job_error(f"{where} key 'max_time'", "applies to method = 'nonlinear' only")
+        if params["max_time"] is not None and params["method"] not in ("nonlinear",
+                                                                       "geodesic"):
+            raise job_error(f"{where} key 'max_time'",
+                            "applies to method = 'nonlinear' or 'geodesic' only")
         self.common = dict(params=params, formats=merged["formats"], render=merged["render"],
                            plots=merged["plots"], delay=merged["delay"])
         name = e.get("name")
@@ -297,11 +299,23 @@ class _Entry:
             out[key], out[f"{key}_path"] = self._value_or_file(key, v, origin)
         return out
 
+    def check_frames_fit(self, name: str, fp: dict, n_keyframes: int) -> None:
+        """Explicit ``frames`` (not a file) must give one frame per keyframe."""
+        frames = fp.get("frames")
+        if frames is None or len(frames) == n_keyframes:
+            return
+        w = self.where if "frames" in self.own else \
+            self.where.split(": ")[0] + ": [defaults]"
+        raise job_error(f"{w} key 'frames'", f"sequence '{name}': {len(frames)} frames "
+                                             f"{list(frames)} for {n_keyframes} keyframes "
+                                             "(one frame per keyframe)")
+
     def _value_or_file(self, key, v, origin):
         if not isinstance(v, str):
             return v, None
         if key == "frames" and re.fullmatch(r"[\s,0-9]+", v) and re.search(r"\d", v):
-            return [int(t) for t in v.replace(",", " ").split()], None
+            w = self.where if origin == "own" else self.where.split(": ")[0] + ": [defaults]"
+            return check_param(w, "frames", [int(t) for t in v.replace(",", " ").split()]), None
         p = resolve(self.base, v)
         if not p.is_file():
             w = self.where if origin == "own" else self.where.split(": ")[0] + ": [defaults]"
@@ -338,6 +352,8 @@ class _Entry:
         pf = d / self.merged["pinned_file"] if self.merged["pinned_file"] else None
         fp = self.frames_pinned(str(ff) if ff is not None and ff.is_file() else None,
                                 str(pf) if pf is not None and pf.is_file() else None)
+        if len(files) >= 2:  # fewer: the sequence fails with its own reason
+            self.check_frames_fit(sname, fp, len(files))
         return SequenceSpec(name=sname, out=str(self.output / sname), source="files",
                             keyframes=[str(p) for p in files], directory=str(d),
                             keyframe_pattern=kfp, **fp, **self.common)
@@ -359,8 +375,10 @@ class _Entry:
         if missing:
             raise job_error(f"{self.where} key 'keyframes'",
                             f"file '{missing[0]}' does not exist")
+        fp = self.frames_pinned()
+        self.check_frames_fit(name, fp, len(paths))
         return [SequenceSpec(name=name, out=str(self.output / name), source="files",
-                             keyframes=paths, **self.frames_pinned(), **self.common)]
+                             keyframes=paths, **fp, **self.common)]
 
     def from_synth(self) -> list[SequenceSpec]:
         """The spec of synthetic keyframes (the generator runs here once, to validate)."""
@@ -382,6 +400,7 @@ class _Entry:
         src_pinned = None if data.get("pinned") is None else [int(x) for x in data["pinned"]]
         fp = self.frames_pinned(src_frames=[int(x) for x in data["frames"]],
                                 src_pinned=src_pinned)
+        self.check_frames_fit(name, fp, int(data["V"].shape[0]))
         return [SequenceSpec(name=name, out=str(self.output / name), source="synth",
                              synth={"name": gen, "vertices": vertices, "params": sp}, **fp,
                              **self.common)]

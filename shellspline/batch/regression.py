@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..errors import ShellsplineError
 from .manifest import now, write_json_atomic
 from .schema import is_num, job_error, reject_unknown, resolve, table
 
@@ -109,7 +108,7 @@ def read_metrics(out: Path) -> dict | None:
         return None
 
 
-def write_expected(job, metrics: dict, seqs: list) -> None:
+def write_expected(job, metrics: dict, seqs: list) -> str | None:
     """Write this run's metrics as the job's expected values (every sequence must be done).
 
     Parameters
@@ -120,15 +119,23 @@ def write_expected(job, metrics: dict, seqs: list) -> None:
         ``{sequence: metrics dict or None}``.
     seqs : list of dict
         The outcomes of the run.
+
+    Returns
+    -------
+    str or None
+        None when written; else why nothing was written (a sequence did not finish), and
+        the expected-values file is left as it was.
     """
     bad = [o["name"] for o in seqs if o["status"] not in ("done", "skipped")]
     if bad:
-        raise ShellsplineError(f"not writing expected values: sequences {bad} did not finish")
+        return (f"expected values not written to {job.regression['expected_path']}: "
+                f"sequence{'s' if len(bad) > 1 else ''} {', '.join(bad)} did not finish")
     data = {"job": job.name, "written": now(),
             "sequences": {name: {k: m[k] for k in REGRESSION_METRICS if k in m}
                           for name, m in metrics.items() if m is not None}}
     write_json_atomic(job.regression["expected_path"], data)
     job.regression["expected"] = data["sequences"]
+    return None
 
 
 def compare_regression(regression: dict, metrics: dict) -> dict:
@@ -196,8 +203,13 @@ def _check(ev, av, tol) -> dict:
             "bound": float(bound.ravel()[worst]) if bound.size else 0.0,
             "expected": float(e.ravel()[worst]) if e.size else None,
             "actual": float(a.ravel()[worst]) if a.size else None,
-            "note": "" if ok else (f"element {np.unravel_index(worst, e.shape)}"
+            "note": "" if ok else (f"element {_index(np.unravel_index(worst, e.shape))}"
                                    if e.ndim else "")}
+
+
+def _index(idx) -> str:
+    """A numpy index tuple as plain ints: ``(3, 0)``, ``(3,)``."""
+    return str(tuple(int(i) for i in idx))
 
 
 def regression_table(regression: dict) -> str:

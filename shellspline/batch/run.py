@@ -49,7 +49,8 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
         (``name``, ``event``: a pipeline stage_end/message event), ``tick``, ``message``.
     write_expected : bool
         With a ``[regression]`` whose ``expected`` is a file: rewrite that file from this
-        run's metrics (when every sequence succeeded) instead of comparing.
+        run's metrics (when every sequence succeeded) instead of comparing; otherwise
+        nothing is written, ``summary.errors`` says why and the exit code is 1.
 
     Returns
     -------
@@ -91,7 +92,8 @@ def run_batch(job: Job, workers: int | None = None, scheduler: str | None = None
                                interrupt_exit=stop or EXIT_INTERRUPTED, executor=ex.name,
                                workers=ex.workers, scheduler=scheduler)
         if stop is None:
-            summary.regression = _regression(job, summary.sequences, write_expected)
+            summary.regression = _regression(job, summary.sequences, write_expected,
+                                             summary.errors)
             _job_plots(job, summary)
         summary.seconds = time.perf_counter() - t0
         _finish(summary, root)
@@ -228,14 +230,20 @@ def _collect(job: Job, outcomes: dict, todo=(), run_id: str = "") -> list:
     return out
 
 
-def _regression(job: Job, seqs: list, write: bool) -> dict | None:
-    """The regression check (after writing the expected values when ``write``)."""
+def _regression(job: Job, seqs: list, write: bool, errors: list) -> dict | None:
+    """The regression check (after writing the expected values when ``write``). When a
+    sequence did not finish, nothing is written, the check is skipped and ``errors`` says
+    so (exit code 1)."""
     if job.regression is None:
         return None
     metrics = {o["name"]: read_metrics(Path(o["out"])) for o in seqs
                if o["status"] in ("done", "skipped")}
     if write:
-        write_expected(job, metrics, seqs)
+        why = write_expected(job, metrics, seqs)
+        if why is not None:
+            errors.append(why)
+            log.warning("%s", why)
+            return None
     return compare_regression(job.regression, metrics)
 
 

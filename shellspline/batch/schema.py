@@ -71,6 +71,8 @@ def _check_frames(w, v):
         raise job_error(w, f"must be a list of non-negative integers or a file, got {v!r}")
     if any(b <= a for a, b in zip(v, v[1:])):
         raise job_error(w, f"must be strictly increasing, got {v}")
+    if v[0] != 0:
+        raise job_error(w, f"must start at 0 (the first keyframe is frame 0), got {v}")
     return [int(x) for x in v]
 
 

@@ -287,7 +287,7 @@ class _Task:
         p = spec.params
         gn_options = {} if p["max_iter"] is None else {"max_iter": p["max_iter"]}
         solver_options = {}
-        if p["method"] == "nonlinear":
+        if p["method"] in ("nonlinear", "geodesic"):  # as `shellspline interpolate`
             solver_options["max_time_s"] = 600.0 if p["max_time"] is None else p["max_time"]
 
         def progress(ev):

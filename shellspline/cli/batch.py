@@ -115,7 +115,8 @@ def _batch(args) -> int:
         bar.close()
     if not args.quiet or summary.exit_code:
         print(summary.table(), file=sys.stderr)
-    if args.write_expected and job.regression is not None:
+    if args.write_expected and job.regression is not None and not summary.interrupted and \
+            summary.regression is not None:   # (not written when a sequence failed)
         print(f"wrote expected values to {job.regression['expected_path']}", file=sys.stderr)
     if summary.interrupted:
         print("shellspline: interrupted; completed sequences are kept (re-run the same command "

@@ -103,6 +103,16 @@ BAD_JOBS = [
      "key 'keyframes': file"),
     ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n[regression]\n'
      'expected = {a = {half_axis = 1}}\n', "unknown metric 'half_axis'"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     'frames = [2, 6, 12]\n', "key 'frames': must start at 0"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     'frames = "2 6 12"\n', "#1 key 'frames': must start at 0"),
+    ('[job]\noutput = "o"\n[defaults]\nframes = [1, 2]\n[[sequences]]\nname = "a"\n'
+     'synth = "ellipsoids"\n', "[defaults] key 'frames': must start at 0"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     'frames = [0, 10]\n', "key 'frames': sequence 'a': 2 frames [0, 10] for 3 keyframes"),
+    ('[job]\noutput = "o"\n[[sequences]]\nname = "a"\nsynth = "ellipsoids"\n'
+     'method = "linear"\nmax_time = 30\n', "key 'max_time'"),
 ]
 
 
@@ -123,7 +133,8 @@ def test_overrides_and_precedence(tmp_path):
                        'bc = "natural"\n'
                        '[[sequences]]\nglob = "seqs/*"\nname = "d_{dir}"\nmethod = "linear"\n'
                        '[[sequences]]\nname = "x"\nkeyframes = ["seqs/ellipsoids_00/pose_00.obj",'
-                       ' "seqs/ellipsoids_00/pose_01.obj"]\nbc = "periodic"\nK = 9\n')
+                       ' "seqs/ellipsoids_00/pose_01.obj", "seqs/ellipsoids_00/pose_02.obj"]\n'
+                       'bc = "periodic"\nK = 9\n')
     job = ss.load_job(p)
     s = {q.name: q for q in job.sequences}
     assert sorted(s) == ["d_ellipsoids_00", "d_ellipsoids_01", "x"]
@@ -651,3 +662,76 @@ def test_reference_key_takes_what_the_cli_takes(tmp_path):
                        'reference = "geodesics"\n')
     with pytest.raises(ValueError, match="key 'reference'.*'geodesic'"):
         ss.load_job(p)
+
+
+# ------------------------------------------------------------------------------------------
+# Audit fixes: --write-expected with a failed sequence, geodesic max_time, static frames
+# checks, plain-int regression notes
+# ------------------------------------------------------------------------------------------
+def test_write_expected_with_a_failed_sequence_still_reports(tmp_path, capsys):
+    p = _job(tmp_path, '[job]\nname = "t"\noutput = "out"\nworkers = 2\n\n'
+                       '[defaults]\nvertices = 150\nmethod = "lta"\n\n'
+                       '[[sequences]]\nname = "good"\nsynth = "ellipsoids"\n\n'
+                       '[[sequences]]\nname = "broken"\nsynth = "ellipsoids"\n'
+                       'frames = [0, 6, 12]\nK = 3\n\n'
+                       '[regression]\nexpected = "expected.json"\n')
+    rc, err = _cli(capsys, p, "--write-expected", "-q")
+    assert rc == 1, err
+    out = tmp_path / "out"
+    s = _summary(out)
+    assert _status(out) == {"good": "done", "broken": "failed"}
+    broken = [o for o in s["sequences"] if o["name"] == "broken"][0]
+    assert broken["reason"]
+    assert s["regression"] is None and s["exit_code"] == 1
+    assert any("expected values not written" in e and "broken" in e for e in s["errors"])
+    assert not (tmp_path / "expected.json").exists()
+    # the table (with the failure's reason) and the note were printed
+    assert "broken" in err and broken["reason"][:40] in err
+    assert "expected values not written" in err
+    assert "wrote expected values" not in err
+
+
+def test_geodesic_takes_max_time_as_interpolate_does(tmp_path, monkeypatch):
+    p = _synth_job(tmp_path, ["g"], defaults='method = "geodesic"\nmax_time = 30\n')
+    job = batch.load_job(p)
+    spec = job.sequences[0]
+    assert spec.params["method"] == "geodesic" and spec.params["max_time"] == 30.0
+    seen = {}
+
+    def fake_interpolate(*args, **kw):
+        seen.update(kw)
+        raise RuntimeError("stop here")
+
+    import shellspline.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "interpolate", fake_interpolate)
+    out = run_sequence(spec, "k")
+    assert out["status"] == "failed" and "stop here" in out["reason"]
+    assert seen["method"] == "geodesic"
+    assert seen["solver_options"]["max_time_s"] == 30.0
+
+
+def test_frames_not_fitting_explicit_keyframes_is_exit_2(tmp_path, capsys):
+    tet = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    for i in range(3):
+        (tmp_path / f"k{i}.obj").write_text(tet)
+    p = _job(tmp_path, '[job]\noutput = "o"\n[[sequences]]\nname = "three"\n'
+                       'keyframes = ["k0.obj", "k1.obj", "k2.obj"]\nframes = [0, 10]\n')
+    rc, err = _cli(capsys, p)
+    assert rc == 2
+    assert err.count("\n") == 1 and str(p) in err
+    assert "[[sequences]] #1 key 'frames'" in err and "sequence 'three'" in err
+    assert "3 keyframes" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_regression_note_names_the_element_in_plain_ints():
+    exp = [[1.0, 1.0, 1.0]] * 5
+    got = [list(r) for r in exp]
+    got[3][0] = 2.0
+    reg = {"expected": {"s": {"half_axes": exp}},
+           "tolerances": {"half_axes": {"rtol": 0.0, "atol": 1e-6, "mode": "close"}}}
+    r = batch.compare_regression(reg, {"s": {"half_axes": got}})
+    assert r["checks"][0]["note"] == "element (3, 0)"
+    table = batch.regression_table(r)
+    assert "REGRESSION (element (3, 0))" in table and "np." not in table
