@@ -25,7 +25,8 @@ import signal
 import threading
 import time
 
-__all__ = ["Interrupted", "interrupt_exit_code", "stop_signals_unwind", "start_method",
+__all__ = ["Interrupted", "interrupt_exit_code", "stop_signals_unwind", "stop_signals_deferred",
+           "start_method",
            "process_pool", "stop_processes", "die_with_parent", "parent_alive", "set_pdeathsig"]
 
 #: how often a worker's watchdog looks for its parent (seconds): the delay between a parent's
@@ -91,6 +92,71 @@ def stop_signals_unwind():
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+
+
+def _set_handler(signum: int, handler) -> None:
+    # signal.signal runs the pending Python handlers first and, when one raises, does not
+    # set the new handler: set it anyway before the exception goes on
+    try:
+        signal.signal(signum, handler)
+    except BaseException:
+        signal.signal(signum, handler)
+        raise
+
+
+@contextlib.contextmanager
+def stop_signals_deferred():
+    """Inside the block, SIGINT and SIGTERM are held and acted upon when the block is left.
+
+    For the code that forks worker processes: a stop signal handled while the parent runs
+    its after-fork hooks (``logging``'s ``_releaseLock``, ``os.register_at_fork``) raises its
+    exception where Python ignores it (``Exception ignored in: ...``), so the run went on as
+    if there had been no Ctrl-C. Here the signals are blocked in this thread (a forked child
+    inherits the mask; the pool worker unblocks them once its own handlers are set) and
+    their Python handlers only record them (a signal another thread received); when the
+    block is left the handlers are restored and a recorded signal is handled then, by its
+    own handler (:class:`Interrupted` raised at a safe point). Handlers ``SIG_IGN`` and
+    ``SIG_DFL`` are left as they are (still blocked until the block ends). Outside the main
+    thread the block runs unchanged.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+
+    def record(signum, frame):
+        pending.append(signum)
+
+    old = {}
+    try:
+        for s in _STOP_SIGNALS:
+            h = signal.getsignal(s)
+            if callable(h):
+                _set_handler(s, record)
+                old[s] = h
+        mask = (signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+                if hasattr(signal, "pthread_sigmask") else None)
+        try:
+            yield
+        finally:
+            if mask is not None:  # a pending signal is delivered here, to ``record``
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+    finally:
+        error = None
+        for s, h in old.items():
+            try:
+                _set_handler(s, h)
+            except BaseException as exc:  # a new signal, handled by a restored handler
+                error = error or exc
+        if error is not None:
+            raise error
+    if pending:
+        signum = pending[0]
+        handler = old.get(signum)
+        if callable(handler):
+            handler(signum, None)
+        else:  # pragma: no cover - recorded only by a callable handler's replacement
+            raise Interrupted(signum)
 
 
 def start_method() -> str:
@@ -213,21 +279,62 @@ def process_pool(workers: int, initializer=None, initargs=(), method: str | None
     SIGTERM, and dies with the parent (:func:`die_with_parent`, SIGKILL). Leaving the block
     normally waits for the pool; leaving it by an exception (Ctrl-C, :class:`Interrupted`, an
     error) cancels pending tasks and terminates the workers at once (killing them after
-    :data:`TERMINATE_GRACE_S`), so a stop never waits for running tasks.
+    :data:`TERMINATE_GRACE_S`), so a stop never waits for running tasks. Workers are forked
+    in ``submit``, with SIGINT and SIGTERM deferred (:func:`stop_signals_deferred`): a stop
+    arriving meanwhile is raised when ``submit`` returns, never lost in an after-fork hook.
     """
-    from concurrent.futures import ProcessPoolExecutor
-
     method = method or start_method()
     pdeathsig = threading.current_thread() is threading.main_thread()
-    ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method),
-                             initializer=_pool_worker_init,
-                             initargs=(os.getpid(), pdeathsig, initializer, tuple(initargs)))
+    with stop_signals_deferred():
+        ex = _Pool(max_workers=workers, mp_context=mp.get_context(method),
+                   initializer=_pool_worker_init,
+                   initargs=(os.getpid(), pdeathsig, initializer, tuple(initargs)))
     try:
         yield ex
     except BaseException:
-        # the executor's own shutdown would wait for the running tasks: stop the workers
-        procs = list((getattr(ex, "_processes", None) or {}).values())
-        ex.shutdown(wait=False, cancel_futures=True)
-        stop_processes(procs)
+        _stop_pool(ex)
         raise
     ex.shutdown(wait=True)
+
+
+def _pool_class():
+    from concurrent.futures import ProcessPoolExecutor
+
+    class Pool(ProcessPoolExecutor):
+        """Workers are forked (started) in ``submit``: stop signals are deferred meanwhile
+        (:func:`stop_signals_deferred`)."""
+
+        def submit(self, fn, /, *args, **kwargs):
+            with stop_signals_deferred():
+                return super().submit(fn, *args, **kwargs)
+
+    return Pool
+
+
+def _Pool(**kwargs):
+    global _POOL
+    if _POOL is None:
+        _POOL = _pool_class()
+    return _POOL(**kwargs)
+
+
+_POOL = None
+
+
+def _stop_pool(ex) -> None:
+    """Stop a pool at once and quietly: pending tasks cancelled, workers terminated (the
+    executor's own shutdown would wait for the running tasks), its management thread
+    ended and forgotten (else ``concurrent.futures`` wakes it at exit through a pipe the
+    thread may have closed: ``OSError: [Errno 9] Bad file descriptor``)."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    manager = getattr(ex, "_executor_manager_thread", None)
+    with contextlib.suppress(OSError, ValueError, RuntimeError):
+        ex.shutdown(wait=False, cancel_futures=True)
+    stop_processes(procs)
+    if manager is not None:
+        manager.join(TERMINATE_GRACE_S + 5.0)
+        if not manager.is_alive():
+            with contextlib.suppress(Exception):
+                from concurrent.futures import process as cfp
+
+                cfp._threads_wakeups.pop(manager, None)

@@ -318,6 +318,9 @@ def test_stop_signals_stop_batch(tmp_path, sig, group, executor):
         took = time.monotonic() - t0
         assert proc.returncode == 128 + sig, err
         assert took < STOP_S, took
+        # one line, the command's: worker processes (Dask's are spawned children that import
+        # the command's script) never run its start-up interrupt guard
+        assert err.count("shellspline: interrupted") <= 1, err
         # with Dask, multiprocessing's resource tracker ends when the parent's pipe closes,
         # so just after the parent
         grace = 1.0 if executor == "dask" else 0.0

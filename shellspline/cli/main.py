@@ -21,7 +21,7 @@ from ..errors import ShellsplineError
 from ..pipeline.options import (AUTO_COARSE_ABOVE, AUTO_COARSE_VERTICES, AUTO_NONLINEAR_ABOVE,
                                 DEFAULT_SPLINE, DEFAULT_TRANSFER, SPLINES, TRANSFERS)
 from ..version import __version__
-from .startup import EXIT_INTERRUPTED, INTERRUPTED
+from .startup import EXIT_INTERRUPTED, INTERRUPTED, forget_outputs, interrupted_line
 from .startup import release as release_startup_guard
 
 __all__ = ["main"]
@@ -584,6 +584,7 @@ def main(argv=None) -> int:
         print(INTERRUPTED, file=sys.stderr)
         return EXIT_INTERRUPTED
     _notes_seen.clear()
+    forget_outputs()
     if args.version:
 
         print(__version__)
@@ -609,7 +610,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as exc:
-        print(INTERRUPTED, file=sys.stderr)
+        print(interrupted_line(), file=sys.stderr)  # says which outputs were written
         return interrupt_exit_code(exc)
     except Exception as exc:  # not the input: a bug, never passed off as bad input
         return _internal_error(exc)

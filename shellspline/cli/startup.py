@@ -17,12 +17,14 @@ import signal
 import sys
 from pathlib import Path
 
-__all__ = ["INTERRUPTED", "EXIT_INTERRUPTED", "is_command_line", "guard", "release"]
+__all__ = ["INTERRUPTED", "EXIT_INTERRUPTED", "is_command_line", "guard", "release",
+           "output_written", "interrupted_line", "forget_outputs"]
 
 INTERRUPTED = "shellspline: interrupted; no output was written"
 """The line an interrupt prints (the same in :func:`shellspline.cli.main.main`)."""
 EXIT_INTERRUPTED = 130
 """128 + SIGINT."""
+_written: list[str] = []  # files a command finished before an interrupt (output_written)
 _SCRIPT_NAMES = ("shellspline", "shellspline.exe", "shellspline-script.py")
 _OPTIONS_WITH_VALUE = ("-X", "-W", "-Q")
 
@@ -45,6 +47,42 @@ def is_command_line() -> bool:
     return False
 
 
+def output_written(path) -> None:
+    """Record that the running command has finished writing ``path`` (a final output): an
+    interrupt then reports it instead of :data:`INTERRUPTED` (:func:`interrupted_line`)."""
+    _written.append(str(path))
+
+
+def forget_outputs() -> None:
+    """Forget the outputs recorded by :func:`output_written` (a new command starts)."""
+    _written.clear()
+
+
+def interrupted_line() -> str:
+    """The line an interrupt prints: :data:`INTERRUPTED`, or, when the command had already
+    written some of its outputs (:func:`output_written`), which ones."""
+    if not _written:
+        return INTERRUPTED
+    return ("shellspline: interrupted; written before the interrupt: " + ", ".join(_written)
+            + "; the other outputs were not written")
+
+
+def _in_worker_process() -> bool:
+    """Whether this process is a ``multiprocessing`` child (a spawned pool or Dask worker
+    imports the package with the parent's ``sys.argv``): never the command line."""
+    if "--multiprocessing-fork" in getattr(sys, "orig_argv", ()):
+        return True
+    mp = sys.modules.get("multiprocessing")  # imported already in a child; not imported here
+    if mp is None:
+        return False
+    try:
+        if mp.parent_process() is not None:
+            return True
+        return bool(getattr(mp.current_process(), "_inheriting", False))
+    except Exception:  # pragma: no cover - defensive
+        return False
+
+
 def _interrupted(signum, frame) -> None:  # pragma: no cover - ends the process
     try:
         sys.stderr.write(INTERRUPTED + "\n")
@@ -59,8 +97,10 @@ def guard() -> None:
     """On the command line, make SIGINT end the start-up with one line and exit 130.
 
     Only where SIGINT has Python's default handler (a background job that ignores it keeps
-    ignoring it) and in the main thread; elsewhere, and for any other program, nothing."""
-    if not is_command_line():
+    ignoring it) and in the main thread; elsewhere, for any other program, and in a
+    ``multiprocessing`` child (a spawned worker of the command: a Dask worker is stopped
+    by its parent, and must not print the command's line), nothing."""
+    if not is_command_line() or _in_worker_process():
         return
     try:
         if signal.getsignal(signal.SIGINT) is signal.default_int_handler:

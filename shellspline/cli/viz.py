@@ -6,6 +6,7 @@ import math
 import sys
 
 from ..errors import ShellsplineError
+from .startup import output_written
 
 _KEYS = """keys in the window:
   space        play / pause (also the button left of the slider)
@@ -154,14 +155,17 @@ def _render(args) -> int:
             out = viz.render_animation(seq, path, fps=args.fps, frames=frames,
                                        window_size=args.size or (640, 480), view=args.view,
                                        annotate=annotate, up=args.up, camera_path=camera)
+            output_written(out)  # an interrupt then says it was written
             _say(args, f"wrote {out}")
     if args.strip:
         out = viz.render_strip(seq, args.strip, frames=frames, columns=args.columns,
                                window_size=args.size or (240, 240), view=args.view,
                                annotate=annotate, up=args.up, camera_path=camera)
+        output_written(out)
         _say(args, f"wrote {out}")
     if args.glb:
         out = viz.export_glb(seq, args.glb, fps=args.fps, frames=frames, up=args.up)
+        output_written(out)
         _say(args, f"wrote {out}")
     return 0
 
