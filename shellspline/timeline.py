@@ -195,7 +195,14 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
                 frames = np.round(np.linspace(0, K, J)).astype(np.int64)
             if len(np.unique(frames)) != J:
                 raise ShellsplineError(f"`K`={K} is too small for {J} keyframes")
-    frames = np.asarray(frames)
+    try:
+        frames = np.asarray(frames)
+    except (TypeError, ValueError):
+        raise ShellsplineError(f"`frames` must be integer frame indices, got {frames!r}") from None
+    if frames.dtype == bool or not (np.issubdtype(frames.dtype, np.integer)
+                                    or np.issubdtype(frames.dtype, np.floating)):
+        raise ShellsplineError(f"`frames` must be integer frame indices, got "
+                               f"{frames.ravel()[:20].tolist()} (dtype {frames.dtype})")
     if frames.ndim != 1 or len(frames) != J:
         raise ShellsplineError(f"`frames` must have one entry per keyframe ({J}), got "
                                f"{frames.tolist()}")
@@ -223,6 +230,9 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
 
 
 def _bounded_K(K) -> int:
+    if isinstance(K, (bool, np.bool_)) or not isinstance(K, numbers.Real) or \
+            not np.isfinite(K) or float(K) != int(K):
+        raise ShellsplineError(f"`K` must be an integer (the last frame), got {K!r}")
     K = int(K)
     if K < 1 or K > MAX_FRAMES:
         raise ShellsplineError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
@@ -288,13 +298,22 @@ def linear_blend(Vkey, frames, K: int, bc: str = "natural"):
     >>> linear_blend([[0.0], [1.0]], [0, 4], 4)[:, 0].tolist()
     [0.0, 0.25, 0.5, 0.75, 1.0]
     """
-    Vkey = np.asarray(Vkey, dtype=np.float64)
-    j0, j1, t = keyframe_bracket(np.asarray(frames), K, bc == "periodic")
+    bc = canonical_bc(bc)
+    try:
+        Vkey = np.asarray(Vkey, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ShellsplineError(f"`Vkey` must be a numeric (J, ...) array of keyframe poses: "
+                               f"{str(exc).splitlines()[0] if str(exc) else exc!r}") from None
+    if Vkey.ndim < 1 or Vkey.shape[0] < 2:
+        raise ShellsplineError(f"`Vkey` must hold at least 2 keyframes along its first axis, got "
+                               f"shape {Vkey.shape}")
+    frames, K = canonical_frames(Vkey.shape[0], frames, K, bc)
+    j0, j1, t = keyframe_bracket(frames, K, bc == "periodic")
     A, B = Vkey[j0], Vkey[j1]
     t = t.reshape((-1,) + (1,) * (Vkey.ndim - 1))
     out = (1.0 - t) * A + t * B
     out = np.where(A == B, A, out)  # a vertex that does not move stays bit-identical
-    out[np.asarray(frames)] = Vkey
+    out[frames] = Vkey
     if bc == "periodic":
         out[K] = Vkey[0]
     return out

@@ -132,10 +132,11 @@ def load_source(source, label: str | None = None) -> _Sequence:
 
         path = Path(source)
         V, F, report = read_sequence(path)
-        frames = (report.get("parameters") or {}).get("frames")
-        inputs = [p for p in path.iterdir()
-                  if FRAME_RE.match(p.name) or p.name in _FRAME_FILE_NAMES]
-        default_label = path.resolve().name
+        frames = _report_frames(report, path)
+        inputs = [path] if path.is_file() else \
+            [p for p in path.iterdir() if FRAME_RE.match(p.name) or p.name in _FRAME_FILE_NAMES]
+        default_label = path.resolve().parent.name if path.name == "animation.glb" else \
+            path.stem if path.is_file() else path.resolve().name
     elif hasattr(source, "V") and hasattr(source, "F"):
         V, F = source.V, source.F
         report = dict(getattr(source, "report", None) or {})
@@ -165,6 +166,29 @@ def load_source(source, label: str | None = None) -> _Sequence:
         np.asarray(frames, dtype=np.int64).ravel()
     frames = frames[(frames >= 0) & (frames <= V.shape[0] - 1)]
     return _Sequence(V, F, frames, report, label or default_label, path, inputs)
+
+
+def _report_frames(report, path: Path):
+    """``parameters.frames`` of an output's ``report.json`` (None when absent), checked."""
+    where = (path.parent if path.is_file() else path) / "report.json"
+    if not isinstance(report, dict):
+        raise ShellsplineError(f"{where}: expected a JSON object, got {type(report).__name__}")
+    for key in ("parameters", "mesh", "energies"):
+        if report.get(key) is not None and not isinstance(report[key], dict):
+            raise ShellsplineError(f"{where}: {key!r} must be a JSON object, got "
+                                   f"{type(report[key]).__name__}")
+    params = report.get("parameters")
+    if params is None:
+        return None
+    frames = params.get("frames")
+    if frames is None:
+        return None
+    if not isinstance(frames, list) or not all(
+            isinstance(f, (int, float)) and not isinstance(f, bool) and np.isfinite(f)
+            and f == int(f) for f in frames):
+        raise ShellsplineError(f"{where}: 'parameters.frames' must be a list of integer frame "
+                               f"indices, got {str(frames)[:60]!r}")
+    return frames
 
 
 def _load_all(sources, labels) -> list[_Sequence]:

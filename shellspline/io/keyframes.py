@@ -182,7 +182,15 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
     """
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
-    paths = list(paths)
+    try:
+        paths = list(paths)
+    except TypeError:
+        raise MeshError(f"keyframes: expected a list of mesh file paths, got "
+                        f"{type(paths).__name__}") from None
+    bad = [p for p in paths if not isinstance(p, (str, os.PathLike))]
+    if bad:
+        raise MeshError(f"keyframes: expected mesh file paths, got a {type(bad[0]).__name__} "
+                        "(for in-memory poses use keyframes_from_arrays)")
     names = [str(p) for p in paths]
     if len(paths) == 1 and Path(paths[0]).suffix.lower() in USD_EXTENSIONS:
         return _usd_keyframes(paths[0], frames, pinned)

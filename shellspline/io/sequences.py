@@ -149,9 +149,18 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     >>> bool((V2 == V).all()), rep
     (True, {'K': 2})
     """
-    V = np.asarray(V, dtype=np.float64)
+    try:
+        V = np.asarray(V, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ShellsplineError(f"V must be a numeric (K+1,n,3) array of poses: "
+                               f"{str(exc).splitlines()[0] if str(exc) else exc!r}") from None
     if V.ndim != 3 or V.shape[2] != 3 or V.shape[0] == 0:
         raise ShellsplineError(f"V must be a (K+1,n,3) array of poses, got shape {V.shape}")
+    finite = np.isfinite(V).all(axis=2)
+    if not finite.all():
+        k, i = (int(x) for x in np.argwhere(~finite)[0])
+        raise ShellsplineError(f"V has NaN/inf coordinates ({int((~finite).sum())} vertex "
+                               f"positions; first: frame {k}, vertex {i}); nothing written")
     polygons = None
     if source is not None:
         if V.shape[1] != source.n_source:

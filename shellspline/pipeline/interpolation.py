@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io.keyframes import Keyframes, keyframes_from_arrays, read_keyframes
+from ..errors import ShellsplineError
 from ..io.sequences import jsonable
 from ..progress import Progress
 from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
@@ -110,8 +111,15 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         records the change per iteration. Paper: converges, with minor corrections.
     frames : (J,) int array, optional
         Keyframe frames (overrides ``keyframes.frames``).
-    pinned : (p,) int array, optional
+    pinned : (p,) int array-like, (n,) bool mask, str or path, optional
         Vertices fixed at their (common) keyframe position; else the frames are placed rigidly.
+        Indices must be integers (duplicates count once); a string or path is read with
+        :func:`shellspline.io.read_indices`. They number the vertices of ``keyframes.V`` (the
+        solve mesh, ``n = keyframes.n``): for keyframes read from files whose vertices were
+        welded or set aside (``keyframes.source`` not ``None``) these are not the files'
+        numbers; map file indices with ``keyframes.source.solve_vertices(idx)`` or pass them
+        to :func:`shellspline.read_keyframes` (``pinned=``), which numbers file vertices.
+        Default: ``keyframes.pinned``.
     workers : int
         Processes for the per-frame reconstructions.
     gn_options : dict, optional
@@ -221,9 +229,25 @@ def _keyframes(keyframes, prog) -> Keyframes:
     """``keyframes`` as :class:`~shellspline.io.Keyframes` (read or validated)."""
     if isinstance(keyframes, Keyframes):
         return keyframes
-    if isinstance(keyframes, tuple) and len(keyframes) == 2 and \
+    what = ("`keyframes` must be a Keyframes object, a list of mesh file paths or a (V, F) "
+            "tuple of a (J,n,3) pose array and its faces")
+    if keyframes is None or isinstance(keyframes, np.ndarray):
+        raise ShellsplineError(f"{what}, got {type(keyframes).__name__}")
+    if isinstance(keyframes, tuple) and keyframes and \
             not isinstance(keyframes[0], (str, os.PathLike)):
+        if len(keyframes) != 2:
+            raise ShellsplineError(f"{what}; got a tuple of {len(keyframes)} items")
         with prog.stage("validate"):
             return keyframes_from_arrays(keyframes[0], keyframes[1])
+    if not isinstance(keyframes, (str, os.PathLike)):
+        try:
+            items = list(keyframes)
+        except TypeError:
+            raise ShellsplineError(f"{what}, got {type(keyframes).__name__}") from None
+        bad = [x for x in items if not isinstance(x, (str, os.PathLike))]
+        if bad:
+            raise ShellsplineError(f"{what}; got a list holding {type(bad[0]).__name__} (for "
+                                   "in-memory poses pass (np.stack(poses), F))")
+        keyframes = items
     with prog.stage("read"):
         return read_keyframes(keyframes)

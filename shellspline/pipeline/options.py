@@ -7,6 +7,9 @@ reference index, coarse vertex count, rigid subset). The stages trust both.
 """
 from __future__ import annotations
 
+import inspect
+import numbers
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,7 +20,7 @@ from ..metrics import length_scale
 from ..mesh.topology import Topology
 from ..shells.lta_spline import SPLINES, canonical_spline
 from ..shells.prolong import DEFAULT_TRANSFER, TRANSFERS
-from ..shells.reconstruct import LARGE_MESH
+from ..shells.reconstruct import LARGE_MESH, GaussNewton
 from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
 
 __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_problem", "notices",
@@ -69,6 +72,40 @@ def canonical_choice(value, name: str, choices) -> str:
     return v
 
 
+def _real(value, name: str) -> float:
+    """``value`` as a float when it is a real number (not a bool, not a string)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ShellsplineError(f"`{name}` must be a number, got {value!r}")
+    return float(value)
+
+
+def _whole(value, name: str) -> int:
+    """``value`` as an int when it is an integer (an integral float too; not a bool/string)."""
+    v = _real(value, name)
+    if not np.isfinite(v) or v != int(v):
+        raise ShellsplineError(f"`{name}` must be an integer, got {value!r}")
+    return int(v)
+
+
+#: Keywords of :class:`~shellspline.shells.reconstruct.GaussNewton` that ``gn_options`` may set
+#: (``T`` and ``pinned`` come from the problem).
+GN_OPTIONS = tuple(p for p in inspect.signature(GaussNewton.__init__).parameters
+                   if p not in ("self", "T", "pinned"))
+
+
+def _gn_options(gn_options) -> dict:
+    if gn_options is None:
+        return {}
+    if not isinstance(gn_options, dict):
+        raise ShellsplineError(f"`gn_options` must be a dict of GaussNewton options, got "
+                               f"{type(gn_options).__name__}")
+    bad = [k for k in gn_options if k not in GN_OPTIONS]
+    if bad:
+        raise ShellsplineError(f"`gn_options`: unknown option {bad[0]!r}; valid: "
+                               f"{', '.join(GN_OPTIONS)}")
+    return dict(gn_options)
+
+
 def _canonical_reference(reference):
     if isinstance(reference, (int, np.integer)) and not isinstance(reference, (bool, np.bool_)):
         return int(reference)
@@ -116,7 +153,7 @@ class InterpolationOptions:
         put("rigid_track", canonical_choice(self.rigid_track, "rigid_track", RIGID_TRACKS))
         put("bc", canonical_bc(self.bc))
         for name in ("eta", "mu", "lam"):
-            val = getattr(self, name)
+            val = _real(getattr(self, name), name)
             if not np.isfinite(val) or val < 0:
                 raise ShellsplineError(f"`{name}` must be a finite non-negative number, got "
                                        f"{val!r}")
@@ -124,20 +161,23 @@ class InterpolationOptions:
         if self.mu == 0 and self.lam == 0:
             raise ShellsplineError("`mu` and `lam` cannot both be zero (the membrane energy "
                                    "would vanish)")
-        workers = 1 if self.workers is None else int(self.workers)
+        workers = 1 if self.workers is None else _whole(self.workers, "workers")
         if workers < 1:
             raise ShellsplineError(f"`workers` must be >= 1, got {workers}")
         put("workers", workers)
-        if int(self.fixpoint) < 0:
+        if _whole(self.fixpoint, "fixpoint") < 0:
             raise ShellsplineError(f"`fixpoint` must be a non-negative number of iterations, "
                                    f"got {self.fixpoint}")
         put("fixpoint", int(self.fixpoint))
         put("reference", _canonical_reference(self.reference))
-        put("gn_options", dict(self.gn_options or {}))
+        put("gn_options", _gn_options(self.gn_options))
+        if self.solver_options is not None and not isinstance(self.solver_options, dict):
+            raise ShellsplineError(f"`solver_options` must be a dict, got "
+                                   f"{type(self.solver_options).__name__}")
         put("solver_options", dict(self.solver_options or {}))
         put("warm_start", bool(self.warm_start))
         put("fine", bool(self.fine))
-        fade = float(self.fade_angle) if self.fade_angle is not None else 0.0
+        fade = _real(self.fade_angle, "fade_angle") if self.fade_angle is not None else 0.0
         if not np.isfinite(fade) or fade < 0:
             raise ShellsplineError(f"`fade_angle` must be a finite non-negative angle in "
                                    f"radians, got {self.fade_angle!r}")
@@ -184,13 +224,35 @@ class InterpolationProblem:
 
 
 def _vertex_indices(idx, n: int, name: str):
+    """Vertex indices (int array-like, or an ``(n,)`` bool mask, or a str/path read with
+    :func:`~shellspline.io.read_indices`) as sorted unique int64 in ``[0, n)``, or ``None``."""
     if idx is None:
         return None
-    idx = np.asarray(idx, dtype=np.int64).ravel()
-    if idx.size and (idx.min() < 0 or idx.max() >= n):
+    if isinstance(idx, (str, os.PathLike)):
+        from ..io.keyframes import read_indices
+        idx = read_indices(idx)
+    try:
+        arr = np.asarray(idx)
+    except Exception as exc:  # ragged nested lists and the like
+        raise ShellsplineError(f"`{name}` must be vertex indices or a bool mask: "
+                               f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+                               ) from None
+    if arr.dtype == bool:
+        if arr.shape != (n,):
+            raise ShellsplineError(f"a boolean `{name}` mask must have one entry per vertex "
+                                   f"({n}), got shape {arr.shape}")
+        arr = np.flatnonzero(arr)
+    arr = arr.ravel()
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if not np.issubdtype(arr.dtype, np.floating) or not np.isfinite(arr).all() or \
+                (arr != np.round(arr)).any():
+            raise ShellsplineError(f"`{name}` vertex indices must be integers, got "
+                                   f"{arr[:5].tolist()} (dtype {arr.dtype})")
+    arr = arr.astype(np.int64)
+    if arr.size and (arr.min() < 0 or arr.max() >= n):
         raise ShellsplineError(f"`{name}` indices must lie in [0, {n}), got range "
-                               f"[{idx.min()}, {idx.max()}]")
-    return idx if idx.size else None
+                               f"[{arr.min()}, {arr.max()}]")
+    return np.unique(arr) if arr.size else None
 
 
 def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=None, K=None,

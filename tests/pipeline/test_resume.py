@@ -104,7 +104,9 @@ def test_resumed_frames_converge_and_no_other_frame_changes(sliver_runs):
     same = [k for k in rec_on if k not in resumed and k not in bridged]
     assert len(same) >= 5
     np.testing.assert_allclose(lengths(on.V[same]), lengths(off.V[same]), rtol=1e-9, atol=0)
-    assert on.report["gauss_newton"]["converged"] > off.report["gauss_newton"]["converged"]
+    # (the bridges' limit follows the frames', here the lowered one, so their frames are
+    # compared above only where no bridge re-solved them)
+    assert set(on.report["gauss_newton"]["resumed"]) == set(resumed)
 
 
 def test_a_user_limit_holds(monkeypatch):

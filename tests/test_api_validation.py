@@ -1,0 +1,202 @@
+"""Input errors of the documented Python API are one-line ShellsplineErrors, never raw
+numpy/Python errors, and nothing is silently misread (pins, K, keyframes, linear_blend, bc,
+write_sequence, viz sources)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+import shellspline as ss
+from shellspline.errors import ShellsplineError
+from shellspline.pipeline.options import InterpolationOptions, interpolation_problem
+from shellspline.timeline import linear_blend
+
+
+@pytest.fixture(scope="module")
+def kf():
+    m = trimesh.creation.icosphere(subdivisions=1)
+    Vs = np.stack([m.vertices, m.vertices * [1.5, 1, 1], m.vertices * [1, 1.5, 1]])
+    return ss.keyframes_from_arrays(Vs, m.faces, frames=[0, 10, 20])
+
+
+def _problem(kf, **kw):
+    return interpolation_problem(InterpolationOptions(method="linear"), kf, **kw)
+
+
+def _one_line(exc):
+    msg = str(exc.value)
+    assert msg and "\n" not in msg
+    return msg
+
+
+# 1. pins ------------------------------------------------------------------------------------
+def test_bool_pin_mask_is_a_mask(kf):
+    mask = np.zeros(kf.n, bool)
+    mask[[2, 7]] = True
+    assert _problem(kf, pinned=mask).pinned.tolist() == [2, 7]
+    res = ss.interpolate(kf, method="linear", pinned=mask)
+    assert res.report["parameters"]["pinned_vertices"] == 2
+    with pytest.raises(ShellsplineError) as e:
+        _problem(kf, pinned=mask[:5])
+    assert "mask" in _one_line(e)
+
+
+def test_non_integer_pins_refused_duplicates_counted_once(kf):
+    with pytest.raises(ShellsplineError) as e:
+        _problem(kf, pinned=[1.9])
+    assert "integer" in _one_line(e)
+    assert _problem(kf, pinned=[5, 5, 5]).pinned.tolist() == [5]
+    assert _problem(kf, pinned=[3.0, 1]).pinned.tolist() == [1, 3]
+    res = ss.interpolate(kf, method="linear", pinned=[5, 5, 5])
+    assert res.report["parameters"]["pinned_vertices"] == 1
+
+
+def test_pin_file_path_is_read_and_missing_file_is_one_line(kf, tmp_path):
+    f = tmp_path / "pins.txt"
+    f.write_text("4 2 # comment\n2\n")
+    assert _problem(kf, pinned=str(f)).pinned.tolist() == [2, 4]
+    with pytest.raises(ShellsplineError) as e:
+        _problem(kf, pinned=str(tmp_path / "nofile.txt"))
+    assert "nofile.txt" in _one_line(e)
+
+
+# 2. K ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("K", [20.5, "22", True, float("nan")])
+def test_non_integer_K_refused(kf, K):
+    with pytest.raises(ShellsplineError) as e:
+        _problem(kf, K=K)
+    assert "`K`" in _one_line(e)
+
+
+def test_integer_K_accepted(kf):
+    assert _problem(kf, K=np.int64(22)).K == 22
+    assert _problem(kf, K=22).K == 22
+
+
+# 3. raw errors ------------------------------------------------------------------------------
+@pytest.mark.parametrize("kw, word", [({"eta": "big"}, "eta"), ({"mu": None}, "mu"),
+                                      ({"workers": "x"}, "workers"),
+                                      ({"gn_options": {"foo": 1}}, "max_iter"),
+                                      ({"gn_options": [1]}, "gn_options"),
+                                      ({"fade_angle": "a"}, "fade_angle")])
+def test_bad_options_are_shellspline_errors(kf, kw, word):
+    with pytest.raises(ShellsplineError) as e:
+        ss.interpolate(kf, **kw)
+    assert word in _one_line(e)
+
+
+def test_valid_gn_option_accepted(kf):
+    res = ss.interpolate(kf, frames=[0, 2, 4], gn_options={"max_iter": 2})
+    assert res.V.shape[0] == 5
+
+
+def test_bad_keyframes_arguments(kf):
+    Vs, F = kf.V, kf.F
+    for bad in (None, [Vs[0], Vs[1]], (Vs, F, F), Vs, 3):
+        with pytest.raises(ShellsplineError) as e:
+            ss.interpolate(bad, frames=[0, 10])
+        assert "keyframes" in _one_line(e)
+    for bad in (None, [1, 2], 3):
+        with pytest.raises(ShellsplineError) as e:
+            ss.read_keyframes(bad)
+        _one_line(e)
+
+
+@pytest.mark.parametrize("args", [
+    ([[0.0], [1.0], [2.0]], [0, 10, 20], 15),   # K before the last keyframe
+    ([[0.0], [1.0], [2.0]], [0, 10, 20], -1),
+    ([[0.0], [1.0]], [0, 10, 20], 20),           # frames and keyframes disagree
+    ([[0.0], [1.0], [2.0]], [0, 4, 2], 4),       # not increasing
+    ([[0.0], [1.0]], [0, 4], 4.5),
+    ([[0.0], [1.0]], ["0", "4"], 4),
+    ([[0.0], [1.0, 2.0]], [0, 4], 4),            # ragged
+])
+def test_linear_blend_refuses_bad_input(args):
+    with pytest.raises(ShellsplineError) as e:
+        linear_blend(*args)
+    _one_line(e)
+
+
+def test_linear_blend_bc():
+    with pytest.raises(ShellsplineError) as e:
+        linear_blend([[0.0], [1.0]], [0, 4], 8, bc="foo")
+    assert "bc" in _one_line(e)
+    upper = linear_blend([[0.0], [1.0]], [0, 4], 8, bc="PERIODIC")
+    assert np.array_equal(upper, linear_blend([[0.0], [1.0]], [0, 4], 8, bc="periodic"))
+    assert upper[8, 0] == 0.0 and upper[6, 0] == 0.5
+
+
+# 4. write_sequence --------------------------------------------------------------------------
+def test_write_sequence_refuses_non_finite(tmp_path):
+    V = np.random.default_rng(0).random((3, 4, 3))
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    for bad in (np.nan, np.inf):
+        W = V.copy()
+        W[1, 2, 0] = bad
+        with pytest.raises(ShellsplineError) as e:
+            ss.write_sequence(tmp_path / "out", W, F)
+        assert "NaN/inf" in _one_line(e)
+        assert not (tmp_path / "out").exists()
+
+
+# 5., 6. viz sources -------------------------------------------------------------------------
+def _seq(tmp_path, name, report, fmt="obj"):
+    V = np.random.default_rng(0).random((3, 4, 3))
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    return ss.write_sequence(tmp_path / name, V, F, report, fmt=fmt)
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "shellspline", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("report", [{"parameters": {"frames": "abc"}}, [1, 2],
+                                    {"parameters": [1]}, {"mesh": "x"}])
+def test_malformed_report_is_a_one_line_error(tmp_path, report):
+    from shellspline import viz
+
+    out = _seq(tmp_path, "o", {"K": 2})
+    (out / "report.json").write_text(json.dumps(report))
+    with pytest.raises(ShellsplineError) as e:
+        viz.load_source(out)
+    assert "report.json" in _one_line(e)
+    if report == [1, 2]:
+        r = _cli("plot", out, "-o", tmp_path / "p.png")
+        assert r.returncode == 2, r.stderr
+        assert "report.json" in r.stderr and "internal" not in r.stderr
+
+
+def test_glb_file_is_a_source(tmp_path):
+    from shellspline import viz
+
+    out = _seq(tmp_path, "glbseq", {"parameters": {"frames": [0, 2]}}, fmt="glb")
+    glb = out / "animation.glb"
+    s = viz.load_source(glb)
+    assert s.V.shape == (3, 4, 3) and s.frames.tolist() == [0, 2] and s.label == "glbseq"
+    assert viz.scene_up_axis(glb) == "y"
+
+
+# 7. pins of a welded mesh ------------------------------------------------------------------
+def test_interpolate_pins_number_the_solve_mesh(tmp_path):
+    """read_keyframes(pinned=) numbers the files' vertices; interpolate(pinned=) the solve
+    mesh's (kf.V); kf.source.solve_vertices maps the former to the latter."""
+    from data_synth.dcc import write_dcc
+
+    paths = write_dcc("dcc_tube", tmp_path / "in")
+    keys = [p for p in paths if p.suffix == ".obj"]
+    frames = [int(x) for x in (tmp_path / "in" / "frames.txt").read_text().split()]
+    kf = ss.read_keyframes(keys, frames=frames)
+    assert kf.source is not None and kf.source.n_source != kf.n
+    idx = [i for i in range(kf.source.n_source) if kf.source.to_solve[i] >= 0][-3:]
+    kf_pinned = ss.read_keyframes(keys, frames=frames, pinned=idx)
+    mapped = kf.source.solve_vertices(idx)
+    assert kf_pinned.pinned.tolist() == mapped.tolist()
+    p1 = _problem(kf_pinned).pinned
+    p2 = _problem(kf, pinned=mapped).pinned
+    assert p1.tolist() == p2.tolist()
