@@ -54,6 +54,29 @@ def grid_sheet(nx: int = 5, ny: int = 4):
     return V, F
 
 
+def raises_mesh_error(fn, *phrases):
+    """Call ``fn`` and check it raises a one-line MeshError containing every phrase; returns
+    the message."""
+    from shellspline import MeshError
+
+    with pytest.raises(MeshError) as info:
+        fn()
+    msg = str(info.value)
+    assert "\n" not in msg
+    for p in phrases:
+        assert p in msg, (p, msg)
+    return msg
+
+
+@pytest.fixture(scope="module")
+def tube():
+    """data_synth.dcc.dcc_tube (its n-gon cap needs the 'dcc' extra)."""
+    pytest.importorskip("mapbox_earcut", reason="the tube's n-gon cap needs the 'dcc' extra")
+    from data_synth.dcc import dcc_tube
+
+    return dcc_tube()
+
+
 @pytest.fixture
 def sphere():
     return icosphere(1)

@@ -13,6 +13,8 @@ import trimesh
 from shellspline import io as sio
 from shellspline.errors import MeshError, ShellsplineError
 
+from conftest import raises_mesh_error
+
 SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
@@ -70,16 +72,6 @@ def keyframe_files(tmp_path, n_keys=3, ext="obj"):
 
 def bits(X):
     return np.ascontiguousarray(X, dtype=np.float64).view(np.int64)
-
-
-def raises_mesh_error(fn, *phrases):
-    with pytest.raises(MeshError) as info:
-        fn()
-    msg = str(info.value)
-    assert "\n" not in msg
-    for p in phrases:
-        assert p in msg, (p, msg)
-    return msg
 
 
 # ----------------------------------------------------------------------------------------

@@ -11,24 +11,9 @@ import pytest
 
 import shellspline.io as sio
 from data_synth.dcc import dcc_tube, write_dcc_obj, write_polygon_mesh
-from shellspline import MeshError
 from shellspline.mesh.source_mesh import triangulate_polygons
 
-
-def raises_mesh_error(fn, *phrases):
-    with pytest.raises(MeshError) as info:
-        fn()
-    msg = str(info.value)
-    assert "\n" not in msg
-    for p in phrases:
-        assert p in msg, (p, msg)
-    return msg
-
-
-@pytest.fixture(scope="module")
-def tube():
-    pytest.importorskip("mapbox_earcut", reason="the tube's 16-gon cap needs the 'dcc' extra")
-    return dcc_tube()
+from conftest import raises_mesh_error
 
 
 def write_set(tmp_path, d, fmt="obj", **kw):

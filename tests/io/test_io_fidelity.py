@@ -15,25 +15,10 @@ import pytest
 
 import shellspline.io as sio
 from data_synth.dcc import dcc_tube, write_dcc_obj
-from shellspline import MeshError
 from shellspline.cli.main import main
 from shellspline.io.pointcache import read_pc2, write_mdd, write_pc2
 
-
-def raises_mesh_error(fn, *phrases):
-    with pytest.raises(MeshError) as info:
-        fn()
-    msg = str(info.value)
-    assert "\n" not in msg
-    for p in phrases:
-        assert p in msg, (p, msg)
-    return msg
-
-
-@pytest.fixture(scope="module")
-def tube():
-    pytest.importorskip("mapbox_earcut", reason="the tube's n-gon cap needs the 'dcc' extra")
-    return dcc_tube()
+from conftest import raises_mesh_error
 
 
 def write_set(d, folder, **kw):
