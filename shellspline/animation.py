@@ -1998,37 +1998,85 @@ def mesh_blend(Vs0, Vs1, F, s: float = 0.5, *, align: str = "dp", features=None,
         The same mesh (vertex order and faces); any frame count.
     F : (m,3) array_like
     s : float
-        Weight of ``Vs1``.
+        Weight of ``Vs1`` (0: ``Vs0``, 1: ``Vs1``).
     align : {"dp", "none"}
-        Align ``Vs1`` to ``Vs0`` in time first.
+        Align ``Vs1`` to ``Vs0`` in time first, or map their frames affinely.
     **options
         Gauss–Newton options.
 
     Returns
     -------
-    Vs : (N,n,3) float64 numpy array
-        On ``Vs0``'s frames: the blended descriptors reconstructed (started at the vertex
-        blend of the two aligned frames and placed rigidly on it).
+    Vs : (K,n,3) float64 numpy array
+        ``K = round((1-s)(N-1) + s(M-1)) + 1`` frames, evenly spaced: the blend of the clips
+        themselves (the SRV geodesic of their piecewise-linear descriptor curves, on
+        :func:`~shellspline.curves.srv.warp_grid`) with its timing blended too, as
+        :func:`blend` does for BVH clips (the blend composed with the inverse of ``(1-s) id +
+        s phi``), read at the output frames and reconstructed (started at the vertex blend of
+        the two aligned frames and placed rigidly on it). ``s = 0`` gives ``Vs0`` and ``s =
+        1`` gives ``Vs1``, frame for frame, to the reconstruction's tolerance.
     report : MeshReport
     """
     from .curves.srv import blend as blend_curves
+    from .curves.srv import reparametrize, warp_grid
 
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
+    s = float(s)
+    if not np.isfinite(s):
+        raise ShellsplineError(f"s must be a finite number, got {s!r}")
     Vs0, Vs1, c0, c1 = _mesh_curve_pair(Vs0, Vs1, F)
     p0, p1 = c0.product_curve(), c1.product_curve()
     rep = None
+    warp_t = warp = np.array([0.0, 1.0])
     if align == "dp":
         rep = mesh_align(Vs0, Vs1, F, features=features)
-        phi = np.clip(rep.phi, 0.0, 1.0)
-    else:
-        phi = p0.t.copy()
-    Z = blend_curves(p0, p1, s, warp=phi).X / c0.sqrt_w
-    # vertex positions of Vs1 at the warped times: the initial guesses and placement track
-    V1 = reparametrize_vertices(Vs1, phi)
-    guess = (1 - s) * Vs0 + s * V1
+        warp_t, warp = rep.t, np.clip(rep.phi, 0.0, 1.0)
+    # on the clips' own frames (as blend for BVH): on Vs0's frames alone, s = 1 was Vs1
+    # resampled onto them, not Vs1
+    t, phi = warp_grid(p0.t, warp_t, warp, p1.t)
+    c = blend_curves(reparametrize(p0, t, t), p1, s, warp=phi)
+    u, tu = _blend_clock(p0.t, p1.t, t, phi, s)
+    Z = reparametrize(c, tu, u).X / c0.sqrt_w
+    # vertex positions of both at the aligned times: the initial guesses and placement track
+    guess = (1 - s) * reparametrize_vertices(Vs0, tu) + \
+        s * reparametrize_vertices(Vs1, np.interp(tu, t, phi))
     out, results = reconstruct_frames(Z, c0, guess, **options)
     return out, _mesh_report(out, Z, c0, results, align=rep)
+
+
+def _lerp(x, y, s: float):
+    """``(1-s) x + s y``: exactly ``x`` at ``s = 0`` (and where ``y == x``) and exactly ``y``
+    at ``s = 1``, so that blended times and counts are a clip's own at the ends."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    return x + s * (y - x) if s <= 0.5 else y - (1 - s) * (y - x)
+
+
+def _blend_times(ta, tb, s: float) -> np.ndarray:
+    """Sample times of a blend of clips sampled at ``ta (N_a,)`` and ``tb (N_b,)``:
+    ``round((1-s)(N_a-1) + s(N_b-1)) + 1`` samples (at least 2), the k-th the blend of the
+    clips' times at the same fraction of their samples (interpolated between samples): ``ta``
+    at ``s = 0``, ``tb`` at ``s = 1``, exactly."""
+    n = max(int(round(float(_lerp(ta.size - 1, tb.size - 1, s)))) + 1, 2)
+    x = np.linspace(0.0, 1.0, n)
+
+    def own(tt):
+        return tt if tt.size == n else np.interp(x, np.linspace(0.0, 1.0, tt.size), tt)
+    return _lerp(own(ta), own(tb), s)
+
+
+def _blend_clock(ta, tb, t, phi, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(u, tu)``: the output times ``u`` of a blend (:func:`_blend_times`, in the blended
+    clock ``psi = (1-s) t + s phi``) and the times ``tu = psi^-1(u)`` of the blend's grid
+    ``t`` to read it at (``ta`` itself at ``s = 0``; at ``s = 1`` where ``phi`` meets
+    ``tb``)."""
+    u = _blend_times(ta, tb, s)
+    psi = _lerp(t, phi, s)
+    if np.any(np.diff(psi) < 0):  # s outside [0, 1] with a warp that stalls
+        psi = np.maximum.accumulate(psi)
+    if np.any(np.diff(u) <= 0):
+        raise ShellsplineError(f"s = {s:g} extrapolates the two clips' times to times that do "
+                               "not increase; give s between 0 and 1")
+    return u, _inverse_clock(u, psi, t)
 
 
 def reparametrize_vertices(Vs, phi) -> np.ndarray:
@@ -2265,18 +2313,24 @@ def track_align(a, b, *, length=None, features=None, **kw):
         ``t``: ``min(N_a, TRACK_DP_SAMPLES)`` evenly spaced times over ``a``'s span;
         ``phi``: times of ``b``.
     """
-    from .curves.align import align as align_curves
-
     a, b, L, ca, cb = _track_pair(a, b, length)
-    feats = _features_pairs(features, kw)
-    if feats is not None:
-        feats = (feats[0] - ca.t[0], feats[1] - cb.t[0])
-    r = align_curves(_uniform(ca, min(ca.n_frames, TRACK_DP_SAMPLES)),
-                     _uniform(cb, min(cb.n_frames, TRACK_DP_SAMPLES)), features=feats, **kw)
+    r = _track_warp(ca, cb, features, kw)
     r.t = r.t + ca.t[0]
     r.phi = r.phi + cb.t[0]
     r.shift = r.shift + float(cb.t[0])
     return r
+
+
+def _track_warp(ca, cb, features, kw):
+    """:func:`track_align`'s ``AlignResult`` with the times counted from each track's start
+    (``t`` from 0 to ``a``'s span, ``phi`` from 0 to ``b``'s, exactly at the ends)."""
+    from .curves.align import align as align_curves
+
+    feats = _features_pairs(features, kw)
+    if feats is not None:
+        feats = (feats[0] - ca.t[0], feats[1] - cb.t[0])
+    return align_curves(_uniform(ca, min(ca.n_frames, TRACK_DP_SAMPLES)),
+                        _uniform(cb, min(cb.n_frames, TRACK_DP_SAMPLES)), features=feats, **kw)
 
 
 def track_distance(a, b, *, align: str = "dp", length=None, **kw) -> float:
@@ -2313,7 +2367,7 @@ def track_blend(a, b, s: float = 0.5, *, align: str = "dp", length=None, feature
     ----------
     a, b : PoseTrack
     s : float
-        Weight of ``b`` (0: ``a``; 1: ``b`` on ``a``'s times, warped by the alignment).
+        Weight of ``b`` (0: ``a``, 1: ``b``).
     align : {"dp", "none"}
         Align ``b`` to ``a`` in time first (:func:`track_align`), or map their spans
         affinely.
@@ -2327,23 +2381,48 @@ def track_blend(a, b, s: float = 0.5, *, align: str = "dp", length=None, feature
     Returns
     -------
     PoseTrack
-        On ``a``'s times, in ``a``'s format; starts at the geodesic blend of the start poses.
+        In ``a``'s format, ``round((1-s)(N_a-1) + s(N_b-1)) + 1`` poses; the blend of the
+        tracks themselves (the SRV geodesic of their piecewise geodesics, on
+        :func:`~shellspline.curves.srv.warp_grid`) with its timing blended too, as
+        :func:`blend` does for BVH clips: the k-th time is the blend of the tracks' times at
+        the same fraction of their poses (``b``'s times taken in ``a``'s ``origin_ns``), the
+        pose there the blend read through the blended clock ``(1-s) id + s phi``. ``s = 0``
+        gives ``a`` (its times and poses), ``s = 1`` gives ``b``, to rounding; starts at the
+        geodesic blend of the start poses.
     TrackReport
-        With the ``AlignResult`` (``align="dp"``) or None.
+        With the ``AlignResult`` (``align="dp"``, in the files' times) or None.
     """
     from .curves.srv import blend as blend_curves
+    from .curves.srv import reparametrize, warp_grid
+    from .groups import se3
+    from .io.posefiles import PoseTrack
 
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
     if not np.isfinite(s):
         raise ShellsplineError(f"s must be a finite number, got {s!r}")
+    s = float(s)
     a, b, L, ca, cb = _track_pair(a, b, length)
-    warp, rep = None, None
+    # each track on its own clock counted from its start: at Unix-epoch magnitudes the grid's
+    # arithmetic rounds to 2e-7 s, enough to move s = 1 off b's poses
+    pa, pb = ca.with_times(ca.t - ca.t[0]), cb.with_times(cb.t - cb.t[0])
+    warp_t, warp, rep = pa.t[[0, -1]], pb.t[[0, -1]], None
     if align == "dp":
-        rep = track_align(a, b, length=L, features=features, **kw)
-        # the warp lives on a's evenly spaced times: carry it to a's own times
-        warp = np.clip(np.interp(ca.t, rep.t, rep.phi), cb.t[0], cb.t[-1])
+        rep = _track_warp(ca, cb, features, dict(kw))
+        warp_t, warp = rep.t, np.clip(rep.phi, 0.0, pb.t[-1])
+        rep.t, rep.phi = rep.t + ca.t[0], rep.phi + cb.t[0]
+        rep.shift = rep.shift + float(cb.t[0])
     elif features is not None:
         raise ShellsplineError("features need align='dp'")
-    out = blend_curves(ca, cb, float(s), warp=warp)
-    return _track_like(out, L, a), TrackReport(L, rep)
+    # on the tracks' own poses (as blend for BVH): on a's times alone, s = 1 was b resampled
+    # onto them, not b
+    t, phi = warp_grid(pa.t, warp_t, warp, pb.t)
+    c = blend_curves(reparametrize(pa, t, t), pb, s, warp=phi)
+    u, tu = _blend_clock(pa.t, pb.t, t, phi, s)
+    cu = reparametrize(c, tu, u)
+    # the file times: the same blend of a's and b's own (b's in a's origin_ns)
+    shift = (int(b.origin_ns) - int(a.origin_ns)) / 1e9
+    times = _blend_times(a.t, b.t + shift if shift else b.t, s)
+    out = PoseTrack(times, se3.from_rt(cu.R[:, 0], cu.X * L), a.format, a.origin_ns,
+                    a.time_unit)
+    return out, TrackReport(L, rep)

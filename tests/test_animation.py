@@ -586,6 +586,25 @@ def test_mesh_blend_and_align(skinned_walk):
         A.mesh_blend(Vs, Vs[:, :-1], F)
 
 
+@pytest.mark.parametrize("how", ["none", "dp"])
+def test_mesh_blend_ends_are_the_clips_themselves(skinned_walk, how):
+    """Oracle: the clips. Of two clips of other lengths and rates (20 frames, and 13 at half
+    the rate), s = 0 is the first and s = 1 the second, frame for frame; 1e-6 from s = 1 the
+    blend is within 1e-6 of the second (continuous in s). It ran on the first clip's frames:
+    s = 1 was the second resampled onto them (20 frames)."""
+    Vs, F = skinned_walk
+    a, b = Vs[:20], Vs[8:34:2]
+    size = np.ptp(Vs.reshape(-1, 3), axis=0).max()
+    for s, ref in ((0.0, a), (1.0, b)):
+        out, rep = A.mesh_blend(a, b, F, s, align=how)
+        assert out.shape == ref.shape and rep.converged == ref.shape[0]
+        assert np.abs(out - ref).max() <= 1e-9 * size
+    near, _ = A.mesh_blend(a, b, F, 1 - 1e-6, align=how)
+    assert near.shape == b.shape and np.abs(near - b).max() <= 1e-5 * size
+    mid, rep = A.mesh_blend(a, b, F, 0.5, align=how)   # (19 + 12) / 2 intervals, rounded
+    assert mid.shape == (17,) + Vs.shape[1:] and rep.converged == 17
+
+
 def test_data_synth_motion_command(tmp_path, capsys):
     from data_synth.__main__ import main as synth_main
 
@@ -843,6 +862,34 @@ def test_track_blend_of_a_track_with_itself_and_ends():
     assert np.allclose(mid.T[0, :3, 3], 0.5 * (a.T[0, :3, 3] + b.T[0, :3, 3]), atol=1e-12)
     R0 = a.T[0, :3, :3] @ so3.exp(0.5 * so3.log(a.T[0, :3, :3].T @ b.T[0, :3, :3]))
     assert np.allclose(mid.T[0, :3, :3], R0, atol=1e-12)
+
+
+@pytest.mark.parametrize("how", ["none", "dp"])
+def test_track_blend_ends_are_the_tracks_themselves(how):
+    """Oracle: the tracks. Of tracks of other lengths and rates (400 poses at 100 Hz; 134 at
+    33 Hz, later), s = 0 is a (its times and poses) and s = 1 is b; 1e-6 from the ends the
+    blend is within 1e-6 of them (continuous in s). It ran on a's times: s = 1 was b
+    resampled onto them (400 poses at a's times)."""
+    from shellspline.io.posefiles import PoseTrack
+
+    a, full = camera(500, 900), camera(1000, 1400)
+    b = PoseTrack(full.t[::3].copy(), full.T[::3].copy(), "tum")
+    for s, ref in ((0.0, a), (1.0, b)):
+        out, _ = A.track_blend(a, b, s, align=how)
+        assert np.array_equal(out.t, ref.t) and np.abs(out.T - ref.T).max() <= 1e-12
+    for s, ref in ((1e-6, a), (1 - 1e-6, b)):
+        out, _ = A.track_blend(a, b, s, align=how)
+        assert out.t.size == ref.t.size and np.abs(out.t - ref.t).max() <= 1e-4
+        assert np.abs(out.T - ref.T).max() <= 1e-5
+    mid, _ = A.track_blend(a, b, 0.5, align=how)        # (399 + 133) / 2 intervals
+    assert mid.t.size == 267 and np.all(np.diff(mid.t) > 0)
+    assert np.allclose(mid.t[[0, -1]], 0.5 * (a.t[[0, -1]] + b.t[[0, -1]]), rtol=0, atol=1e-6)
+    # b's times are read in a's origin: EuRoC tracks, each counted from its own first stamp
+    ea = PoseTrack(a.t - a.t[0], a.T, "euroc", origin_ns=10 ** 18)
+    eb = PoseTrack(b.t - b.t[0], b.T, "euroc", origin_ns=10 ** 18 + 7 * 10 ** 9)
+    out, _ = A.track_blend(ea, eb, 1.0, align=how)
+    assert out.origin_ns == 10 ** 18 and np.allclose(out.t, eb.t + 7.0, rtol=0, atol=1e-12)
+    assert np.abs(out.T - b.T).max() <= 1e-12
 
 
 def test_track_align_recovers_a_known_warp():

@@ -17,6 +17,7 @@
 """
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -90,9 +91,10 @@ def read_polygons(path, info: dict | None = None):
     indices): at least 3 corners, vertex and texture indices in range, no vertex repeated.
 
     ``info``, a dict, receives what else an OBJ file says: ``"statements"``, its
-    ``mtllib/usemtl/o/g/s`` lines (:func:`obj_statements`, written back with the polygons),
-    and ``"texture_note"``, a sentence saying why texture coordinates were not read when
-    some face corners name one and others do not (else ``None``).
+    ``mtllib/usemtl/o/g/s`` lines (:func:`obj_statements`, written back with the polygons;
+    ``mtllib`` lines name their files by absolute path, :func:`mtllib_resolved`), and
+    ``"texture_note"``, a sentence saying why texture coordinates were not read when some
+    face corners name one and others do not (else ``None``).
     """
     name = str(path)
     p = Path(path)
@@ -111,6 +113,8 @@ def read_polygons(path, info: dict | None = None):
             raise _Unreadable(f"the file is {wide} encoded; save it as UTF-8")
         if ext == ".obj":
             V, offsets, indices, uv = _parse_obj(p.read_bytes(), name, info)
+            if info is not None:
+                info["statements"] = mtllib_resolved(info["statements"], p.parent)
         else:
             (V, offsets, indices), uv = _read_with_trimesh(p, ext, name), None
     except MeshError:
@@ -215,6 +219,42 @@ def obj_statements(lines: list[bytes]):
     head = tuple(t for i, t in zip(at, text) if i < first)
     body = tuple((int(p), t) for i, p, t in zip(at, pos, text) if i >= first)
     return head, body
+
+
+def mtllib_resolved(statements, folder):
+    """``statements`` (:func:`obj_statements`) with each ``mtllib`` line naming one material
+    file by its absolute path, resolved from ``folder`` (the OBJ file's) as viewers resolve
+    it, so that a writer elsewhere can name the same file
+    (:func:`shellspline.io.sequences.write_sequence` names it from its output folder).
+
+    A line's file name is the rest of the line when a file of that name exists (names with
+    spaces), else each word is one (``mtllib a.mtl b.mtl`` becomes two lines); the file need
+    not exist.
+    """
+    if statements is None:
+        return None
+    base = Path(folder)
+
+    def lines(t):
+        if t[:7] != b"mtllib ":
+            return [t]
+        rest = t[7:].strip()
+        try:
+            whole = (base / os.fsdecode(rest)).is_file()
+        except (OSError, ValueError):
+            whole = False
+        names = [rest] if whole else rest.split()
+        return [b"mtllib " + os.fsencode(absolute(base / os.fsdecode(n))) for n in names]
+
+    def absolute(path):
+        try:
+            return str(path.resolve())
+        except (OSError, RuntimeError, ValueError):  # a symlink loop, say: as written
+            return os.path.abspath(path)
+
+    head, body = statements
+    return (tuple(x for t in head for x in lines(t)),
+            tuple((q, x) for q, t in body for x in lines(t)))
 
 
 def _obj_texture(vtlines: list[bytes], ttok: list[bytes], offsets: np.ndarray,

@@ -202,6 +202,8 @@ def write_sequence(out_dir, V, F, report=None, *, fmt: str = "obj", overwrite: b
     target = check_output_dir(out, n_frames=V.shape[0], n_vertices=n, n_faces=F.shape[0],
                               fmt=fmt, overwrite=overwrite, protect=protect,
                               overwrite_hint=overwrite_hint)
+    if polygons is not None and polygons[4] is not None:
+        polygons = polygons[:4] + (_mtllib_from(polygons[4], target),)
     parent = target.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -411,6 +413,36 @@ def _obj_frame(path, X, block, head) -> None:
 def _obj_faces_block(F: np.ndarray) -> bytes:
     """The ``f a b c`` lines (1-based) of every frame, formatted once."""
     return (("f %d %d %d\n" * F.shape[0]) % tuple((F + 1).ravel().tolist())).encode("ascii")
+
+
+def _mtllib_from(statements, folder: Path):
+    """``statements`` with each ``mtllib`` file, named by absolute path
+    (:func:`~shellspline.io.meshes.mtllib_resolved`), named as seen from ``folder``."""
+    # The output frames name the input's own .mtl file rather than a copy of it: a viewer
+    # resolves the texture maps a .mtl names (map_Kd ...) from the .mtl's folder, so a copy
+    # next to the outputs would lose them (and copying the textures too would copy files we
+    # know nothing of), and nothing is written beside the frames that could replace a .mtl of
+    # the user's. The path is relative (the output folder and the input's moved together keep
+    # their materials) unless the two share no folder but the root (or lie on other drives):
+    # then absolute, which survives moving the output alone. Lines that name no absolute path
+    # (statements made in Python) are written as given.
+    def line(t):
+        if t[:7] != b"mtllib ":
+            return t
+        name = os.fsdecode(t[7:].strip())
+        if not os.path.isabs(name):
+            return t
+        try:
+            common = os.path.commonpath([name, str(folder)])
+            rel = os.path.relpath(name, folder)
+        except ValueError:  # other drives (Windows)
+            return t
+        if common == os.path.dirname(common):  # only the root (or a drive) in common
+            return t
+        return b"mtllib " + os.fsencode(Path(rel).as_posix())
+
+    head, body = statements
+    return tuple(map(line, head)), tuple((q, line(t)) for q, t in body)
 
 
 def _obj_polygons_block(offsets: np.ndarray, indices: np.ndarray, uv=None,

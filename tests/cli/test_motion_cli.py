@@ -332,12 +332,18 @@ def test_distance_align_blend_of_camera_tracks(capsys, tmp_path):
     ta, tb = read_poses(a).t, read_poses(b).t
     assert rows.shape == (400, 2) and np.all(np.diff(rows[:, 1]) >= 0)
     assert np.allclose(rows[[0, -1]], [[ta[0], tb[0]], [ta[-1], tb[-1]]], atol=1e-6)
-    # blend: written in A's format (KITTI here) on A's times
+    # blend: written in A's format (KITTI here); its pose count blended too (399 and 299
+    # intervals: 349 at s = 0.5; it was A's 400 times)
     k = camera_window(tmp_path, 500, 900, "a.kitti", fmt="kitti")
     code, _, err = run(capsys, "blend", k, b, "--s", "0.5", "-o", tmp_path / "mid.txt")
     assert code in (0, 1) and "blend" in err, err
     mid = read_poses(tmp_path / "mid.txt")
-    assert mid.format == "kitti" and mid.t.size == 400
+    assert mid.format == "kitti" and mid.t.size == 350
+    # s = 1 writes B itself: its times and poses (it was B resampled onto A's times)
+    code, _, err = run(capsys, "blend", a, b, "--s", "1", "-o", tmp_path / "one.txt")
+    assert code in (0, 1), err
+    one, tb = read_poses(tmp_path / "one.txt"), read_poses(b)
+    assert np.array_equal(one.t, tb.t) and np.abs(one.T - tb.T).max() <= 1e-9
     code, _, _ = run(capsys, "blend", a, a, "--s", "0.7", "--align", "none",
                      "-o", tmp_path / "same.txt")
     assert code == 0

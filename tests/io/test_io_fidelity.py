@@ -78,9 +78,11 @@ def test_point_cache_on_a_polygon_mesh_writes_the_mesh_back(tmp_path, tube, caps
     assert len(frames) == 21
     keys = read_pc2(cache)[0]
     seam = tube["seam"]
+    # the material library named from the output folder (a sibling of in/)
+    order_out = ["mtllib ../in/tube.mtl" if o == "mtllib tube.mtl" else o for o in order_in]
     for k, f in enumerate(frames):
         V, VT, faces, tex, order = obj_file(f)
-        assert faces == faces_in and tex == tex_in and order == order_in, k
+        assert faces == faces_in and tex == tex_in and order == order_out, k
         assert np.array_equal(VT, VT_in)
         assert V.shape == (164, 3) and np.array_equal(V[seam[:, 0]], V[seam[:, 1]])
         if k % 10 == 0:
@@ -100,7 +102,7 @@ def test_point_cache_on_a_polygon_mesh_writes_the_mesh_back(tmp_path, tube, caps
         Vc, Fc, _ = sio.read_sequence(cached)
         assert Vc.shape == (21, 164, 3)
         V0, VT0, faces0, tex0, order0 = obj_file(cached / "mesh.obj")
-        assert faces0 == faces_in and tex0 == tex_in and order0 == order_in
+        assert faces0 == faces_in and tex0 == tex_in and order0 == order_out
         assert np.array_equal(VT0, VT_in) and V0.shape == (164, 3)
     # formats that cannot hold everything say so instead of "as given"
     rc = main(["interpolate", str(cache), "--topology", str(paths[0]), "--frames", "0,10,20",
@@ -328,12 +330,14 @@ def test_material_and_group_lines_are_written_back(tmp_path, tube, capsys):
     out = tmp_path / "out"
     assert main(["interpolate", *map(str, paths), "--frames", "0,10,20", "--method", "linear",
                  "-o", str(out), "-q"]) == 0
+    # the material library is named from the output folder (test below)
+    order_out = ["mtllib ../in/tube.mtl" if o == "mtllib tube.mtl" else o for o in order_in]
     for f in sorted(out.glob("frame_*.obj"))[::7]:
         _, _, faces, _, order = obj_file(f)
-        assert order == order_in and faces == faces_in
+        assert order == order_out and faces == faces_in
     # mtllib and o stand before the vertices, as in the input
     lines = (out / "frame_0003.obj").read_text().splitlines()
-    assert lines[:2] == ["mtllib tube.mtl", "o Tube"] and lines[2].startswith("v ")
+    assert lines[:2] == ["mtllib ../in/tube.mtl", "o Tube"] and lines[2].startswith("v ")
     # a triangle mesh with material lines only: kept too (nothing else to write back)
     tri = "mtllib m.mtl\no Thing\n" + TRI + "usemtl red\ns 1\nf 1 2 3\nusemtl blue\nf 2 4 3\n"
     p, q = tmp_path / "t0.obj", tmp_path / "t1.obj"
@@ -344,5 +348,38 @@ def test_material_and_group_lines_are_written_back(tmp_path, tube, capsys):
     assert main(["interpolate", str(p), str(q), "--method", "linear", "-o",
                  str(tmp_path / "t"), "-q", "--frames", "0,2"]) == 0
     text = (tmp_path / "t" / "frame_0001.obj").read_text()
-    assert text.startswith("mtllib m.mtl\no Thing\nv ")
+    assert text.startswith("mtllib ../m.mtl\no Thing\nv ")
     assert text.endswith("usemtl red\ns 1\nf 1 2 3\nusemtl blue\nf 2 4 3\n")
+
+
+def test_material_libraries_are_named_from_the_output_folder(tmp_path):
+    """``mtllib m.mtl`` names a file beside the OBJ; the frames are written elsewhere, and
+    their ``mtllib`` lines must name the same files from there (they said ``m.mtl``, which the
+    output folder does not have: viewers opened the frames without their materials). Names
+    with spaces, several files on one line, ``..`` through a symlinked folder (resolved as the
+    file system does), a missing file (where the input would look), a point cache's mesh.obj;
+    a path sharing only the root with the output stays absolute; nothing is copied."""
+    scene = tmp_path / "scene"
+    (scene / "keys").mkdir(parents=True)
+    (scene / "mats").mkdir()
+    (tmp_path / "link").symlink_to(scene / "keys", target_is_directory=True)
+    for f in ("keys/m.mtl", "keys/my mats.mtl", "mats/x.mtl"):
+        (scene / f).write_text("newmtl red\nKd 1 0 0\n")
+    far = "/nonexistent-shellspline-test/far.mtl"
+    text = (f"mtllib m.mtl\nmtllib my mats.mtl\no Thing\n{TRI}usemtl red\nf 1 2 3\n"
+            f"mtllib ../mats/x.mtl gone.mtl\nmtllib {far}\nusemtl blue\nf 2 4 3\n")
+    (scene / "keys" / "t0.obj").write_text(text)
+    (scene / "keys" / "t1.obj").write_text(text.replace("0.2", "0.4"))
+    kf = sio.read_keyframes([tmp_path / "link" / "t0.obj", tmp_path / "link" / "t1.obj"])
+    want = [scene / "keys" / "m.mtl", scene / "keys" / "my mats.mtl", scene / "mats" / "x.mtl",
+            scene / "keys" / "gone.mtl"]
+    for fmt, name in (("obj", "frame_0001.obj"), ("pc2", "mesh.obj")):
+        out = tmp_path / "renders" / fmt
+        sio.write_sequence(out, kf.V, kf.F, source=kf.source, fmt=fmt)
+        lines = (out / name).read_text().splitlines()
+        libs = [ln[len("mtllib "):] for ln in lines if ln.startswith("mtllib ")]
+        assert [(out / x).resolve() for x in libs[:4]] == [w.resolve() for w in want]
+        assert libs[0] == "../../scene/keys/m.mtl" and libs[4] == far
+        assert [ln for ln in lines if not ln.startswith(("v ", "vt ", "mtllib "))] == \
+            ["o Thing", "usemtl red", "f 1 2 3", "usemtl blue", "f 2 4 3"]
+        assert not list(out.glob("*.mtl"))
