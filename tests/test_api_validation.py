@@ -200,3 +200,105 @@ def test_interpolate_pins_number_the_solve_mesh(tmp_path):
     p1 = _problem(kf_pinned).pinned
     p2 = _problem(kf, pinned=mapped).pinned
     assert p1.tolist() == p2.tolist()
+
+
+# 8. options a run cannot apply -------------------------------------------------------------
+@pytest.mark.parametrize("kw, option, why", [
+    (dict(method="linear", coarse=20), "coarse", "method='linear'"),
+    (dict(method="linear", fine=True), "fine", "method='linear'"),
+    (dict(method="linear", transfer="displacement"), "transfer", "method='linear'"),
+    (dict(method="linear", reference="keyframe"), "reference", "method='linear'"),
+    (dict(method="linear", spline="discrete"), "spline", "method='linear'"),
+    (dict(method="linear", fade_angle=0.2), "fade_angle", "method='linear'"),
+    (dict(method="linear", fixpoint=1), "fixpoint", "method='linear'"),
+    (dict(method="linear", rigid_track="spline"), "rigid_track", "method='linear'"),
+    (dict(method="linear", solver_options={"max_time_s": 5.0}), "solver_options",
+     "method='linear'"),
+    (dict(solver_options={"max_time_s": 5.0}), "solver_options", "method='lta'"),
+    (dict(coarse="none", transfer="displacement"), "transfer", "coarse='none'"),
+    (dict(pinned=[0, 1, 2, 3], rigid_track="linear"), "rigid_track", "pinned vertices fix"),
+    (dict(pinned=[0, 1, 2, 3], rigid_subset=[10, 20, 30]), "rigid_subset",
+     "pinned vertices fix"),
+], ids=lambda v: ",".join(v) if isinstance(v, dict) else None)
+def test_an_option_the_run_cannot_apply_is_refused(kf, kw, option, why):
+    """Before, each of these ran and report["parameters"] recorded the option as applied."""
+    with pytest.raises(ShellsplineError) as e:
+        ss.interpolate(kf, **kw)
+    msg = _one_line(e)
+    assert msg.startswith(f"`{option}` ") and why in msg, msg
+
+
+def test_what_this_mesh_leaves_unused_is_a_message_and_recorded_as_applied(kf):
+    """A coarse vertex count not below the mesh's and a transfer where nothing is prolonged
+    may come from options shared by meshes of every size: a message each, and the report
+    records what was applied (``coarse="none"``, ``transfer=None``)."""
+    said = []
+    res = ss.interpolate(kf, coarse=500, transfer="displacement",
+                         progress=lambda ev: ev["kind"] == "message" and said.append(ev["text"]))
+    assert said[:2] == ["coarse=500 is not below the 42 vertices of this mesh: it is solved "
+                        "at full resolution",
+                        "transfer='displacement' is not applied: these 42 vertices are "
+                        "solved at full resolution (coarse=500), so nothing is prolonged"]
+    p = res.report["parameters"]
+    assert p["coarse"] == "none" and p["transfer"] is None and "multires" not in res.report
+    full = ss.interpolate(kf, coarse="none")
+    assert np.array_equal(res.V, full.V) and full.report["parameters"]["transfer"] is None
+    # one set of Gauss–Newton options for every method: a message with linear blending;
+    # what a run applies is still accepted: the weights of linear blending's energies,
+    # coarse="none", a rigid track that one pin leaves a rotation to choose for
+    said.clear()
+    lin = ss.interpolate(kf, method="linear", coarse="none", eta=0.5,
+                         gn_options={"max_iter": 3},
+                         progress=lambda ev: ev["kind"] == "message" and said.append(ev["text"]))
+    assert said == ["gn_options={'max_iter': 3} is not applied: method='linear' reconstructs "
+                    "nothing (no Gauss–Newton)"]
+    assert lin.report["parameters"]["eta"] == 0.5 and lin.report["parameters"]["gn_options"] == {}
+    assert ss.interpolate(kf, pinned=[0], rigid_track="linear").report["parameters"][
+        "rigid_track"] == "linear"
+
+
+def test_pins_fix_placement():
+    from shellspline.pipeline.interpolation import pins_fix_placement
+
+    m = trimesh.creation.icosphere(subdivisions=1)
+    V, F = m.vertices, m.faces
+    Vkey = np.stack([V, V * [1.5, 1, 1]])
+    tri = [0, 1, 2]
+    assert pins_fix_placement(Vkey, F, tri)
+    assert not pins_fix_placement(Vkey, F, tri[:2]) and not pins_fix_placement(Vkey, F, None)
+    # on one line: a rotation about it is left to the track
+    line = V.copy()
+    line[[0, 1, 2]] = [[0, 0, 0], [1, 0, 0], [2, 0, 0]]
+    assert not pins_fix_placement(line[None], F, tri)
+    # a second piece without pins is placed by the track
+    two = np.concatenate([V, V + 5.0])
+    F2 = np.concatenate([F, F + len(V)])
+    assert not pins_fix_placement(two[None], F2, tri)
+    assert pins_fix_placement(two[None], F2, tri + [len(V) + i for i in tri])
+
+
+def test_job_file_keys_are_checked_like_the_command_line(tmp_path):
+    """A key of a sequence's own entry that its method cannot use is refused when the job
+    is loaded; one from [defaults] applies where it can (the Fig. 3 regression job sets
+    the paper's spline for its LΘA sequences beside a linear baseline)."""
+    import data_synth
+
+    data_synth.write_batch("ellipsoids", tmp_path / "seqs", 1, 100)
+    p = tmp_path / "job.toml"
+    base = ('[job]\noutput = "out"\nworkers = 1\n[defaults]\nspline = "discrete"\n'
+            'max_iter = 30\n[[sequences]]\nglob = "seqs/*"\nmethod = "linear"\n')
+    p.write_text(base)
+    job = ss.load_job(p)
+    assert ss.run_batch(job).exit_code == 0
+    rep = json.loads(next((tmp_path / "out").glob("*/report.json")).read_text())
+    assert rep["parameters"]["method"] == "linear" and rep["parameters"]["gn_options"] == {}
+    assert rep["parameters"]["spline"] == "continuous"  # not the [defaults] one: unused
+    for extra, key in (('spline = "discrete"\n', "spline"), ("coarse = 50\n", "coarse")):
+        p.write_text(base + extra)
+        with pytest.raises(ShellsplineError) as e:
+            ss.load_job(p)
+        assert f"[[sequences]] #1: '{key}' does not apply to method = 'linear'" in _one_line(e)
+    p.write_text(base.replace('method = "linear"', 'coarse = "none"\ntransfer = "gradient"'))
+    with pytest.raises(ShellsplineError) as e:
+        ss.load_job(p)
+    assert "'transfer' does not apply with coarse = 'none'" in _one_line(e)

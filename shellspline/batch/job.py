@@ -275,6 +275,7 @@ class _Entry:
                                                                        "geodesic"):
             raise job_error(f"{where} key 'max_time'",
                             "applies to method = 'nonlinear' or 'geodesic' only")
+        _check_own_keys(where, params, own)
         self.common = dict(params=params, formats=merged["formats"], render=merged["render"],
                            plots=merged["plots"], delay=merged["delay"])
         name = e.get("name")
@@ -404,6 +405,59 @@ class _Entry:
         return [SequenceSpec(name=name, out=str(self.output / name), source="synth",
                              synth={"name": gen, "vertices": vertices, "params": sp}, **fp,
                              **self.common)]
+
+
+#: Job keys that only some runs use, as :func:`shellspline.interpolate` names them.
+_CONDITIONAL_KEYS = {"coarse": "coarse", "fine": "fine", "transfer": "transfer",
+                     "reference": "reference", "spline": "spline", "fade_angle": "fade_angle",
+                     "max_iter": "gn_options"}
+_JOB_KEYS = {v: k for k, v in _CONDITIONAL_KEYS.items()}
+_NO_VALUE = object()
+
+
+def _job_spelling(option: str, value=_NO_VALUE) -> str:
+    key = _JOB_KEYS.get(option, option)
+    if option == "gn_options" and isinstance(value, dict):
+        value = value.get("max_iter", _NO_VALUE)
+    return f"'{key}'" if value is _NO_VALUE else f"{key} = {value!r}"
+
+
+def _set_keys(params: dict, keys) -> dict:
+    """``{option: value}`` of the :data:`_CONDITIONAL_KEYS` among ``keys`` that ``params``
+    sets, as :func:`~shellspline.pipeline.interpolation.inapplicable_options` takes them."""
+    return {_CONDITIONAL_KEYS[k]: {"max_iter": params[k]} if k == "max_iter" else params[k]
+            for k in keys if k in _CONDITIONAL_KEYS and params[k] is not None
+            and not (k == "fine" and not params[k])}
+
+
+def _check_own_keys(where: str, params: dict, own: dict) -> None:
+    """A key of the sequence's own entry that its run cannot use is a :class:`JobError`, as
+    the CLI refuses such an option
+    (:func:`~shellspline.pipeline.interpolation.inapplicable_options`); one taken from
+    ``[defaults]`` is not (:func:`applicable_params`)."""
+    from ..pipeline.interpolation import inapplicable_options
+
+    refused, _ = inapplicable_options(_set_keys(params, own), params["method"],
+                                      params["coarse"], spell=_job_spelling)
+    if refused:
+        raise job_error(where, refused[0][1])
+
+
+def applicable_params(params: dict) -> dict:
+    """``params`` (a :attr:`SequenceSpec.params`) for :func:`shellspline.interpolate`: the
+    keys the sequence's method cannot use, which it took from ``[defaults]`` (its own ones
+    are refused when the job is loaded), at their defaults. One ``[defaults]`` table serves
+    every sequence: ``pipelines/regression_ellipsoids.toml`` sets the paper's spline for its
+    LΘA sequences beside a ``method = "linear"`` baseline."""
+    from ..pipeline.interpolation import inapplicable_options
+
+    out = dict(params)
+    set_away = [k for k in params if params[k] != DEFAULTS.get(k)]
+    refused, _ = inapplicable_options(_set_keys(params, set_away), params["method"],
+                                      params["coarse"])
+    for option, _ in refused:
+        out[_JOB_KEYS[option]] = DEFAULTS[_JOB_KEYS[option]]
+    return out
 
 
 def json_roundtrip(obj):

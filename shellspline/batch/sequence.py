@@ -19,7 +19,7 @@ from typing import Callable
 
 from ..errors import ShellsplineError
 from ..version import __version__
-from .job import json_roundtrip
+from .job import applicable_params, json_roundtrip
 from .manifest import (MANIFEST_FORMAT, input_digest, manifest_matches, now, output_sizes,
                        sequence_key, write_json_atomic)
 from .summary import reason
@@ -284,7 +284,7 @@ class _Task:
 
         spec = self.spec
         kf, pinned = read_sequence_inputs(spec)
-        p = spec.params
+        p = applicable_params(spec.params)  # [defaults] apply where they can
         gn_options = {} if p["max_iter"] is None else {"max_iter": p["max_iter"]}
         solver_options = {}
         if p["method"] in ("nonlinear", "geodesic"):  # as `shellspline interpolate`

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..errors import ShellsplineError
 from ..pipeline.options import (AUTO_COARSE_ABOVE, AUTO_COARSE_VERTICES, AUTO_NONLINEAR_ABOVE,
-                                DEFAULT_SPLINE, DEFAULT_TRANSFER, SPLINES, TRANSFERS)
+                                SPLINES, TRANSFERS)
 from ..version import __version__
 from .startup import EXIT_INTERRUPTED, INTERRUPTED, forget_outputs, interrupted_line
 from .startup import release as release_startup_guard
@@ -110,7 +110,10 @@ def _build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF/USD)",
                        description="Interpolate keyframes of one triangle mesh (same "
                                    "connectivity) and write OUT/frame_0000.obj ... plus "
-                                   "OUT/report.json.",
+                                   "OUT/report.json. An option given that the run cannot "
+                                   "use is an error (e.g. --spline with --method linear, "
+                                   "--transfer with --coarse none, --rigid-track where the "
+                                   "pins fix the placement).",
                        epilog="exit codes: 0 success; 1 written, but a frame did not converge, "
                               "the quality check failed or --max-time was reached; 2 bad "
                               "input or usage, or an I/O error on your paths; 3 internal "
@@ -134,7 +137,9 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="wall-clock limit in seconds of the nonlinear stage, its set-up and "
                         "first evaluation included, or of the geodesic Newton iterations "
                         "(default 600; the last accepted iterate is written, marked 'time "
-                        "limit reached', exit 1)")
+                        "limit reached', exit 1); with --reference geodesic also of its "
+                        "reference geodesic solve, on its own clock (no default with "
+                        "--method lta)")
     q.add_argument("--ftol", type=float, default=None,
                    help="nonlinear: also stop when the energy fell by at most FTOL (relative) "
                         "over the last 3 iterations, e.g. 1e-6 (default: off, stop on the "
@@ -145,8 +150,9 @@ def _build_parser() -> argparse.ArgumentParser:
                         "(default 1e-3)")
     q.add_argument("--mu", type=float, default=1.0, help="edge-length weight (default 1)")
     q.add_argument("--lam", type=float, default=1.0, help="area weight (default 1)")
-    q.add_argument("--reference", default="constant",
-                   help="reference meshes for the weights: constant (first keyframe), "
+    q.add_argument("--reference",
+                   help="reference meshes for the weights: constant (first keyframe, "
+                        "default), "
                         "keyframe (nearest keyframe per frame), geodesic (piecewise discrete "
                         "geodesic between the keyframes at every frame, paper §9), or a "
                         "keyframe index")
@@ -154,18 +160,18 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="N fixpoint iterations (paper §9, Fig. 9): reference meshes <- "
                         "current result, re-solve the LΘA spline and reconstruct; the change "
                         "per iteration goes to report.json 'fixpoint' (default 0)")
-    q.add_argument("--rigid-track", choices=("fit", "spline", "linear"), default="fit",
+    q.add_argument("--rigid-track", choices=("fit", "spline", "linear"),
                    help="where in-betweens are placed rigidly: onto a per-vertex C² cubic "
                         "through the keyframes (fit, default: closest to the truth on skinned "
                         "walks), along a C² SE(3) spline through the keyframes' rigid poses "
                         "(spline: exact for rigid turns, e.g. a circle), or onto the linear "
                         "blend (linear)")
-    q.add_argument("--fade-angle", type=float, default=0.5, metavar="RAD",
+    q.add_argument("--fade-angle", type=float, metavar="RAD",
                    help="an edge whose dihedral angle turns by more than RAD between the "
                         "keyframes of a gap keeps 1%% of its bending weight there (skin "
                         "folding at joints: removes jumps between local minima); 0 = the "
                         "paper's weights (default 0.5)")
-    q.add_argument("--spline", choices=SPLINES, default=DEFAULT_SPLINE,
+    q.add_argument("--spline", choices=SPLINES,
                    help="time spline of the LΘA descriptors: the C² cubic spline in continuous "
                         "time through the keyframe descriptors (continuous, default: no "
                         "velocity kink at the keyframes; with --reference keyframe/geodesic or "
@@ -180,17 +186,17 @@ def _build_parser() -> argparse.ArgumentParser:
     q.add_argument("--pinned", help="file of vertex indices held fixed (e.g. a base)")
     q.add_argument("--fix-boundary", action="store_true",
                    help="hold the mesh boundary vertices fixed")
-    q.add_argument("--coarse", default="auto",
+    q.add_argument("--coarse",
                    help="multiresolution: decimate all keyframes to N vertices (or a fraction "
                         "0<γ<1), solve there and prolong by detail transfer; 'none' = full "
                         f"resolution; 'auto' (default) = {AUTO_COARSE_VERTICES} vertices for "
                         f"meshes above {AUTO_COARSE_ABOVE} (above {AUTO_NONLINEAR_ABOVE} with "
                         "--method nonlinear)")
-    q.add_argument("--transfer", choices=TRANSFERS, default=DEFAULT_TRANSFER,
+    q.add_argument("--transfer", choices=TRANSFERS,
                    help="how --coarse carries the fine detail onto the coarse frames: gradient "
                         "(default) fits the fine edge vectors carried on the base frames; "
                         "displacement adds the paper's per-vertex offsets (§8)")
-    q.add_argument("--fine", action="store_true",
+    q.add_argument("--fine", action="store_true", default=None,
                    help="after --coarse, run the spline and Gauss–Newton at full resolution "
                         "initialised from the prolonged result")
     q.add_argument("--workers", type=int, default=1, help="processes for the reconstruction")
@@ -265,6 +271,7 @@ def _interpolate(args) -> int:
     from ..pipeline import interpolate
 
     bar = _Bar(quiet=args.quiet)
+    given = _given_options(args)
     if args.max_iter is not None and args.max_iter < 1:
         raise ShellsplineError(f"--max-iter must be >= 1, got {args.max_iter}")
     if args.frames is not None and not args.frames.strip():
@@ -314,10 +321,13 @@ def _interpolate(args) -> int:
     if args.fixpoint and args.method not in ("lta", "nonlinear"):
         raise ShellsplineError("--fixpoint applies to --method lta (and nonlinear, whose start "
                                "it is)")
-    gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
     solver_options = {}
-    if args.max_time is not None and args.method not in ("nonlinear", "geodesic"):
-        raise ShellsplineError("--max-time applies to --method nonlinear and geodesic only")
+    # the reference geodesic's solve takes the limit too (linear blending has no reference)
+    ref_geodesic = str(reference).strip().lower() == "geodesic" and args.method != "linear"
+    if args.max_time is not None and args.method not in ("nonlinear", "geodesic") \
+            and not ref_geodesic:
+        raise ShellsplineError("--max-time applies to --method nonlinear and geodesic and to "
+                               "--reference geodesic only")
     if args.max_time is not None and not 0 < args.max_time < float("inf"):
         raise ShellsplineError(f"--max-time must be a positive number of seconds, got "
                                f"{args.max_time}")
@@ -329,6 +339,10 @@ def _interpolate(args) -> int:
         solver_options["max_time_s"] = 600.0 if args.max_time is None else args.max_time
         if args.ftol is not None:
             solver_options["ftol"] = args.ftol
+    if ref_geodesic and args.max_time is not None:
+        solver_options["max_time_s"] = args.max_time
+    unused = _refuse_inapplicable(given, args, kf, pinned)
+    gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
     # the output location is checked before any computing (writable, not over an input,
     # room for the estimated output), so a bad -o costs no solve
     protect = list(args.keyframes) + [p for p in (args.pinned, args.frames, args.topology,
@@ -344,6 +358,8 @@ def _interpolate(args) -> int:
         if kf.source is not None:
             print(f"  input: {_source_line(kf.source.summary(), args.format)}",
                   file=sys.stderr)
+        for text in unused:
+            _note(text)
     res = interpolate(kf, K=args.K, method=args.method, bc=args.bc, eta=args.eta, mu=args.mu,
                          lam=args.lam, reference=reference, pinned=pinned,
                          workers=args.workers, gn_options=gn_options,
@@ -364,6 +380,66 @@ def _interpolate(args) -> int:
     # rewrite report with the write time (inside the now-complete output directory)
     _rewrite_report(Path(out), res.report)
     return _summary(res, Path(out), quiet=args.quiet, fmt=args.format)
+
+
+#: The ``interpolate`` options that only some runs use (as :func:`shellspline.interpolate`
+#: names them): the parser leaves them ``None`` when not given, so that an option given that
+#: the run cannot use is told from a default (:func:`_given_options`).
+_CONDITIONAL = ("coarse", "fine", "transfer", "reference", "spline", "fade_angle", "rigid_track")
+_FLAGS = {"gn_options": "--max-iter"}
+_NO_VALUE = object()
+
+
+def _flag(option: str, value=_NO_VALUE) -> str:
+    """The command line's spelling of an option (``--max-iter``) or a setting
+    (``--method linear``), for :func:`shellspline.pipeline.interpolation.inapplicable_options`."""
+    flag = _FLAGS.get(option, "--" + option.replace("_", "-"))
+    if option == "gn_options" and isinstance(value, dict):
+        value = value.get("max_iter", _NO_VALUE)
+    return flag if value is _NO_VALUE or value is True else f"{flag} {value}"
+
+
+def _given_options(args) -> dict:
+    """``{option: value}`` of the :data:`_CONDITIONAL` options given on the command line (and
+    ``gn_options``/``rigid_subset`` for ``--max-iter``/``--rigid-subset``); those not given
+    are set to :func:`shellspline.interpolate`'s defaults in ``args``."""
+    from ..pipeline.options import InterpolationOptions
+
+    defaults = InterpolationOptions()
+    given = {}
+    for key in _CONDITIONAL:
+        if getattr(args, key) is None:
+            setattr(args, key, getattr(defaults, key))
+        else:
+            given[key] = getattr(args, key)
+    if args.max_iter is not None:
+        given["gn_options"] = {"max_iter": args.max_iter}
+    if args.rigid_subset is not None:
+        given["rigid_subset"] = args.rigid_subset
+    return given
+
+
+def _refuse_inapplicable(given: dict, args, kf, pinned) -> list:
+    """Refuse an option given that the run cannot use (:class:`ShellsplineError`, named by
+    its flag); return the notes on those that this run only leaves unused (a ``--coarse``
+    count not below the mesh's vertices: run as ``--coarse none``; a ``--transfer`` where
+    nothing is prolonged; ``--max-iter`` with ``--method linear``), which ``args`` then no
+    longer carries."""
+    from ..pipeline.interpolation import inapplicable_options, pins_fix_placement
+    from ..pipeline.options import InterpolationOptions
+
+    placing = "rigid_track" in given or "rigid_subset" in given
+    refused, unused = inapplicable_options(
+        given, args.method, args.coarse, n_vertices=kf.n, spell=_flag,
+        pins_fix=placing and pins_fix_placement(kf.V, kf.topology.F, pinned))
+    if refused:
+        raise ShellsplineError(refused[0][1])
+    applied = {"coarse": ("coarse", "none"), "gn_options": ("max_iter", None),
+               # report.json records transfer null where nothing is prolonged
+               "transfer": ("transfer", InterpolationOptions().transfer)}
+    for key, _ in unused:  # run as applied
+        setattr(args, *applied[key])
+    return [text for _, text in unused]
 
 
 def _vertex_file(path, option: str, kf):
@@ -478,6 +554,10 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
                          f"{r['grad_norm_final'] / r['grad_norm_initial']:.1e} in "
                          f"{r['seconds']:.1f} s")
             lines.append(line)
+    ref = rep.get("reference_geodesic")
+    if ref:
+        lines.append(f"reference geodesic: {'converged' if ref['success'] else 'NOT converged'} "
+                     f"after {ref.get('nit', 0)} iterations ({ref['message']})")
     ok = quality_ok(q) and not convergence_problems(rep)
     if not quiet:
         print("\n".join(lines), file=sys.stderr)

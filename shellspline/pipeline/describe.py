@@ -4,6 +4,7 @@ branches, the weights of the chosen reference, and the time spline of the target
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -200,14 +201,24 @@ class SplineRows:
         return self.clamp(Z, np.arange(self.shape[0])[k])
 
 
-def geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_prefix=""):
+def geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_prefix="",
+                     max_time_s=None):
     """LΘA weights ``(K+1, d)`` at the piecewise discrete geodesic through the keyframes, and
     the geodesic solve's record (``report["reference_geodesic"]``: an unconverged solve gives
-    weights from its last iterates, and the run is not a success)."""
+    weights from its last iterates, and the run is not a success).
+
+    ``max_time_s`` (seconds, or None for no limit) bounds this solve on its own, from its
+    start (:func:`~shellspline.shells.geodesic.geodesic_interpolation`): a solve it stops
+    keeps the paths reached so far, and the record says ``status`` ``"limit"``,
+    ``time_limit_reached`` true and "time limit reached" in its ``message``. The record also
+    has the solve's ``nit``, initial and final path energy and gradient max-norm
+    (:meth:`~shellspline.numerics.result.SolverResult.summary`), ``seconds`` and
+    ``max_time_s``."""
     from ..shells.geodesic import geodesic_interpolation
 
     n_seg = len(frames) - (0 if bc == "periodic" else 1)
     stage = stage_prefix + "reference geodesic"
+    t0 = time.perf_counter()
     with prog.stage(stage, total=n_seg):
         import warnings
 
@@ -216,14 +227,15 @@ def geodesic_weights(Vkey, T, pinned, frames, K, bc, mu, lam, eta, prog, stage_p
             # one line per Newton step in logs, as for method="geodesic"
             g = geodesic_interpolation(
                 Vkey, frames, K, T, mu=mu, lam=lam, eta=eta, pinned=pinned, bc=bc,
-                callback=lambda s, r: prog.advance(stage, s + 1, n_seg),
+                max_time_s=max_time_s, callback=lambda s, r: prog.advance(stage, s + 1, n_seg),
                 progress=lambda s, it, e, gn: prog.advance(
                     stage, s, n_seg, text=f"segment {s + 1}/{n_seg}  it {it:3d}  E {e:.6g}  "
                                           f"|g| {gn:.2e}"))
         if not g.success:
             prog.message(f"reference geodesic: {g.message} (weights from the current iterates)")
-    record = {"success": bool(g.success), "status": g.status, "message": g.message,
-              "resolution": stage_prefix.strip() or "full"}
+    record = {**g.summary(), "resolution": stage_prefix.strip() or "full",
+              "time_limit_reached": bool(g.time_limit_reached), "max_time_s": max_time_s,
+              "seconds": time.perf_counter() - t0, "factorizations": int(g.factorizations)}
     return lta_weights(g.V, T, mu=mu, lam=lam, eta=eta), record
 
 
@@ -302,8 +314,10 @@ def describe_and_solve(Vkey, T, pinned, prob, opts, prog, stage_prefix="") -> Sp
             def W_of(k):
                 return w_const
         elif ref == "geodesic":
-            W_spline, ref_record = geodesic_weights(Vkey, T, pinned, frames, K, bc, prog=prog,
-                                                    stage_prefix=stage_prefix, **par)
+            # the solver stages' time limit bounds this solve too, on its own clock
+            W_spline, ref_record = geodesic_weights(
+                Vkey, T, pinned, frames, K, bc, prog=prog, stage_prefix=stage_prefix,
+                max_time_s=opts.solver_options.get("max_time_s"), **par)
             W_report = W_spline
 
             def W_of(k):

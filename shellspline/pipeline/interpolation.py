@@ -9,8 +9,9 @@ report in :mod:`.report`. See ``ARCHITECTURE.md``.
 from __future__ import annotations
 
 import os
+import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,14 +22,16 @@ from ..progress import Progress
 from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
 from .options import (DEFAULT_SPLINE, DEFAULT_TRANSFER, METHODS, REFERENCES, RIGID_TRACKS, SPLINES,
                       InterpolationOptions, interpolation_problem, notices)
-from .placement import placement_track
+from .options import coarse_target
+from .placement import _components, placement_track
 from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
                      start_report)
 from .stages import in_input_units, run_method
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
            "canonical_frames", "linear_blend", "placement_track", "sequence_quality",
-           "quality_ok", "POP_LIMIT", "RIGID_TRACKS", "SPLINES", "DEFAULT_SPLINE"]
+           "quality_ok", "POP_LIMIT", "RIGID_TRACKS", "SPLINES", "DEFAULT_SPLINE",
+           "inapplicable_options", "pins_fix_placement", "CONDITIONAL_OPTIONS"]
 
 
 @dataclass
@@ -103,7 +106,11 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         (``"keyframe"``), or the piecewise discrete geodesic between the keyframes evaluated at
         every frame (``"geodesic"``, paper §7/§9: physically closer to the undeformed shell of
         each energy term; costs one geodesic solve per keyframe gap, on the coarse mesh under
-        multiresolution).
+        multiresolution). ``solver_options={"max_time_s": S}`` bounds that solve too, with
+        any ``method`` but ``"linear"``: each reference solve gets ``S`` seconds of its own
+        (the method's stage its own ``S`` after it); one stopped by it keeps the paths
+        reached so far and the run reports it unconverged (``report["reference_geodesic"]``:
+        ``status`` ``"limit"``, ``time_limit_reached``).
     fixpoint : int
         Fixpoint iterations of the LΘA model (paper §9, Fig. 9): after the LΘA sequence, set
         the reference meshes to the current result, re-solve the spline and reconstruct
@@ -148,7 +155,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     solver_options : dict, optional
         Extra options of :func:`shellspline.shells.geodesic.geodesic_interpolation` (``tol``,
         ``max_iter``) or :func:`shellspline.shells.nonlinear.nonlinear_spline` (``max_iter``,
-        ``gtol``, ``max_time_s``, ...).
+        ``gtol``, ``max_time_s``, ...); ``max_time_s`` also bounds the solve of
+        ``reference="geodesic"``.
     warm_start : bool
         Start frame k's Gauss–Newton from frame k-1's solution moved by the change of the
         keyframe blend (frames are solved in time order within each worker's run); otherwise
@@ -193,6 +201,24 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     -------
     InterpolationResult
 
+    Raises
+    ------
+    ShellsplineError
+        On bad input, naming the argument; also for an option set away from its default that
+        the run cannot apply (:func:`inapplicable_options`): with ``method="linear"``
+        ``coarse`` (a vertex count or fraction), ``fine``, ``transfer``, ``reference``,
+        ``spline``, ``fade_angle``, ``fixpoint``, ``rigid_track``, ``rigid_subset``;
+        ``solver_options`` with ``"linear"`` and with ``"lta"`` (but for a
+        ``reference="geodesic"``); ``transfer`` or ``fine`` with ``coarse="none"``;
+        ``rigid_track`` or ``rigid_subset`` where the pins fix every frame's rigid placement
+        (:func:`pins_fix_placement`). A ``coarse`` vertex count not below the mesh's, a
+        ``transfer`` on a mesh that ``coarse="auto"`` leaves at full resolution and
+        ``gn_options`` with ``method="linear"`` are not refused (one set of options may serve
+        meshes of every size, or every method): a progress message says so and
+        ``report["parameters"]`` records what was applied, ``coarse="none"``,
+        ``transfer=None``, ``gn_options={}`` (``transfer`` is ``None`` in every run that
+        prolongs nothing).
+
     Examples
     --------
     >>> import numpy as np, trimesh
@@ -213,9 +239,12 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     kf = _keyframes(keyframes, prog)
     prob = interpolation_problem(opts, kf, frames=frames, K=K, pinned=pinned,
                                  rigid_subset=rigid_subset)
+    opts = _applied_options(opts, prob, prog)
     for text in notices(opts, prob):
         prog.message(text)
     report = start_report(opts, prob)
+    if prob.n_coarse is None:  # nothing is prolonged: no detail transfer was applied
+        report["parameters"]["transfer"] = None
     seq = run_method(prob, opts, prog)
     report.update(seq.report)
     report["energies"] = energies_record(seq, prob, opts, prog)
@@ -223,6 +252,209 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     finish_report(report, V, seq.frame_records, prob, opts, prog, t_start)
     return InterpolationResult(V=V, F=prob.T.F, frames=prob.frames,
                                report=jsonable(report, finite=True), Z=Z, source=kf.source)
+
+
+_NOT_GIVEN = object()
+
+
+def _api_spelling(option: str, value=_NOT_GIVEN) -> str:
+    """How :func:`interpolate`'s messages name an option (a backquoted ``transfer``) or a
+    setting (``method='linear'``)."""
+    return f"`{option}`" if value is _NOT_GIVEN else f"{option}={value!r}"
+
+
+#: What :func:`inapplicable_options` checks: the options that only some runs use.
+CONDITIONAL_OPTIONS = ("coarse", "fine", "transfer", "reference", "spline", "fade_angle",
+                       "fixpoint", "gn_options", "solver_options", "rigid_track", "rigid_subset")
+
+
+def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
+                         n_vertices: int | None = None, pins_fix: bool = False,
+                         spell=None) -> tuple[list, list]:
+    """The options in ``given`` that a run of ``method`` cannot apply.
+
+    An option the caller set explicitly (:func:`interpolate`: set away from its default; the
+    CLI: given on the command line; a batch job: set in the sequence's entry) and that the
+    run would not use is refused rather than recorded as if applied. Where one set of options
+    legitimately serves runs that use it and runs that do not, the option is a note instead,
+    and the run applies what it can: options shared by meshes of every size (a ``coarse``
+    vertex count, a ``transfer`` where ``"auto"`` leaves the mesh at full resolution) and the
+    Gauss–Newton options of a comparison of methods (``gn_options`` with ``"linear"``).
+
+    Parameters
+    ----------
+    given : dict
+        ``{option: value}`` of the options set, keyed as :func:`interpolate`'s arguments
+        (:data:`CONDITIONAL_OPTIONS`; others are ignored). ``coarse="auto"`` never counts as
+        set (it lets the mesh decide).
+    method : str
+        The run's method.
+    coarse : "auto", "none", int or float
+        The run's ``coarse`` (given or not).
+    n_vertices : int, optional
+        The mesh's vertex count: with it, ``coarse`` is resolved against the mesh
+        (:func:`~shellspline.pipeline.options.coarse_target`).
+    pins_fix : bool
+        Whether the pins fix every frame's rigid placement (:func:`pins_fix_placement`).
+    spell : callable(option, value=...) -> str, optional
+        How messages name an option or a setting (the CLI's flags, a job file's keys);
+        default :func:`interpolate`'s keywords.
+
+    Returns
+    -------
+    refused : list of (str, str)
+        ``(option, one-line message)`` for each option to refuse, saying why and what to do.
+    unused : list of (str, str)
+        ``(option, note)`` for a ``coarse`` vertex count not below ``n_vertices`` (the run is
+        at full resolution: ``"none"`` is what applies), a ``transfer`` that this mesh leaves
+        unused (nothing is prolonged) and ``gn_options`` with ``method="linear"`` (nothing is
+        reconstructed).
+
+    Examples
+    --------
+    >>> refused, unused = inapplicable_options({"spline": "discrete"}, "linear")
+    >>> [option for option, _ in refused], unused
+    (['spline'], [])
+    >>> inapplicable_options({"coarse": 5000}, "lta", 5000, n_vertices=300)[1][0][0]
+    'coarse'
+    """
+    spell = spell or _api_spelling
+    m = spell("method", method)
+    given = {k: v for k, v in given.items() if k in CONDITIONAL_OPTIONS
+             and not (k == "coarse" and _is_auto(v))}
+    # coarse="none" (or "off"): full resolution on every mesh, whatever its size
+    full = coarse_target(coarse, sys.maxsize) is None
+    refused, unused = [], []
+    for key, value in given.items():
+        o = spell(key)
+        if method == "linear":
+            if key in ("coarse", "fine", "transfer"):
+                if not (key == "coarse" and full):  # "none" is what linear blending does
+                    refused.append((key, f"{o} does not apply to {m}: the per-vertex blend is "
+                                         "computed at full resolution, with no "
+                                         "multiresolution solve (drop it, or choose another "
+                                         "method)"))
+            elif key in ("rigid_track", "rigid_subset"):
+                refused.append((key, f"{o} does not apply to {m}: the per-vertex blend is the "
+                                     "result, nothing is placed rigidly (drop it, or choose "
+                                     "another method)"))
+            elif key == "solver_options":
+                refused.append((key, _solver_only(o, m, spell)))
+            elif key == "gn_options":  # e.g. one set of solver options for every method
+                unused.append((key, f"{spell(key, value)} is not applied: {m} reconstructs "
+                                    "nothing (no Gauss–Newton)"))
+            else:
+                refused.append((key, f"{o} does not apply to {m}: the per-vertex blend has no "
+                                     "LΘA spline and no Gauss–Newton reconstruction (drop it, "
+                                     "or choose another method)"))
+            continue
+        if key == "solver_options" and method == "lta" and \
+                str(given.get("reference", "")).strip().lower() != "geodesic":
+            refused.append((key, _solver_only(o, m, spell)))
+        elif key == "fine" and method == "geodesic":
+            refused.append((key, f"{o} does not apply to {m}: it refines the LΘA "
+                                 "reconstruction at full resolution, and the geodesics have "
+                                 f"none (drop it: with {spell('coarse')} the geodesics are "
+                                 "solved on the coarse meshes and prolonged)"))
+        elif key in ("fine", "transfer") and full:
+            what = ("it refines a multiresolution run at full resolution" if key == "fine"
+                    else "it sets how a multiresolution run carries the fine detail, and a "
+                         "full-resolution run prolongs nothing")
+            refused.append((key, f"{o} does not apply with {spell('coarse', coarse)}: {what} "
+                                 f"(drop it, or give {spell('coarse')} a vertex count)"))
+        elif key in ("rigid_track", "rigid_subset") and pins_fix:
+            refused.append((key, f"{o} has no effect here: the pinned vertices fix every "
+                                 "frame's rigid placement (at least 3 pins, not on one line, "
+                                 "in each connected part of the mesh; drop it, or pin fewer "
+                                 "vertices)"))
+        elif key in ("coarse", "fine", "transfer") and not full and n_vertices is not None \
+                and coarse_target(coarse, n_vertices, method) is None:
+            n = n_vertices
+            if key == "fine":
+                refused.append((key, f"{o} refines a multiresolution run, and "
+                                     f"{spell('coarse', coarse)} solves these {n} vertices at "
+                                     f"full resolution (drop it, or give {spell('coarse')} a "
+                                     f"vertex count below {n})"))
+            elif key == "coarse":
+                unused.append((key, f"{spell('coarse', value)} is not below the {n} vertices "
+                                    "of this mesh: it is solved at full resolution"))
+            else:
+                unused.append((key, f"{spell('transfer', value)} is not applied: these {n} "
+                                    "vertices are solved at full resolution "
+                                    f"({spell('coarse', coarse)}), so nothing is prolonged"))
+    return refused, unused
+
+
+def _is_auto(coarse) -> bool:
+    return coarse is None or (isinstance(coarse, str) and coarse.strip().lower() == "auto")
+
+
+def _solver_only(o: str, m: str, spell) -> str:
+    return (f"{o} does not apply to {m}: it sets the solver of {spell('method', 'geodesic')} "
+            f"and {spell('method', 'nonlinear')} (and of {spell('reference', 'geodesic')})")
+
+
+def pins_fix_placement(Vkey, F, pinned) -> bool:
+    """Whether the pins leave the rigid placement of the frames nothing to choose.
+
+    :func:`~shellspline.pipeline.placement.place` moves each connected part of the mesh only
+    by the rigid motions that keep its pins in place
+    (:func:`shellspline.shells.reconstruct.rigid_placement`): none for three or more pins not
+    on one line. When every part has such pins in every keyframe, neither the rigid track
+    nor the rigid subset changes any frame.
+
+    Parameters
+    ----------
+    Vkey : (J,n,3) float array
+        The keyframes.
+    F : (m,3) int array
+    pinned : (p,) int array or None
+
+    Returns
+    -------
+    bool
+    """
+    if pinned is None or len(pinned) < 3:
+        return False
+    Vkey = np.asarray(Vkey, dtype=np.float64)
+    for idx, fixed in _components(np.asarray(F), Vkey.shape[1], np.asarray(pinned)):
+        if fixed is None or len(fixed) < 3:
+            return False
+        for V in Vkey:
+            part = V[idx]
+            P = part[fixed]
+            c = P.mean(axis=0)
+            sv = np.linalg.svd(P - c, compute_uv=False)
+            if sv[1] <= 1e-9 * max(np.abs(part - c).max(), np.finfo(float).tiny):
+                return False  # on one line: a rotation about it is left free
+    return True
+
+
+_DEFAULT_OPTIONS = InterpolationOptions()
+
+
+def _applied_options(opts, prob, prog):
+    """``opts`` as the run applies them: an option set away from its default that the run
+    cannot apply is refused (:func:`inapplicable_options`); one that only this run leaves
+    unused is said in a message, a ``coarse`` vertex count not below the mesh's becomes
+    ``"none"`` and unused ``gn_options`` become ``{}``."""
+    given = {"coarse": opts.coarse}  # "auto" does not count
+    given.update({k: getattr(opts, k) for k in CONDITIONAL_OPTIONS
+                  if k not in ("coarse", "rigid_subset")
+                  and getattr(opts, k) != getattr(_DEFAULT_OPTIONS, k)})
+    if prob.rigid_subset is not None:
+        given["rigid_subset"] = prob.rigid_subset
+    placing = "rigid_track" in given or "rigid_subset" in given
+    refused, unused = inapplicable_options(
+        given, opts.method, opts.coarse, n_vertices=prob.Vkey.shape[1],
+        pins_fix=placing and pins_fix_placement(prob.Vkey, prob.T.F, prob.pinned))
+    if refused:
+        raise ShellsplineError(refused[0][1])
+    for key, text in unused:
+        prog.message(text)
+        if key in ("coarse", "gn_options"):
+            opts = replace(opts, **{key: "none" if key == "coarse" else {}})
+    return opts
 
 
 def _keyframes(keyframes, prog) -> Keyframes:

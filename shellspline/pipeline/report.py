@@ -149,7 +149,9 @@ def convergence_problems(report: dict) -> list[str]:
 
     The solver whose result is the output decides: the nonlinear stage for
     ``method="nonlinear"`` (its Gauss–Newton frames are only its starting path, see
-    :func:`start_frames_note`), else the Gauss–Newton frames and the geodesic solve.
+    :func:`start_frames_note`), else the Gauss–Newton frames and the geodesic solve. An
+    unconverged reference geodesic (``reference="geodesic"``, e.g. stopped by
+    ``max_time_s``) always counts: the weights are not the ones asked for.
 
     Parameters
     ----------
@@ -170,6 +172,9 @@ def convergence_problems(report: dict) -> list[str]:
     []
     >>> convergence_problems({"nonlinear": {"success": True, "start_returned": True}})
     ['nonlinear result refused (more defects than its LΘA start, which was written)']
+    >>> convergence_problems({"reference_geodesic": {"success": False, "status": "limit",
+    ...                                              "time_limit_reached": True}})
+    ['reference geodesic did not converge (time limit reached; weights from its last iterate)']
     """
     out = []
     gn = report.get("gauss_newton")
@@ -181,7 +186,9 @@ def convergence_problems(report: dict) -> list[str]:
     ref = report.get("reference_geodesic")
     if ref and not ref["success"]:
         # the weights came from an unconverged path: not the reference that was asked for
-        out.append("reference geodesic did not converge (weights from its last iterate)")
+        why = "time limit reached; " if ref.get("time_limit_reached") else ""
+        out.append(f"reference geodesic did not converge ({why}weights from its last "
+                   "iterate)")
     if report.get("nonlinear", {}).get("start_returned"):
         # the output is not what was asked for: not a success, whatever the solve reached
         out.append("nonlinear result refused (more defects than its LΘA start, which was "

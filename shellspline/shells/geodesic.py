@@ -371,14 +371,14 @@ class PathSolver:
             g = self.gradient(A, X, B)[:, self.free] if g_next is None else g_next
             g_next = None
             gn = float(np.abs(g).max())
-            if not (np.isfinite(gn) and np.isfinite(E)):
-                # a shell with a collapsed triangle (an exact half-turn's straight average):
-                # no Hessian to factor there
-                res.stop("failed", "degenerate shell on the path (non-finite energy)")
-                break
             res.record(grad_norm=gn)
             if nit:
                 res.record(energy=K * E)
+            if not (np.isfinite(gn) and np.isfinite(E)):
+                # a shell with a collapsed triangle (an exact half-turn's straight average):
+                # no Hessian to factor there (recorded first: one entry per iterate)
+                res.stop("failed", "degenerate shell on the path (non-finite energy)")
+                break
             if progress is not None:
                 progress(nit, K * E, gn)
             norms = res.grad_norms
@@ -526,7 +526,8 @@ def discrete_geodesic(VA, VB, K: int, T: Topology | None = None, *, mu: float = 
     VB = checked_pose(VB, n, "VB")
     if K == 1:
         return GeodesicResult(V=np.stack([VA, VB]), status="converged",
-                              energies=[W.energy(VA, VB)], message="no inner shells")
+                              energies=[W.energy(VA, VB)], grad_norms=[0.0],
+                              message="no inner shells")
     if init is None:
         init = lerp_inner_shells(VA, VB, K)
     init = np.asarray(init, dtype=np.float64)
@@ -551,18 +552,27 @@ class GeodesicInterpolationResult(SolverResult):
         ``"converged"`` when all segments converged, else the status of the first segment
         that did not. ``success`` is ``status == "converged"``.
     iterations : int
-        Total Newton iterations (also ``nit``).
-    energies : (1,) float64 array
-        The sum of the segments' path energies (``energy``); per-segment histories are in
-        ``segments``.
-    grad_norms : (1,) float64 array
-        The largest final gradient max-norm over the segments.
+        Total Newton iterations over all segments (also ``nit``).
+    energies : (it+1,) float64 array
+        The sum ``Σ_j E^{K_j}`` of the segments' path energies at the start and after every
+        Newton iteration of the solve. The segments are solved one after another, so
+        iteration ``i`` moves one segment while the earlier ones are at their final paths and
+        the later ones at their starts; ``energy`` (the last entry) is the sum at ``V``.
+    grad_norms : (it+1,) float64 array
+        Max-norm of the gradient w.r.t. the inner shells of all segments at the same points
+        (the largest of the segments' gradient max-norms), so ``grad_reduction`` is the
+        reduction of the whole solve. A segment without inner shells has no unknowns and
+        counts 0; one the time limit kept from starting counts its initial gradient.
     message : str
     segment_energies : list of float
         Path energy ``E^{K_j}`` of every segment (eq. 3 with its own number of steps).
     segments : list of GeodesicResult
+        Per-segment results, with their own histories.
     factorizations : int
         Numeric factorizations of the Newton matrices over all segments.
+    time_limit_reached : bool
+        ``max_time_s`` stopped a segment or kept one from starting (``status`` is then
+        ``"limit"`` unless an earlier segment failed or stalled).
     """
 
     V: np.ndarray
@@ -570,6 +580,23 @@ class GeodesicInterpolationResult(SolverResult):
     factorizations: int = 0
     segment_energies: list = field(default_factory=list)
     segments: list = field(default_factory=list)
+    time_limit_reached: bool = False
+
+
+def _combined_histories(results) -> tuple[np.ndarray, np.ndarray]:
+    """Energy and gradient max-norm histories ``(it+1,)`` of segments solved one after
+    another: entry 0 is the start of all of them, then one entry per Newton iteration of
+    each segment in turn (earlier segments at their last iterate, later ones at their
+    first); energies add up, gradient max-norms take the largest (NaN propagates)."""
+    E = np.array([r.energies[0] if r.energies.size else np.nan for r in results])
+    G = np.array([r.grad_norms[0] if r.grad_norms.size else np.nan for r in results])
+    energies, grads = [float(E.sum())], [float(G.max()) if G.size else 0.0]
+    for s, r in enumerate(results):
+        for i in range(1, min(r.energies.size, r.grad_norms.size)):
+            E[s], G[s] = r.energies[i], r.grad_norms[i]
+            energies.append(float(E.sum()))
+            grads.append(float(G.max()))
+    return np.array(energies), np.array(grads)
 
 
 def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: float = 1.0,
@@ -617,7 +644,8 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     max_time_s : float, optional
         Wall-clock limit in seconds for all segments together: no Newton iteration starts
         after it, a segment stopped by it keeps the path reached so far, later segments keep
-        their linear blend, and all of them are reported unconverged. Default: none (each
+        their initial path (``init`` or the linear blend), and all of them are reported
+        unconverged (``time_limit_reached``, status ``"limit"``). Default: none (each
         segment stops after ``max_iter`` Newton iterations; on the 1000-vertex coarse horse
         one 20-step segment takes ~11 s per projected Newton step on a loaded 2-core machine
         and does not converge: its minimising paths collapse sliver faces, see the README).
@@ -659,7 +687,7 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     if bc == "periodic":
         segs.append((J - 1, 0, frames[-1], K))
     solvers: dict = {}
-    results, ok, nit = [], True, 0
+    results, ok, nit, timed_out = [], True, 0, False
     for s, (ja, jb, fa, fb) in enumerate(segs):
         steps = int(fb - fa)
         if steps >= 2:
@@ -668,9 +696,11 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
             X0 = lerp_inner_shells(Vkey[ja], Vkey[jb], steps) if init is None else \
                 init[fa + 1:fb]
             if deadline is not None and time.perf_counter() > deadline:
-                E0 = solvers[steps].path_energy(Vkey[ja], X0, Vkey[jb])
+                solver = solvers[steps]
+                E0 = solver.path_energy(Vkey[ja], X0, Vkey[jb])
+                g0 = np.abs(solver.gradient(Vkey[ja], X0, Vkey[jb])[:, solver.free]).max()
                 res = GeodesicResult(V=np.concatenate([Vkey[ja][None], X0, Vkey[jb][None]]),
-                                     status="limit", energies=[steps * E0],
+                                     status="limit", energies=[steps * E0], grad_norms=[g0],
                                      message="time limit reached before the segment started "
                                              "(its initial path kept: " +
                                              ("the per-vertex blend)" if init is None else
@@ -684,9 +714,10 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
             V[fa + 1:fb] = res.V[1:-1]
         else:
             res = GeodesicResult(V=np.stack([Vkey[ja], Vkey[jb]]), status="converged",
-                                 energies=[W.energy(Vkey[ja], Vkey[jb])],
+                                 energies=[W.energy(Vkey[ja], Vkey[jb])], grad_norms=[0.0],
                                  message="no inner shells")
         results.append(res)
+        timed_out |= res.status == "limit" and res.message.startswith("time limit")
         ok &= res.success
         nit += res.nit
         if callback is not None:
@@ -703,11 +734,11 @@ def geodesic_interpolation(Vkey, frames, K, T: Topology | None = None, *, mu: fl
     if not ok:
         warnings.warn(f"geodesic_interpolation: {message}", RuntimeWarning, stacklevel=2)
     status = next((r.status for r in results if not r.success), "converged")
-    finals = [r.grad_norms[-1] for r in results if r.grad_norms.size]
+    energies, grad_norms = _combined_histories(results)
     return GeodesicInterpolationResult(V=V, frames=frames, status=status, iterations=nit,
-                                       message=message,
-                                       energies=[sum(r.energy for r in results)],
-                                       grad_norms=[max(finals)] if finals else [],
+                                       message=message, energies=energies,
+                                       grad_norms=grad_norms,
                                        segment_energies=[r.energy for r in results],
                                        segments=results,
-                                       factorizations=sum(r.factorizations for r in results))
+                                       factorizations=sum(r.factorizations for r in results),
+                                       time_limit_reached=timed_out)

@@ -313,3 +313,98 @@ def test_ctrl_c_during_start_up_is_one_line_and_exit_130(tmp_path, monkeypatch, 
                         "getsignal(signal.SIGINT) is signal.default_int_handler)"],
                        capture_output=True, text=True, timeout=120, preexec_fn=_sigint_default)
     assert r.returncode == 0 and r.stdout.strip() == "True", r.stderr
+
+
+# --- options the run cannot use ----------------------------------------------------------------
+@pytest.mark.parametrize("extra, flag, why", [
+    (["--method", "linear", "--coarse", "50"], "--coarse", "--method linear"),
+    (["--method", "linear", "--fine"], "--fine", "--method linear"),
+    (["--method", "linear", "--transfer", "gradient"], "--transfer", "--method linear"),
+    (["--method", "linear", "--reference", "keyframe"], "--reference", "--method linear"),
+    (["--method", "linear", "--spline", "continuous"], "--spline", "--method linear"),
+    (["--method", "linear", "--fade-angle", "0.2"], "--fade-angle", "--method linear"),
+    (["--method", "linear", "--rigid-track", "fit"], "--rigid-track", "--method linear"),
+    (["--coarse", "none", "--transfer", "displacement"], "--transfer", "--coarse none"),
+    (["--coarse", "none", "--fine"], "--fine", "--coarse none"),
+    (["--fine"], "--fine", "--coarse auto solves these 162 vertices at full resolution"),
+    (["--method", "geodesic", "--coarse", "50", "--fine"], "--fine", "--method geodesic"),
+], ids=lambda v: " ".join(v) if isinstance(v, list) else None)
+def test_an_option_the_run_cannot_use_is_refused(ell_dir, tmp_path, capsys, extra, flag, why):
+    """An option given that the run would not use is exit 2 with one line naming the flag,
+    why and what to do, before anything is computed or written; a default value given
+    explicitly counts too (before, --method linear took all of these and report.json
+    recorded them as applied)."""
+    out = tmp_path / "o"
+    rc = main(["interpolate", *_poses(ell_dir), "--frames", str(ell_dir / "frames.txt"),
+               "-o", str(out), "-q", *extra])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith(f"shellspline: error: {flag} ") and why in err, err
+    assert "drop it" in err and not out.exists()
+
+
+def test_rigid_placement_options_with_pins_that_fix_the_placement(ell_dir, tmp_path, capsys):
+    """Three or more pins not on one line fix every frame's rigid placement: --rigid-track
+    and --rigid-subset would change nothing, so they are refused; one pin leaves a rotation
+    free, and the track is used."""
+    pins = tmp_path / "pins.txt"
+    pins.write_text("0 1 2 3 4 5 6 7 8 9\n")
+    base = ["interpolate", *_poses(ell_dir), "--frames", str(ell_dir / "frames.txt"), "-q",
+            "--pinned", str(pins)]
+    for extra in (["--rigid-track", "spline"], ["--rigid-subset", str(pins)]):
+        rc = main([*base, "-o", str(tmp_path / "o"), *extra])
+        err = capsys.readouterr().err
+        assert rc == 2 and len(err.strip().splitlines()) == 1, err
+        assert err.startswith(f"shellspline: error: {extra[0]} has no effect here: the pinned "
+                              "vertices fix every frame's rigid placement"), err
+    assert not (tmp_path / "o").exists()
+    pins.write_text("0\n")
+    out = tmp_path / "one"
+    assert main([*base, "-o", str(out), "--rigid-track", "spline"]) == 0
+    assert json.loads((out / "report.json").read_text())["parameters"]["rigid_track"] == "spline"
+
+
+def test_options_this_mesh_leaves_unused_are_a_note_and_recorded_as_applied(ell_dir, tmp_path,
+                                                                             capsys):
+    """A --coarse count not below the mesh's vertices, and a --transfer where nothing is
+    prolonged, serve meshes of every size: the run goes on with one note each, and
+    report.json records what was applied (coarse "none", transfer null), not the value
+    given."""
+    base = ["interpolate", *_poses(ell_dir), "--frames", str(ell_dir / "frames.txt")]
+    out = tmp_path / "big"
+    assert main([*base, "-o", str(out), "--coarse", "5000", "--transfer", "displacement"]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("  note: ")]
+    assert notes == ["  note: --coarse 5000 is not below the 162 vertices of this mesh: it is "
+                     "solved at full resolution",
+                     "  note: --transfer displacement is not applied: these 162 vertices are "
+                     "solved at full resolution (--coarse 5000), so nothing is prolonged"]
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["parameters"]["coarse"] == "none" and rep["parameters"]["transfer"] is None
+    assert "multires" not in rep
+    # the same frames as a run at full resolution without them
+    ref = tmp_path / "ref"
+    assert main([*base, "-o", str(ref), "-q", "--coarse", "none"]) == 0
+    assert np.array_equal(ss.read_sequence(out)[0], ss.read_sequence(ref)[0])
+    assert json.loads((ref / "report.json").read_text())["parameters"]["transfer"] is None
+    # a transfer that is applied is recorded as given
+    mr = tmp_path / "mr"
+    assert main([*base, "-o", str(mr), "-q", "--coarse", "50", "--transfer",
+                 "displacement"]) == 0
+    rep = json.loads((mr / "report.json").read_text())
+    assert rep["parameters"]["transfer"] == "displacement" and "multires" in rep
+    # linear blending: --max-iter (one set of options for every method) is a note, the
+    # weights of its report's energies and --coarse none apply
+    capsys.readouterr()
+    lin = {}
+    for eta in ("1e-3", "0.5"):
+        o = tmp_path / f"lin{eta}"
+        assert main([*base, "-o", str(o), "--method", "linear", "--coarse", "none",
+                     "--eta", eta, "--max-iter", "5"]) == 0
+        lin[eta] = json.loads((o / "report.json").read_text())
+        notes = [ln for ln in capsys.readouterr().err.splitlines() if "note:" in ln]
+        assert notes == ["  note: --max-iter 5 is not applied: --method linear reconstructs "
+                         "nothing (no Gauss–Newton)"]
+    assert lin["0.5"]["parameters"]["eta"] == 0.5
+    assert lin["0.5"]["parameters"]["gn_options"] == {}  # before: {"max_iter": 5}
+    E = {k: r["energies"]["lta_output_energy_per_frame"] for k, r in lin.items()}
+    assert E["0.5"][1] > 10 * E["1e-3"][1]

@@ -686,6 +686,66 @@ def test_reference_geodesic_status_is_recorded_and_decides_success(monkeypatch):
                for p in convergence_problems(res.report))
 
 
+def test_max_time_bounds_the_reference_geodesic_solve():
+    """`reference="geodesic"` solved its geodesic with no time limit (``max_time_s`` was
+    ignored with ``method="lta"``, ``--max-time`` refused): on a big mesh it ran unbounded.
+    ``max_time_s`` now bounds it on its own clock; a solve it stops keeps its paths so far
+    and the run is not a success. A limit that is not reached changes nothing."""
+    from shellspline.pipeline.report import convergence_problems
+
+    V0, F = icosphere(1)
+    Vs = np.stack([V0, V0 * np.array([1.3, 1.0, 0.8]), V0 * np.array([0.9, 1.2, 1.0])])
+    kw = dict(frames=[0, 3, 6], reference="geodesic", eta=0.1)
+    free = ss.interpolate((Vs, F), **kw)
+    roomy = ss.interpolate((Vs, F), solver_options={"max_time_s": 600}, **kw)
+    ref = roomy.report["reference_geodesic"]
+    assert ref["success"] and ref["max_time_s"] == 600 and not ref["time_limit_reached"]
+    assert ref["nit"] == free.report["reference_geodesic"]["nit"] >= 2
+    assert ref["grad_norm_final"] < 1e-6 * ref["grad_norm_initial"]
+    np.testing.assert_array_equal(roomy.V, free.V)
+    tight = ss.interpolate((Vs, F), solver_options={"max_time_s": 1e-9}, **kw)
+    ref = tight.report["reference_geodesic"]
+    assert not ref["success"] and ref["status"] == "limit" and ref["time_limit_reached"]
+    assert "time limit reached" in ref["message"] and ref["nit"] == 0
+    assert ref["grad_norm_final"] == ref["grad_norm_initial"] > 0
+    assert "reference geodesic did not converge (time limit reached; weights from its last " \
+           "iterate)" in convergence_problems(tight.report)
+    assert np.abs(tight.V - free.V).max() > 1e-6  # other weights: the blend's
+    np.testing.assert_array_equal(tight.V[[0, 3, 6]], Vs)
+
+
+def test_cli_max_time_stops_the_reference_geodesic_and_exits_1(tmp_path, capsys):
+    """`--max-time` with `--reference geodesic` was refused for `--method lta`; now it bounds
+    the reference solve, and a solve it stops is in the report, in the summary and exits 1."""
+    import json
+    from pathlib import Path
+
+    from shellspline.cli.main import main
+
+    d = tmp_path / "ell"
+    data_synth.write("ellipsoids", d, n_vertices=150)
+    poses = sorted(str(p) for p in Path(d).glob("pose_*.obj"))
+    args = ["interpolate", *poses, "--frames", str(d / "frames.txt"), "--eta", "0.1",
+            "--reference", "geodesic"]
+    rc = main([*args, "--max-time", "1e-9", "-o", str(tmp_path / "tight")])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    ref = json.loads((tmp_path / "tight" / "report.json").read_text())["reference_geodesic"]
+    assert ref["status"] == "limit" and ref["time_limit_reached"] and ref["max_time_s"] == 1e-9
+    line = [ln for ln in err.splitlines() if ln.startswith("reference geodesic: ")]
+    assert len(line) == 1 and "NOT converged" in line[0] and "time limit reached" in line[0]
+    rc = main([*args, "--max-time", "600", "-o", str(tmp_path / "roomy")])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    ref = json.loads((tmp_path / "roomy" / "report.json").read_text())["reference_geodesic"]
+    assert ref["success"] and ref["max_time_s"] == 600
+    assert "reference geodesic: converged after" in err
+    # linear blending has no reference: the limit would bound nothing
+    rc = main([*args, "--method", "linear", "--max-time", "5", "-o", str(tmp_path / "lin")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--max-time" in err and not (tmp_path / "lin").exists()
+
+
 def test_geodesic_method_extrapolates_frames_after_the_last_keyframe():
     """`--method geodesic --K` past the last keyframe said it extrapolates but held those
     frames at the keyframe (steps 0, then a pop); they are the LΘA start's extrapolation,

@@ -309,3 +309,75 @@ def test_adjoint_factorization_keeps_the_true_hessian():
     ctx = S.factor_at(A, X, B)
     assert np.array_equal(ctx["H"].toarray(), S.gpattern.matrix(true).toarray())
     assert ctx["tau"] > 0  # indefinite: the true Hessian needed a shift to factor
+
+
+def test_interpolation_histories_follow_every_newton_iteration(ellipsoids):
+    """`GeodesicInterpolationResult` said nothing about its solve: histories of shape (1,)
+    and ``grad_reduction`` 1.0. Its histories have one entry for the start and one per
+    Newton iteration of the segments, solved one after another: the sum of the segments'
+    path energies and the largest gradient max-norm, the others at their start or end."""
+    d = ellipsoids
+    T = topology(d["F"])
+    res = geodesic_interpolation(d["V"], [0, 3, 6], 6, T, eta=0.1)
+    s0, s1 = res.segments
+    assert res.success and s0.nit >= 2 and s1.nit >= 2 and res.nit == s0.nit + s1.nit
+    assert len(res.energies) == len(res.grad_norms) == res.nit + 1
+    E, G = res.energies, res.grad_norms
+    assert E[0] == pytest.approx(s0.energies[0] + s1.energies[0], rel=1e-14)
+    assert G[0] == max(s0.grad_norms[0], s1.grad_norms[0])
+    # after segment 0's last iteration: segment 0 at its end, segment 1 at its start
+    assert E[s0.nit] == pytest.approx(s0.energies[-1] + s1.energies[0], rel=1e-14)
+    assert G[s0.nit] == max(s0.grad_norms[-1], s1.grad_norms[0])
+    assert E[-1] == res.energy == pytest.approx(sum(res.segment_energies), rel=1e-14)
+    assert G[-1] == max(s0.grad_norms[-1], s1.grad_norms[-1])
+    assert np.all(np.diff(E) <= 1e-12 * E[0])  # every Newton step lowers the path energy
+    assert res.grad_reduction == G[-1] / G[0] and res.grad_reduction < 1e-6
+    # a closing segment counts as any other
+    per = geodesic_interpolation(d["V"][:2], [0, 2], 4, T, eta=0.1, bc="periodic")
+    assert len(per.energies) == len(per.grad_norms) == per.nit + 1 == \
+        1 + sum(s.nit for s in per.segments)
+    assert per.grad_reduction < 1e-6
+
+
+def test_histories_of_stopped_and_failed_solves_have_one_entry_per_iterate(ellipsoids,
+                                                                          monkeypatch):
+    """A segment the time limit kept from starting had no gradient history (and a solve
+    that failed on a degenerate shell none either): each now has one entry per iterate,
+    and the interpolation's histories cover the whole solve."""
+    import importlib
+
+    geo = importlib.import_module("shellspline.shells.geodesic")
+    # a cube turned half a turn: its straight average (the start) is flat, every face
+    # collapsed, so the solve fails at once
+    V0 = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+                   [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=np.float64)
+    F = np.array([[0, 3, 2], [0, 2, 1], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+                  [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
+    with np.errstate(all="ignore"):
+        bad = discrete_geodesic(V0, V0 * [-1.0, -1.0, 1.0], 2, topology(F), eta=0.1)
+    assert bad.status == "failed" and bad.nit == 0
+    assert len(bad.energies) == len(bad.grad_norms) == 1
+    d = ellipsoids
+    T = topology(d["F"])
+    V = d["V"]
+    clock = {"t": 0.0}
+
+    def fake_clock():          # one "second" per reading: the limit falls inside segment 0
+        clock["t"] += 1.0
+        return clock["t"]
+
+    monkeypatch.setattr(geo.time, "perf_counter", fake_clock)
+    with pytest.warns(RuntimeWarning, match="time limit"):
+        res = geodesic_interpolation(V, [0, 3, 6], 6, T, eta=0.1, max_time_s=2)
+    s0, s1 = res.segments
+    assert res.status == "limit" and res.time_limit_reached
+    assert s0.nit >= 1 and s1.nit == 0 and "before the segment started" in s1.message
+    assert len(s1.energies) == len(s1.grad_norms) == 1
+    W = DiscreteShells(T, 1.0, 1.0, 0.1)
+    X1 = geo.lerp_inner_shells(V[1], V[2], 3)
+    g1 = PathSolver(W, 2).gradient(V[1], X1, V[2])
+    assert s1.grad_norms[0] == pytest.approx(np.abs(g1).max(), rel=1e-12)
+    assert len(res.energies) == len(res.grad_norms) == res.nit + 1 == s0.nit + 1
+    assert res.grad_norms[0] == max(s0.grad_norms[0], s1.grad_norms[0])
+    assert res.energies[-1] == pytest.approx(s0.energy + s1.energy, rel=1e-14)
+    assert not geodesic_interpolation(V, [0, 3, 6], 6, T, eta=0.1).time_limit_reached

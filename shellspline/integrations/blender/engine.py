@@ -234,8 +234,10 @@ def _run_cli(executable, Vkeys, F, frames, K, options, pinned, progress):
         cmd = [exe, "interpolate", *paths, "-o", out, "--frames",
                ",".join(str(int(f)) for f in frames), "-K", str(K), "--method", options.method,
                "--bc", options.bc, "--eta", repr(float(options.eta)), "--coarse",
-               str(options.coarse), "--rigid-track", options.rigid_track, "--format", "pc2",
-               "-q"]
+               str(options.coarse), "--format", "pc2", "-q"]
+        if options.rigid_track != "fit":  # as the library back end: "fit" is the default,
+            # and a track given must be usable (not with --method linear or fixing pins)
+            cmd += ["--rigid-track", options.rigid_track]
         if options.fine:
             cmd.append("--fine")
         if options.max_iter:
