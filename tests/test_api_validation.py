@@ -215,7 +215,6 @@ def test_interpolate_pins_number_the_solve_mesh(tmp_path):
     (dict(method="linear", solver_options={"max_time_s": 5.0}), "solver_options",
      "method='linear'"),
     (dict(solver_options={"max_time_s": 5.0}), "solver_options", "method='lta'"),
-    (dict(coarse="none", transfer="displacement"), "transfer", "coarse='none'"),
     (dict(pinned=[0, 1, 2, 3], rigid_track="linear"), "rigid_track", "pinned vertices fix"),
     (dict(pinned=[0, 1, 2, 3], rigid_subset=[10, 20, 30]), "rigid_subset",
      "pinned vertices fix"),
@@ -243,6 +242,14 @@ def test_what_this_mesh_leaves_unused_is_a_message_and_recorded_as_applied(kf):
     assert p["coarse"] == "none" and p["transfer"] is None and "multires" not in res.report
     full = ss.interpolate(kf, coarse="none")
     assert np.array_equal(res.V, full.V) and full.report["parameters"]["transfer"] is None
+    # coarse="none" with a transfer (one set of options for a full and a multiresolution
+    # run): a message, the same frames
+    said.clear()
+    nt = ss.interpolate(kf, coarse="none", transfer="displacement",
+                        progress=lambda ev: ev["kind"] == "message" and said.append(ev["text"]))
+    assert said == ["transfer='displacement' is not applied: coarse='none' solves at full "
+                    "resolution, so nothing is prolonged"]
+    assert np.array_equal(nt.V, full.V) and nt.report["parameters"]["transfer"] is None
     # one set of Gauss–Newton options for every method: a message with linear blending;
     # what a run applies is still accepted: the weights of linear blending's energies,
     # coarse="none", a rigid track that one pin leaves a rotation to choose for
@@ -298,7 +305,7 @@ def test_job_file_keys_are_checked_like_the_command_line(tmp_path):
         with pytest.raises(ShellsplineError) as e:
             ss.load_job(p)
         assert f"[[sequences]] #1: '{key}' does not apply to method = 'linear'" in _one_line(e)
-    p.write_text(base.replace('method = "linear"', 'coarse = "none"\ntransfer = "gradient"'))
+    p.write_text(base.replace('method = "linear"', 'coarse = "none"\nfine = true'))
     with pytest.raises(ShellsplineError) as e:
         ss.load_job(p)
-    assert "'transfer' does not apply with coarse = 'none'" in _one_line(e)
+    assert "'fine' does not apply with coarse = 'none'" in _one_line(e)

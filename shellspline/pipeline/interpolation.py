@@ -209,10 +209,11 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         ``coarse`` (a vertex count or fraction), ``fine``, ``transfer``, ``reference``,
         ``spline``, ``fade_angle``, ``fixpoint``, ``rigid_track``, ``rigid_subset``;
         ``solver_options`` with ``"linear"`` and with ``"lta"`` (but for a
-        ``reference="geodesic"``); ``transfer`` or ``fine`` with ``coarse="none"``;
+        ``reference="geodesic"``); ``fine`` with ``coarse="none"``;
         ``rigid_track`` or ``rigid_subset`` where the pins fix every frame's rigid placement
         (:func:`pins_fix_placement`). A ``coarse`` vertex count not below the mesh's, a
-        ``transfer`` on a mesh that ``coarse="auto"`` leaves at full resolution and
+        ``transfer`` on a run at full resolution (``coarse="none"``, or a mesh that
+        ``"auto"`` leaves at full resolution) and
         ``gn_options`` with ``method="linear"`` are not refused (one set of options may serve
         meshes of every size, or every method): a progress message says so and
         ``report["parameters"]`` records what was applied, ``coarse="none"``,
@@ -278,7 +279,7 @@ def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
     run would not use is refused rather than recorded as if applied. Where one set of options
     legitimately serves runs that use it and runs that do not, the option is a note instead,
     and the run applies what it can: options shared by meshes of every size (a ``coarse``
-    vertex count, a ``transfer`` where ``"auto"`` leaves the mesh at full resolution) and the
+    vertex count, a ``transfer`` where the mesh is solved at full resolution) and the
     Gauss–Newton options of a comparison of methods (``gn_options`` with ``"linear"``).
 
     Parameters
@@ -356,12 +357,16 @@ def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
                                  "reconstruction at full resolution, and the geodesics have "
                                  f"none (drop it: with {spell('coarse')} the geodesics are "
                                  "solved on the coarse meshes and prolonged)"))
-        elif key in ("fine", "transfer") and full:
-            what = ("it refines a multiresolution run at full resolution" if key == "fine"
-                    else "it sets how a multiresolution run carries the fine detail, and a "
-                         "full-resolution run prolongs nothing")
-            refused.append((key, f"{o} does not apply with {spell('coarse', coarse)}: {what} "
-                                 f"(drop it, or give {spell('coarse')} a vertex count)"))
+        elif key == "fine" and full:
+            refused.append((key, f"{o} does not apply with {spell('coarse', coarse)}: it "
+                                 "refines a multiresolution run at full resolution (drop it, "
+                                 f"or give {spell('coarse')} a vertex count)"))
+        elif key == "transfer" and full:
+            # a note, not an error: a full-resolution run and a multiresolution run compared
+            # with one set of options (e.g. the same transfer) is a common workflow
+            unused.append((key, f"{spell('transfer', value)} is not applied: "
+                                f"{spell('coarse', coarse)} solves at full resolution, so "
+                                "nothing is prolonged"))
         elif key in ("rigid_track", "rigid_subset") and pins_fix:
             refused.append((key, f"{o} has no effect here: the pinned vertices fix every "
                                  "frame's rigid placement (at least 3 pins, not on one line, "

@@ -183,16 +183,40 @@ class GaussNewton:
     damping : float
         Levenberg–Marquardt term relative to the mean diagonal of ``Jᵀ W J``.
     cg_tol : float
-        Relative residual of the inner CG solves (inexact Gauss–Newton).
+        Relative residual of the inner CG solves (inexact Gauss–Newton); with ``forcing``
+        the floor of the forcing term.
+    forcing : float
+        Forcing term of the inexact Gauss–Newton steps (Eisenstat and Walker's choice 2,
+        SIAM J. Sci. Comput. 17, 1996): after a frame's first step CG stops at the relative
+        residual ``min(cg_tol_max, max(cg_tol, forcing (‖g_k‖/‖g_{k−1}‖)²))``: looser where
+        Gauss–Newton converges only linearly (a tighter inner solve buys no outer
+        progress there), ``cg_tol`` where it converges fast; 0 keeps ``cg_tol`` throughout.
+        Default 0.9. Where the decrement test passes on a loose solve, the solve is continued
+        to ``cg_tol`` first (a truncated CG underestimates ``-g·p``), so frames are judged as
+        before. Measured with ``refresh_cg`` 6 (``benchmarks/bench_gn.py``, workers 2, two
+        rounds, 2026-11-29): the horse (``horse-reference, 03, 07`` at 0, 20, 40, full
+        resolution) 2335 → 1909 CG iterations, 382 → 388 Gauss–Newton iterations (median 8),
+        CPU 64.6 → 59.8 s, wall 41.7 → 37.9 s, the same defects; at ``coarse=1000``
+        (one worker) 22 % and 25 % fewer CG iterations, CPU 5.4 → 4.4 s (three poses) and
+        6.0 → 5.9 s (five); the cactus and the skinned bodies of ``bench_real.py`` as before
+        (their gradients drop fast: the floor holds).
+    cg_tol_max : float
+        Ceiling of the forcing term. 0.1 saved 4 % more of the horse's CPU time, but on
+        ``data_synth.stress.slivers`` took 245 Gauss–Newton iterations against 222 (0.05:
+        227), where the warm-start chain is chaotic and a start of lower energy no longer
+        led to fewer iterations (``tests/shells/test_prolong.py``); 0.2 added Gauss–Newton
+        iterations on the horse.
     cg_max_iter : int
         CG iteration limit; hitting it marks the preconditioner as stale.
     refresh_cg : int, optional
         A CG solve that needs more iterations than this marks the preconditioner as stale:
         the next Gauss–Newton step refactors at its iterate (numeric factorization only; the
-        symbolic analysis is done once). Default: 8 up to 20 000 vertices, growing like the
-        square root of the vertex count above (22 at 150 000 vertices), because a
-        factorization costs more solves the larger the mesh (measured: about 15 solves at
-        20k vertices, 40 at 150k).
+        symbolic analysis is done once). Default: ``8 √(n / 20 000)`` rounded, at least 6
+        (6 up to 11 000 vertices, 8 at 20 000, 22 at 150 000), because a factorization costs
+        more solves the larger the mesh (measured: about 15 solves at 20k vertices, 40 at
+        150k). 8 was the floor before the ``forcing`` term; with it, 6 saved a further 5 %
+        of the horse's CPU time (the looser solves hide less of a stale factor's need for a
+        refresh) and changed nothing on the cactus.
     ordering : {"auto", "amd", "nd"}
         Fill-reducing order of the factorization (``cholmod`` backend): ``"amd"`` CHOLMOD's
         approximate minimum degree, ``"nd"`` geometric nested dissection of the vertex graph
@@ -225,7 +249,7 @@ class GaussNewton:
     def __init__(self, T: Topology, *, pinned=None, backend: str = "auto", max_iter: int = 60,
                  ftol: float = 1e-6, gtol: float = 1e-5, damping: float = 1e-8,
                  cg_tol: float = 1e-2, cg_max_iter: int = 40, refresh_cg: int | None = None,
-                 dtol: float = 2e-6,
+                 dtol: float = 2e-6, forcing: float = 0.9, cg_tol_max: float = 0.05,
                  rotate_preconditioner: bool | None = None, ordering: str = "auto",
                  amortize_refresh: bool | None = None, subspace: bool = True):
         self.T = T
@@ -235,8 +259,9 @@ class GaussNewton:
         self.ftol, self.gtol, self.dtol = float(ftol), float(gtol), float(dtol)
         self.damping = float(damping)
         self.cg_tol, self.cg_max_iter = float(cg_tol), int(cg_max_iter)
+        self.forcing, self.cg_tol_max = float(forcing), float(cg_tol_max)
         self.refresh_cg = int(refresh_cg) if refresh_cg is not None else \
-            max(8, int(round(8 * np.sqrt(T.n_vertices / LARGE_MESH))))
+            max(6, int(round(8 * np.sqrt(T.n_vertices / LARGE_MESH))))
         self.rotate_preconditioner = T.n_vertices > LARGE_MESH if rotate_preconditioner is None \
             else bool(rotate_preconditioner)
         self.amortize_refresh = T.n_vertices > LARGE_MESH if amortize_refresh is None \
@@ -488,7 +513,7 @@ class GaussNewton:
         Q[free] = Qf
         return lambda v: v - np.einsum("ij,j->i", Q, np.einsum("ij,i->j", Q, v))
 
-    def _pcg(self, J, w, b, delta, precond, max_iter=None):
+    def _pcg(self, J, w, b, delta, precond, max_iter=None, rtol=None, x0=None):
         """Solve (JᵀWJ + δI) x = b on the free DOFs by CG preconditioned with ``precond``
         (from :meth:`_preconditioner`; without pins its range excludes the current rigid
         motions, so CG runs on their complement), at most ``max_iter`` iterations (default
@@ -501,9 +526,17 @@ class GaussNewton:
             out[~free] = 0.0
             return out
 
-        res = pcg(matvec, b, precond=precond, rtol=self.cg_tol,
+        rtol = self.cg_tol if rtol is None else rtol
+        if x0 is not None:  # continue from x0: the correction for the residual left there
+            r0 = b - matvec(x0)
+            rn = float(np.linalg.norm(r0))
+            if rn <= rtol * float(np.linalg.norm(b)):
+                return x0, 0, True
+            rtol, b = rtol * float(np.linalg.norm(b)) / rn, r0
+        res = pcg(matvec, b, precond=precond, rtol=rtol,
                   max_iter=self.cg_max_iter if max_iter is None else max_iter)
-        return res.x, res.iterations, res.status == "converged"
+        x = res.x if x0 is None else x0 + res.x
+        return x, res.iterations, res.status == "converged"
 
     def half_gradient(self, x, z_target, w, tube=None) -> np.ndarray:
         """``g = Jᵀ W_eff r``, half the gradient of :meth:`merit`'s ``f``, at the flattened
@@ -658,6 +691,7 @@ class GaussNewton:
         f_old = f_older = f
         # length scale of the finite-difference products in subspace_step
         h = _mean_edge_length(x, T.E) if self.subspace else 1.0
+        eta = self.cg_tol  # CG's relative tolerance (the forcing term, see forcing)
         for it in range(1, self.max_iter + 1):
             # iterates where a cached factor is often too far (a frame's start, after a
             # large step): where it was the last time, it is refreshed without a try
@@ -677,7 +711,7 @@ class GaussNewton:
             # here and the solve repeated, instead of finishing the solve with it
             p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond,
                                    self.cg_max_iter if fresh else
-                                   min(self.cg_max_iter, 2 * self.refresh_cg))
+                                   min(self.cg_max_iter, 2 * self.refresh_cg), eta)
             res.cg_iterations += ncg
             self._cycle[0] += ncg
             if kind is not None and not fresh:
@@ -686,13 +720,24 @@ class GaussNewton:
                 self._refresh(J, w_eff, x)
                 x_rot, R, fresh = x, None, True
                 precond = self._preconditioner(x, R)
-                p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond, self.cg_max_iter)
+                p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond, self.cg_max_iter,
+                                       eta)
                 res.cg_iterations += ncg
                 self._cycle[0] += ncg
             if not ok or ncg > self.refresh_cg:
                 self._stale = True
             # backtracking line search (Armijo); a step may not collapse a triangle
             slope = float(g @ p)
+            if -slope <= self.dtol * f and ok and eta > self.cg_tol:
+                # a loose inner solve (the forcing term) underestimates the decrement -g·p:
+                # the frame is judged on the solve continued to cg_tol, as without the
+                # forcing term
+                eta = self.cg_tol
+                p, ncg, ok = self._pcg(J, w_eff, -g, self._delta, precond, self.cg_max_iter,
+                                       eta, x0=p)
+                res.cg_iterations += ncg
+                self._cycle[0] += ncg
+                slope = float(g @ p)
             if slope >= 0:  # not a descent direction: fall back to preconditioned gradient
                 p = -precond(g)
                 slope = float(g @ p)
@@ -750,6 +795,9 @@ class GaussNewton:
             g[self._dof_pinned] = 0.0
             y_prev = g - g_prev
             gn = float(np.linalg.norm(g))
+            if self.forcing > 0:
+                ratio = gn / res.grad_norms[-1]
+                eta = min(self.cg_tol_max, max(self.cg_tol, self.forcing * ratio * ratio))
             res.record(f, gn)
             res.iterations = it
             if gn <= self.gtol * g0 or gn <= g_tiny or f <= f_tiny:

@@ -324,7 +324,6 @@ def test_ctrl_c_during_start_up_is_one_line_and_exit_130(tmp_path, monkeypatch, 
     (["--method", "linear", "--spline", "continuous"], "--spline", "--method linear"),
     (["--method", "linear", "--fade-angle", "0.2"], "--fade-angle", "--method linear"),
     (["--method", "linear", "--rigid-track", "fit"], "--rigid-track", "--method linear"),
-    (["--coarse", "none", "--transfer", "displacement"], "--transfer", "--coarse none"),
     (["--coarse", "none", "--fine"], "--fine", "--coarse none"),
     (["--fine"], "--fine", "--coarse auto solves these 162 vertices at full resolution"),
     (["--method", "geodesic", "--coarse", "50", "--fine"], "--fine", "--method geodesic"),
@@ -392,6 +391,16 @@ def test_options_this_mesh_leaves_unused_are_a_note_and_recorded_as_applied(ell_
                  "displacement"]) == 0
     rep = json.loads((mr / "report.json").read_text())
     assert rep["parameters"]["transfer"] == "displacement" and "multires" in rep
+    # --coarse none with a --transfer (a full run compared with a multiresolution one, the
+    # same options for both): a note, and the frames of the run without it
+    capsys.readouterr()
+    nt = tmp_path / "none_transfer"
+    assert main([*base, "-o", str(nt), "--coarse", "none", "--transfer", "displacement"]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("  note: ")]
+    assert notes == ["  note: --transfer displacement is not applied: --coarse none solves at "
+                     "full resolution, so nothing is prolonged"]
+    assert json.loads((nt / "report.json").read_text())["parameters"]["transfer"] is None
+    assert np.array_equal(ss.read_sequence(nt)[0], ss.read_sequence(ref)[0])
     # linear blending: --max-iter (one set of options for every method) is a note, the
     # weights of its report's energies and --coarse none apply
     capsys.readouterr()

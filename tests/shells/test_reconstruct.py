@@ -127,6 +127,79 @@ def test_a_stale_factor_is_refreshed_instead_of_finishing_its_solve(monkeypatch)
     assert r.cg_iterations <= 240 and r.factorizations <= 12 and r.nit <= 36
 
 
+def test_cg_tolerance_follows_the_forcing_term(monkeypatch):
+    # inexact Gauss–Newton with Eisenstat–Walker's choice 2: after a frame's first step the
+    # inner CG stops at min(cg_tol_max, max(cg_tol, forcing (|g_k|/|g_k-1|)^2)); on the
+    # sliver tube's large-residual frame the ratio is large enough that the ceiling is hit,
+    # and forcing=0 keeps cg_tol for every solve
+    import shellspline.shells.reconstruct as rec
+    from data_synth import stress
+
+    d = stress.slivers()
+    T, V = topology(d["F"]), d["V"]
+    z = 0.5 * (lta_descriptors(V[0], T) + lta_descriptors(V[1], T))
+    w = lta_weights(V[0], T)
+    tols = []
+    pcg = rec.pcg
+
+    def spy(*args, **kw):
+        tols.append(kw["rtol"])
+        return pcg(*args, **kw)
+
+    monkeypatch.setattr(rec, "pcg", spy)
+    for forcing in (0.0, 0.9):
+        tols.clear()
+        gn = GaussNewton(T, pinned=d["pinned"], subspace=False, forcing=forcing)
+        r = gn.solve(z, w, 0.5 * (V[0] + V[1]))
+        assert r.success and len(tols) >= r.nit
+        if forcing == 0:
+            assert set(tols) == {gn.cg_tol}
+            continue
+        g = np.asarray(r.grad_norms)
+        want = np.clip(forcing * (g[1:] / g[:-1]) ** 2, gn.cg_tol, gn.cg_tol_max)
+        assert tols[0] == gn.cg_tol
+        # a step's solve (repeated once where a stale factor was refreshed) uses the term
+        # of the step before it
+        got = sorted(set(tols[1:]))
+        assert np.all(np.isin(np.round(got, 15), np.round(want[:-1], 15)))
+        assert gn.cg_tol < max(tols) <= gn.cg_tol_max  # the forcing term acted
+
+
+def test_decrement_test_is_judged_on_a_solve_to_cg_tol(monkeypatch):
+    # a frame stops on the Gauss–Newton decrement -g·p <= dtol f; a CG solve stopped early
+    # (the forcing term's looser tolerance) underestimates -g·p, so where the test passes on
+    # a loose solve, that solve is continued to cg_tol and the test repeated: the step the
+    # frame is judged on solves the Gauss–Newton system to cg_tol
+    import scipy.sparse as sp
+
+    import shellspline.shells.reconstruct as rec
+    from data_synth import stress
+
+    d = stress.joint()
+    T, V = topology(d["F"]), d["V"]
+    z = 0.3 * lta_descriptors(V[0], T) + 0.7 * lta_descriptors(V[1], T)
+    gn = GaussNewton(T, pinned=d["pinned"], subspace=False)
+    calls = []
+    _pcg = rec.GaussNewton._pcg
+
+    def spy(self, J, w, b, delta, precond, max_iter=None, rtol=None, x0=None):
+        out = _pcg(self, J, w, b, delta, precond, max_iter, rtol, x0)
+        calls.append((rtol, x0 is not None, J, w, b, delta, out[0]))
+        return out
+
+    monkeypatch.setattr(rec.GaussNewton, "_pcg", spy)
+    r = gn.solve(z, lta_weights(V[0], T), 0.3 * V[0] + 0.7 * V[1])
+    assert r.success and r.message == "Gauss–Newton decrement below dtol"
+    rtol, continued, J, w, b, delta, p = calls[-1]
+    assert continued and rtol == gn.cg_tol and calls[-2][0] > gn.cg_tol
+    # the relative residual of the step the frame was judged on
+    free = ~np.isin(np.arange(b.size) // 3, d["pinned"])
+    H = (J.T @ sp.diags(w) @ J + delta * sp.eye(b.size)).tocsr()[free][:, free]
+    res = np.linalg.norm(H @ p[free] - b[free]) / np.linalg.norm(b[free])
+    assert res <= gn.cg_tol * (1 + 1e-6)
+    assert 0 < float(b @ p) <= gn.dtol * r.energy * (1 + 1e-9)  # the decrement -g·p
+
+
 def test_sparse_cholesky_solves():
     import scipy.sparse as sp
 
