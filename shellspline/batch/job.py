@@ -271,10 +271,15 @@ class _Entry:
         merged.update(own)
         self.merged = merged
         params = {k: merged[k] for k in INTERPOLATION_KEYS}
+        ref_geodesic = str(params["reference"]).strip().lower() == "geodesic" and \
+            params["method"] != "linear"
         if params["max_time"] is not None and params["method"] not in ("nonlinear",
-                                                                       "geodesic"):
+                                                                       "geodesic") \
+                and not ref_geodesic:
+            # as `shellspline interpolate --max-time`: it also bounds the reference geodesic
             raise job_error(f"{where} key 'max_time'",
-                            "applies to method = 'nonlinear' or 'geodesic' only")
+                            "applies to method = 'nonlinear' or 'geodesic' and to "
+                            "reference = 'geodesic' only")
         _check_own_keys(where, params, own)
         self.common = dict(params=params, formats=merged["formats"], render=merged["render"],
                            plots=merged["plots"], delay=merged["delay"])

@@ -289,6 +289,8 @@ class _Task:
         solver_options = {}
         if p["method"] in ("nonlinear", "geodesic"):  # as `shellspline interpolate`
             solver_options["max_time_s"] = 600.0 if p["max_time"] is None else p["max_time"]
+        elif p["max_time"] is not None:  # lta: the reference geodesic's own limit
+            solver_options["max_time_s"] = p["max_time"]
 
         def progress(ev):
             if self.emit is not None and ev.get("kind") in ("stage_end", "message"):

@@ -711,6 +711,31 @@ def test_geodesic_takes_max_time_as_interpolate_does(tmp_path, monkeypatch):
     assert seen["solver_options"]["max_time_s"] == 30.0
 
 
+def test_max_time_bounds_the_reference_geodesic_of_an_lta_sequence(tmp_path, monkeypatch):
+    # as `shellspline interpolate --reference geodesic --max-time`: an lta sequence with the
+    # geodesic reference takes max_time (it was refused: "nonlinear or geodesic only"), and
+    # passes it as the reference solve's limit; without that reference it is still refused
+    p = _synth_job(tmp_path, ["g"], defaults='reference = "geodesic"\nmax_time = 30\n')
+    spec = batch.load_job(p).sequences[0]
+    assert spec.params["method"] == "lta" and spec.params["max_time"] == 30.0
+    seen = {}
+
+    def fake_interpolate(*args, **kw):
+        seen.update(kw)
+        raise RuntimeError("stop here")
+
+    import shellspline.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "interpolate", fake_interpolate)
+    out = run_sequence(spec, "k")
+    assert out["status"] == "failed" and "stop here" in out["reason"]
+    assert seen["reference"] == "geodesic" and seen["solver_options"] == {"max_time_s": 30.0}
+    p = _synth_job(tmp_path, ["g"], defaults="max_time = 30\n")
+    with pytest.raises(ss.ShellsplineError) as e:
+        batch.load_job(p)
+    assert "reference = 'geodesic'" in str(e.value)
+
+
 def test_frames_not_fitting_explicit_keyframes_is_exit_2(tmp_path, capsys):
     tet = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
     for i in range(3):
