@@ -23,7 +23,7 @@ from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
 from .options import (DEFAULT_SPLINE, DEFAULT_TRANSFER, METHODS, REFERENCES, RIGID_TRACKS, SPLINES,
                       InterpolationOptions, interpolation_problem, notices)
 from .options import coarse_target
-from .placement import _components, placement_track
+from .placement import pinned_parts, placement_track
 from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
                      start_report)
 from .stages import in_input_units, run_method
@@ -422,7 +422,7 @@ def pins_fix_placement(Vkey, F, pinned) -> bool:
     if pinned is None or len(pinned) < 3:
         return False
     Vkey = np.asarray(Vkey, dtype=np.float64)
-    for idx, fixed in _components(np.asarray(F), Vkey.shape[1], np.asarray(pinned)):
+    for idx, fixed in pinned_parts(np.asarray(F), Vkey.shape[1], np.asarray(pinned)):
         if fixed is None or len(fixed) < 3:
             return False
         for V in Vkey:

@@ -15,7 +15,7 @@ from ..shells.reconstruct import rigid_placement
 from ..timeline import linear_blend
 from .options import RIGID_TRACKS
 
-__all__ = ["place", "placement_track", "RIGID_TRACKS"]
+__all__ = ["place", "placement_track", "pinned_parts", "RIGID_TRACKS"]
 
 
 def placement_track(Vkey, frames, K, bc: str = "natural", kind: str = "fit", subset=None):
@@ -145,7 +145,7 @@ def place(V, frames, K, bc, pinned, Vkey, F, rigid_track="fit", subset=None):
     is_key = np.zeros(K + 1, dtype=bool)
     is_key[frames] = True
     is_key[K] |= periodic
-    parts = _components(F, Vkey.shape[1], pinned)
+    parts = pinned_parts(F, Vkey.shape[1], pinned)
     weights = [_subset_weights(idx, Vkey.shape[1], subset) for idx, _ in parts]
     for k in np.flatnonzero(~is_key):
         # with pins only the motions they leave free (none for 3+ non-collinear pins)
@@ -158,9 +158,23 @@ def place(V, frames, K, bc, pinned, Vkey, F, rigid_track="fit", subset=None):
     return V
 
 
-def _components(F, n, pinned):
-    """``[(vertex indices, pins among them as local indices or None), ...]`` of the connected
-    components of the mesh ``F`` with ``n`` vertices (one entry for a connected mesh)."""
+def pinned_parts(F, n, pinned):
+    """The connected parts of a mesh and the pins of each.
+
+    Parameters
+    ----------
+    F : (m,3) int array
+    n : int
+        Vertex count.
+    pinned : (p,) int array or None
+
+    Returns
+    -------
+    list of (index, pins)
+        One entry per connected component: its vertices (``slice(None)`` for a connected
+        mesh, else an int array) and the pins among them as indices into those vertices
+        (None where it has none; for a connected mesh ``pinned`` as given).
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
