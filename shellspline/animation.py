@@ -2388,7 +2388,10 @@ def track_blend(a, b, s: float = 0.5, *, align: str = "dp", length=None, feature
         the same fraction of their poses (``b``'s times taken in ``a``'s ``origin_ns``), the
         pose there the blend read through the blended clock ``(1-s) id + s phi``. ``s = 0``
         gives ``a`` (its times and poses), ``s = 1`` gives ``b``, to rounding; starts at the
-        geodesic blend of the start poses.
+        geodesic blend of the start poses. A KITTI track (no times: its ``t`` is the pose
+        index) blended with a timed one takes that one's span, its poses evenly spaced (``s
+        = 1`` then has ``b``'s poses over ``a``'s span); a KITTI result's ``t`` is its pose
+        index.
     TrackReport
         With the ``AlignResult`` (``align="dp"``, in the files' times) or None.
     """
@@ -2406,10 +2409,22 @@ def track_blend(a, b, s: float = 0.5, *, align: str = "dp", length=None, feature
     # each track on its own clock counted from its start: at Unix-epoch magnitudes the grid's
     # arithmetic rounds to 2e-7 s, enough to move s = 1 off b's poses
     pa, pb = ca.with_times(ca.t - ca.t[0]), cb.with_times(cb.t - cb.t[0])
+    # a KITTI file has no times (t is the pose index): such a track takes the other one's
+    # clock, its poses evenly spread over that span, so that neither the blended timing nor
+    # the file times blend pose indices with seconds (a TUM track blended with a KITTI one
+    # wrote stamps at half the Unix epoch)
+    spans = pa.t[-1], pb.t[-1]
+    if b.format == "kitti" and a.format != "kitti":
+        pb = pb.with_times(np.linspace(0.0, pa.t[-1], pb.n_frames))
+    elif a.format == "kitti" and b.format != "kitti":
+        pa = pa.with_times(np.linspace(0.0, pb.t[-1], pa.n_frames))
     warp_t, warp, rep = pa.t[[0, -1]], pb.t[[0, -1]], None
     if align == "dp":
         rep = _track_warp(ca, cb, features, dict(kw))
-        warp_t, warp = rep.t, np.clip(rep.phi, 0.0, pb.t[-1])
+        warp_t, warp = rep.t, np.clip(rep.phi, 0.0, spans[1])
+        if (pa.t[-1], pb.t[-1]) != spans:  # the warp on the clocks taken
+            warp_t = np.interp(warp_t, [0.0, spans[0]], [0.0, pa.t[-1]])
+            warp = np.interp(warp, [0.0, spans[1]], [0.0, pb.t[-1]])
         rep.t, rep.phi = rep.t + ca.t[0], rep.phi + cb.t[0]
         rep.shift = rep.shift + float(cb.t[0])
     elif features is not None:
@@ -2420,9 +2435,14 @@ def track_blend(a, b, s: float = 0.5, *, align: str = "dp", length=None, feature
     c = blend_curves(reparametrize(pa, t, t), pb, s, warp=phi)
     u, tu = _blend_clock(pa.t, pb.t, t, phi, s)
     cu = reparametrize(c, tu, u)
-    # the file times: the same blend of a's and b's own (b's in a's origin_ns)
+    # the file times: the same blend of a's and b's own (b's in a's origin_ns); KITTI: the
+    # pose index
     shift = (int(b.origin_ns) - int(a.origin_ns)) / 1e9
-    times = _blend_times(a.t, b.t + shift if shift else b.t, s)
+    if a.format == "kitti":
+        times = np.arange(u.size, dtype=np.float64)
+    else:
+        tb = a.t[0] + pb.t if b.format == "kitti" else b.t + shift if shift else b.t
+        times = _blend_times(a.t, tb, s)
     out = PoseTrack(times, se3.from_rt(cu.R[:, 0], cu.X * L), a.format, a.origin_ns,
                     a.time_unit)
     return out, TrackReport(L, rep)

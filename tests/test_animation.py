@@ -892,6 +892,29 @@ def test_track_blend_ends_are_the_tracks_themselves(how):
     assert np.abs(out.T - b.T).max() <= 1e-12
 
 
+@pytest.mark.parametrize("how", ["none", "dp"])
+def test_track_blend_with_a_kitti_track_keeps_one_clock(how):
+    """A KITTI file has no times (``t`` is the pose index): blended with a TUM track (Unix
+    seconds), the times were a blend of seconds and pose indices (s = 0.5 wrote stamps at
+    half the epoch; s = 1 the indices 0..N-1 as seconds). The KITTI track takes the timed
+    one's span: the times stay in it, s = 1 is b's poses evenly over a's span, and a KITTI
+    result is numbered by pose index."""
+    from shellspline.io.posefiles import PoseTrack
+
+    a, full = camera(500, 900), camera(1000, 1300)
+    k = PoseTrack(np.arange(300.0), full.T.copy(), "kitti")
+    for s in (0.0, 0.5, 1.0):
+        out, _ = A.track_blend(a, k, s, align=how)
+        assert out.format == "tum" and np.all(np.diff(out.t) > 0)
+        assert a.t[0] - 1e-6 <= out.t[0] and out.t[-1] <= a.t[-1] + 1e-6
+    assert np.array_equal(A.track_blend(a, k, 0.0, align=how)[0].t, a.t)
+    one, _ = A.track_blend(a, k, 1.0, align=how)
+    assert np.allclose(one.t, np.linspace(a.t[0], a.t[-1], 300), rtol=0, atol=1e-6)
+    assert np.abs(one.T - k.T).max() <= 1e-9
+    back, _ = A.track_blend(k, a, 0.5, align=how)
+    assert back.format == "kitti" and np.array_equal(back.t, np.arange(350.0))
+
+
 def test_track_align_recovers_a_known_warp():
     """b(t) = a(phi0(t)) with phi0 = u^1.5 on a's own (jittered) times: aligned back."""
     from shellspline.curves.srv import reparametrize

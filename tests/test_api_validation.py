@@ -215,6 +215,9 @@ def test_interpolate_pins_number_the_solve_mesh(tmp_path):
     (dict(method="linear", solver_options={"max_time_s": 5.0}), "solver_options",
      "method='linear'"),
     (dict(solver_options={"max_time_s": 5.0}), "solver_options", "method='lta'"),
+    # the reference geodesic takes max_time_s only: the rest was recorded, not applied
+    (dict(reference="geodesic", solver_options={"max_time_s": 5.0, "max_iter": 1}),
+     "solver_options", "'max_iter' does not apply to method='lta'"),
     (dict(pinned=[0, 1, 2, 3], rigid_track="linear"), "rigid_track", "pinned vertices fix"),
     (dict(pinned=[0, 1, 2, 3], rigid_subset=[10, 20, 30]), "rigid_subset",
      "pinned vertices fix"),

@@ -112,7 +112,7 @@ def _build_parser() -> argparse.ArgumentParser:
                                    "connectivity) and write OUT/frame_0000.obj ... plus "
                                    "OUT/report.json. An option given that the run cannot "
                                    "use is an error (e.g. --spline with --method linear, "
-                                   "--transfer with --coarse none, --rigid-track where the "
+                                   "--fine with --coarse none, --rigid-track where the "
                                    "pins fix the placement).",
                        epilog="exit codes: 0 success; 1 written, but a frame did not converge, "
                               "the quality check failed or --max-time was reached; 2 bad "

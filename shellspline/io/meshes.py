@@ -229,7 +229,8 @@ def mtllib_resolved(statements, folder):
 
     A line's file name is the rest of the line when a file of that name exists (names with
     spaces), else each word is one (``mtllib a.mtl b.mtl`` becomes two lines); the file need
-    not exist.
+    not exist. Its folder is resolved, not the file itself: a symlinked ``.mtl`` is named as
+    the link (its texture maps are read from the link's folder).
     """
     if statements is None:
         return None
@@ -247,8 +248,11 @@ def mtllib_resolved(statements, folder):
         return [b"mtllib " + os.fsencode(absolute(base / os.fsdecode(n))) for n in names]
 
     def absolute(path):
+        # the folder resolved (symlinks and ".." as the file system takes them), the file's
+        # own name kept: a viewer reads a .mtl's texture maps (map_Kd ...) from the folder it
+        # named the .mtl in, so a symlinked .mtl is named as the link, not as its target
         try:
-            return str(path.resolve())
+            return str(path.parent.resolve() / path.name)
         except (OSError, RuntimeError, ValueError):  # a symlink loop, say: as written
             return os.path.abspath(path)
 

@@ -208,8 +208,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         the run cannot apply (:func:`inapplicable_options`): with ``method="linear"``
         ``coarse`` (a vertex count or fraction), ``fine``, ``transfer``, ``reference``,
         ``spline``, ``fade_angle``, ``fixpoint``, ``rigid_track``, ``rigid_subset``;
-        ``solver_options`` with ``"linear"`` and with ``"lta"`` (but for a
-        ``reference="geodesic"``); ``fine`` with ``coarse="none"``;
+        ``solver_options`` with ``"linear"`` and with ``"lta"`` (but for the ``max_time_s``
+        of a ``reference="geodesic"``); ``fine`` with ``coarse="none"``;
         ``rigid_track`` or ``rigid_subset`` where the pins fix every frame's rigid placement
         (:func:`pins_fix_placement`). A ``coarse`` vertex count not below the mesh's, a
         ``transfer`` on a run at full resolution (``coarse="none"``, or a mesh that
@@ -352,6 +352,12 @@ def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
         if key == "solver_options" and method == "lta" and \
                 str(given.get("reference", "")).strip().lower() != "geodesic":
             refused.append((key, _solver_only(o, m, spell)))
+        elif key == "solver_options" and method == "lta" and set(value) - {"max_time_s"}:
+            # the reference geodesic takes its time limit only (describe.geodesic_weights)
+            other = ", ".join(repr(k) for k in sorted(map(str, value)) if k != "max_time_s")
+            refused.append((key, f"{o} {other} does not apply to {m}: with "
+                                 f"{spell('reference', 'geodesic')} only 'max_time_s' does "
+                                 "(the reference geodesic's time limit; drop the rest)"))
         elif key == "fine" and method == "geodesic":
             refused.append((key, f"{o} does not apply to {m}: it refines the LΘA "
                                  "reconstruction at full resolution, and the geodesics have "

@@ -188,7 +188,7 @@ class GaussNewton:
     forcing : float
         Forcing term of the inexact Gauss–Newton steps (Eisenstat and Walker's choice 2,
         SIAM J. Sci. Comput. 17, 1996): after a frame's first step CG stops at the relative
-        residual ``min(cg_tol_max, max(cg_tol, forcing (‖g_k‖/‖g_{k−1}‖)²))``: looser where
+        residual ``max(cg_tol, min(cg_tol_max, forcing (‖g_k‖/‖g_{k−1}‖)²))``: looser where
         Gauss–Newton converges only linearly (a tighter inner solve buys no outer
         progress there), ``cg_tol`` where it converges fast; 0 keeps ``cg_tol`` throughout.
         Default 0.9. Where the decrement test passes on a loose solve, the solve is continued
@@ -517,7 +517,9 @@ class GaussNewton:
         """Solve (JᵀWJ + δI) x = b on the free DOFs by CG preconditioned with ``precond``
         (from :meth:`_preconditioner`; without pins its range excludes the current rigid
         motions, so CG runs on their complement), at most ``max_iter`` iterations (default
-        ``cg_max_iter``). Returns ``(x, iterations, converged)``."""
+        ``cg_max_iter``), to the relative residual ``rtol`` (default ``cg_tol``); with ``x0``,
+        continued from ``x0`` (CG on the residual left there, to ``rtol`` of ``b``; the
+        iterations counted are the continuation's). Returns ``(x, iterations, converged)``."""
         free = self._free
         JT = J.T  # one transposed view per solve, not one per CG iteration
 
@@ -737,6 +739,8 @@ class GaussNewton:
                                        eta, x0=p)
                 res.cg_iterations += ncg
                 self._cycle[0] += ncg
+                if not ok:  # as for a solve to cg_tol that fails: refactor at the next step
+                    self._stale = True
                 slope = float(g @ p)
             if slope >= 0:  # not a descent direction: fall back to preconditioned gradient
                 p = -precond(g)
@@ -797,7 +801,8 @@ class GaussNewton:
             gn = float(np.linalg.norm(g))
             if self.forcing > 0:
                 ratio = gn / res.grad_norms[-1]
-                eta = min(self.cg_tol_max, max(self.cg_tol, self.forcing * ratio * ratio))
+                # cg_tol is the floor, also above the ceiling (a looser cg_tol asked for)
+                eta = max(self.cg_tol, min(self.cg_tol_max, self.forcing * ratio * ratio))
             res.record(f, gn)
             res.iterations = it
             if gn <= self.gtol * g0 or gn <= g_tiny or f <= f_tiny:

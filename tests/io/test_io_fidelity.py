@@ -9,6 +9,7 @@ a point cache without ``--topology``; ``mtllib/usemtl/o/g/s`` lines written back
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -383,3 +384,26 @@ def test_material_libraries_are_named_from_the_output_folder(tmp_path):
         assert [ln for ln in lines if not ln.startswith(("v ", "vt ", "mtllib "))] == \
             ["o Thing", "usemtl red", "f 1 2 3", "usemtl blue", "f 2 4 3"]
         assert not list(out.glob("*.mtl"))
+
+
+def test_a_symlinked_material_library_is_named_as_the_link(tmp_path):
+    """A viewer reads a .mtl's texture maps from the folder it named the .mtl in: the input's
+    ``m.mtl`` is a link into a shared store, its ``map_Kd tex.png`` beside the link. The
+    frames named the link's target (``../store/m.mtl``), from whose folder the texture is
+    missing; they name the link, whose folder has it."""
+    keys, store = tmp_path / "keys", tmp_path / "store"
+    keys.mkdir()
+    store.mkdir()
+    (store / "m.mtl").write_text("newmtl red\nmap_Kd tex.png\n")
+    (keys / "m.mtl").symlink_to(store / "m.mtl")
+    (keys / "tex.png").write_bytes(b"")
+    text = f"mtllib m.mtl\no Thing\n{TRI}usemtl red\nf 1 2 3\nf 2 4 3\n"
+    (keys / "t0.obj").write_text(text)
+    (keys / "t1.obj").write_text(text.replace("0.2", "0.4"))
+    kf = sio.read_keyframes([keys / "t0.obj", keys / "t1.obj"])
+    out = tmp_path / "renders"
+    sio.write_sequence(out, kf.V, kf.F, source=kf.source)
+    lib = (out / "frame_0001.obj").read_text().splitlines()[0]
+    assert lib == "mtllib ../keys/m.mtl"
+    mtl = os.path.normpath(out.resolve() / lib[len("mtllib "):])  # as a viewer joins it
+    assert os.path.exists(os.path.join(os.path.dirname(mtl), "tex.png"))

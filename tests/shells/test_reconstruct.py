@@ -163,6 +163,12 @@ def test_cg_tolerance_follows_the_forcing_term(monkeypatch):
         got = sorted(set(tols[1:]))
         assert np.all(np.isin(np.round(got, 15), np.round(want[:-1], 15)))
         assert gn.cg_tol < max(tols) <= gn.cg_tol_max  # the forcing term acted
+    # cg_tol is the floor, also when asked above the ceiling: cg_tol=0.1 got 0.05 (tighter)
+    # after the first step
+    tols.clear()
+    r = GaussNewton(T, pinned=d["pinned"], subspace=False, cg_tol=0.1).solve(
+        z, w, 0.5 * (V[0] + V[1]))
+    assert r.nit >= 2 and set(tols) == {0.1}
 
 
 def test_decrement_test_is_judged_on_a_solve_to_cg_tol(monkeypatch):
@@ -198,6 +204,41 @@ def test_decrement_test_is_judged_on_a_solve_to_cg_tol(monkeypatch):
     res = np.linalg.norm(H @ p[free] - b[free]) / np.linalg.norm(b[free])
     assert res <= gn.cg_tol * (1 + 1e-6)
     assert 0 < float(b @ p) <= gn.dtol * r.energy * (1 + 1e-9)  # the decrement -g·p
+
+
+def test_a_continued_solve_that_fails_refreshes_the_factor(monkeypatch):
+    # a loose solve continued to cg_tol that does not get there (cg_max_iter with a stale
+    # factor) is a solve to cg_tol that failed: as without the forcing term, the next step
+    # refactors. It was not marked: the next step kept the stale factor, its loose solve
+    # passed, the continuation failed again, and the frame could only stall
+    import shellspline.shells.reconstruct as rec
+    from data_synth import stress
+
+    d = stress.joint()
+    T, V = topology(d["F"]), d["V"]
+    z = 0.3 * lta_descriptors(V[0], T) + 0.7 * lta_descriptors(V[1], T)
+    gn = GaussNewton(T, pinned=d["pinned"], subspace=False)
+    events = []
+    _pcg, _refresh = rec.GaussNewton._pcg, rec.GaussNewton._refresh
+
+    def pcg_spy(self, J, w, b, delta, precond, max_iter=None, rtol=None, x0=None):
+        if x0 is not None and "failed" not in events:  # the first continuation fails
+            events.append("failed")
+            return x0, self.cg_max_iter, False
+        events.append("solve")
+        return _pcg(self, J, w, b, delta, precond, max_iter, rtol, x0)
+
+    def refresh_spy(self, *args, **kw):
+        events.append("refresh")
+        return _refresh(self, *args, **kw)
+
+    monkeypatch.setattr(rec.GaussNewton, "_pcg", pcg_spy)
+    monkeypatch.setattr(rec.GaussNewton, "_refresh", refresh_spy)
+    r = gn.solve(z, lta_weights(V[0], T), 0.3 * V[0] + 0.7 * V[1])
+    assert "failed" in events, events
+    after = events[events.index("failed") + 1:]
+    assert after[:1] == ["refresh"], events
+    assert r.success and r.message == "Gauss–Newton decrement below dtol"
 
 
 def test_sparse_cholesky_solves():
