@@ -25,6 +25,7 @@ Layer: above :mod:`shellspline.io` (imports ``io.bvh``, ``curves``, ``groups``, 
 """
 from __future__ import annotations
 
+import numbers
 import warnings
 from dataclasses import dataclass, field, replace
 
@@ -1341,6 +1342,17 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
     return 0.5 * (d1 + d2)
 
 
+def _blend_weight(s) -> float:
+    """The weight ``s`` of :func:`blend`, :func:`mesh_blend` and :func:`track_blend` as a
+    float: a finite real number; a bool or a string (even ``"0.5"``) is refused, as by the
+    other numeric arguments of the API (``eta``, ``K``, ...)."""
+    if isinstance(s, (bool, np.bool_)) or not isinstance(s, numbers.Real) or \
+            not np.isfinite(float(s)):
+        raise ShellsplineError(f"s must be a finite number (the weight of the second "
+                               f"animation), got {s!r}")
+    return float(s)
+
+
 def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=None,
           n_frames=None, up=None, plant: bool = False, heading: str = "align",
           **kw) -> tuple[Motion, AlignReport | None]:
@@ -1386,9 +1398,7 @@ def blend(a: Motion, b: Motion, s: float = 0.5, *, align: str = "dp", features=N
 
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
-    s = float(s)
-    if not np.isfinite(s):
-        raise ShellsplineError(f"s must be a finite number, got {s!r}")
+    s = _blend_weight(s)
     a2, _, _, _, H, place = _pair(a, b, n_frames, heading, up)
     # the blend runs on the clips' own frames (b faced like a on the common grid's fit):
     # a clip resampled to the common grid's frame count and back is not the clip (s = 0
@@ -2021,9 +2031,7 @@ def mesh_blend(Vs0, Vs1, F, s: float = 0.5, *, align: str = "dp", features=None,
 
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
-    s = float(s)
-    if not np.isfinite(s):
-        raise ShellsplineError(f"s must be a finite number, got {s!r}")
+    s = _blend_weight(s)
     Vs0, Vs1, c0, c1 = _mesh_curve_pair(Vs0, Vs1, F)
     p0, p1 = c0.product_curve(), c1.product_curve()
     rep = None
@@ -2402,9 +2410,7 @@ def track_blend(a, b, s: float = 0.5, *, align: str = "dp", length=None, feature
 
     if align not in ("dp", "none"):
         raise ShellsplineError(f"align must be 'dp' or 'none', got {align!r}")
-    if not np.isfinite(s):
-        raise ShellsplineError(f"s must be a finite number, got {s!r}")
-    s = float(s)
+    s = _blend_weight(s)
     a, b, L, ca, cb = _track_pair(a, b, length)
     # each track on its own clock counted from its start: at Unix-epoch magnitudes the grid's
     # arithmetic rounds to 2e-7 s, enough to move s = 1 off b's poses

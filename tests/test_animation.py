@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
 from scipy.spatial.transform import Rotation
 
 import data_synth.motion as synth
@@ -1043,6 +1044,44 @@ def test_track_errors_are_one_line():
     # a track that does not move: positions are not scaled (length 1)
     still = PoseTrack(a.t, np.broadcast_to(a.T[0], a.T.shape).copy(), "tum")
     assert A.track_length(still) == 1.0
+
+
+def _blend_pair(which):
+    """Two small valid inputs of ``blend``, ``mesh_blend`` or ``track_blend`` (synthetic)."""
+    from shellspline.io.posefiles import PoseTrack
+
+    if which == "blend":
+        return synth.motion(seconds=0.3, fps=30, channels=3), \
+            synth.motion(seconds=0.4, fps=30, channels=3, cadence=0.9)
+    if which == "mesh_blend":
+        m = trimesh.creation.icosphere(subdivisions=1)
+        Vs = np.stack([m.vertices * [1 + 0.1 * k, 1, 1] for k in range(4)])
+        return Vs, Vs[::-1].copy(), m.faces
+    t = np.linspace(0.0, 1.0, 12)
+    T = np.broadcast_to(np.eye(4), (12, 4, 4)).copy()
+    T[:, :3, :3] = Rotation.from_rotvec(np.outer(t, [0.0, 0.0, 0.5])).as_matrix()
+    T[:, :3, 3] = np.outer(t, [1.0, 0.5, 0.0])
+    return PoseTrack(t, T, "tum"), PoseTrack(t.copy(), T[::-1].copy(), "tum")
+
+
+@pytest.mark.parametrize("which", ["blend", "mesh_blend", "track_blend"])
+def test_blend_weight_must_be_a_finite_number(which):
+    """Before, track_blend ran np.isfinite(s) first (a raw numpy TypeError for a string or
+    None) and blend and mesh_blend float(s) (a raw ValueError or TypeError for "abc", None or
+    a list, while "0.5" and True were read as numbers). Now each is one line naming s; a
+    string is refused like one for the API's other numeric arguments (eta, K); a numpy
+    scalar is a number."""
+    args = _blend_pair(which)
+    for s in ("0.5", "abc", None, True, [0.5], np.nan):
+        with pytest.raises(ShellsplineError) as e:
+            getattr(A, which)(*args, s, align="none")
+        msg = str(e.value)
+        assert "\n" not in msg and msg.startswith("s must be a finite number"), msg
+        assert msg.endswith(f"got {s!r}"), msg
+    out, _ = getattr(A, which)(*args, np.float32(0.0), align="none")
+    frames = {"blend": lambda x: x.n_frames, "mesh_blend": len,
+              "track_blend": lambda x: len(x.T)}[which]
+    assert frames(out) == frames(args[0])  # s = 0: the first one's frames
 
 
 # ----------------------------------------------------------------------------------------

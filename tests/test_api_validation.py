@@ -267,6 +267,39 @@ def test_what_this_mesh_leaves_unused_is_a_message_and_recorded_as_applied(kf):
         "rigid_track"] == "linear"
 
 
+def test_a_coarse_fraction_that_keeps_every_vertex_is_said_so(kf):
+    """0.999 of the 42 vertices rounds to 42 (coarse_target): the note says that, not that
+    a fraction "is not below the 42 vertices"; the run is at full resolution."""
+    said = []
+    res = ss.interpolate(kf, coarse=0.999,
+                         progress=lambda ev: ev["kind"] == "message" and said.append(ev["text"]))
+    assert said[:1] == ["coarse=0.999 keeps all 42 vertices of this mesh (0.999 × 42 rounds to "
+                        "42): it is solved at full resolution"]
+    assert res.report["parameters"]["coarse"] == "none" and "multires" not in res.report
+
+
+@pytest.mark.parametrize("method, key", [("geodesic", "bogus"), ("nonlinear", "bogus"),
+                                         ("geodesic", "gtol"),  # the nonlinear spline's
+                                         ("nonlinear", "callback"),  # set by the run
+                                         ("nonlinear", "energy")])  # eta, mu, lam make it
+def test_unknown_solver_options_are_refused_up_front(kf, method, key):
+    """Before, an unknown key reached the solver's call after the LΘA start was computed:
+    a raw TypeError (unexpected keyword, or ``callback`` given twice), or ``energy=3`` taken
+    as the energy."""
+    with pytest.raises(ShellsplineError) as e:
+        ss.interpolate(kf, method=method, solver_options={"max_time_s": 5.0, key: 3})
+    msg = _one_line(e)
+    from shellspline.pipeline.options import SOLVER_OPTIONS
+
+    assert msg.startswith(f"`solver_options`: unknown option {key!r} for method={method!r}; "
+                          f"valid: "), msg
+    assert msg.endswith(", ".join(SOLVER_OPTIONS[method])) and "max_iter" in msg, msg
+    # the keys the stages leave to the caller are accepted, the list is the solver's own
+    assert "tol" in SOLVER_OPTIONS["geodesic"] and "gtol" in SOLVER_OPTIONS["nonlinear"]
+    for k in SOLVER_OPTIONS[method]:
+        assert InterpolationOptions(method=method, solver_options={k: 1}).solver_options == {k: 1}
+
+
 def test_pins_fix_placement():
     from shellspline.pipeline.interpolation import pins_fix_placement
 

@@ -22,7 +22,7 @@ from ..progress import Progress
 from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
 from .options import (DEFAULT_SPLINE, DEFAULT_TRANSFER, METHODS, REFERENCES, RIGID_TRACKS, SPLINES,
                       InterpolationOptions, interpolation_problem, notices)
-from .options import coarse_target
+from .options import coarse_fraction, coarse_target
 from .placement import pinned_parts, placement_track
 from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
                      start_report)
@@ -156,7 +156,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         Extra options of :func:`shellspline.shells.geodesic.geodesic_interpolation` (``tol``,
         ``max_iter``) or :func:`shellspline.shells.nonlinear.nonlinear_spline` (``max_iter``,
         ``gtol``, ``max_time_s``, ...); ``max_time_s`` also bounds the solve of
-        ``reference="geodesic"``.
+        ``reference="geodesic"``. Keys the method's solver does not take, or that the run
+        sets itself, are refused (valid: :data:`~shellspline.pipeline.options.SOLVER_OPTIONS`).
     warm_start : bool
         Start frame k's Gauss–Newton from frame k-1's solution moved by the change of the
         keyframe blend (frames are solved in time order within each worker's run); otherwise
@@ -306,8 +307,9 @@ def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
     refused : list of (str, str)
         ``(option, one-line message)`` for each option to refuse, saying why and what to do.
     unused : list of (str, str)
-        ``(option, note)`` for a ``coarse`` vertex count not below ``n_vertices`` (the run is
-        at full resolution: ``"none"`` is what applies), a ``transfer`` that this mesh leaves
+        ``(option, note)`` for a ``coarse`` vertex count not below ``n_vertices`` or a
+        fraction of them that rounds to all (the run is at full resolution: ``"none"`` is
+        what applies), a ``transfer`` that this mesh leaves
         unused (nothing is prolonged) and ``gn_options`` with ``method="linear"`` (nothing is
         reconstructed).
 
@@ -386,6 +388,12 @@ def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
                                      f"{spell('coarse', coarse)} solves these {n} vertices at "
                                      f"full resolution (drop it, or give {spell('coarse')} a "
                                      f"vertex count below {n})"))
+            elif key == "coarse" and coarse_fraction(value) is not None:
+                # a fraction this close to 1 rounds to every vertex (coarse_target)
+                f = coarse_fraction(value)
+                unused.append((key, f"{spell('coarse', value)} keeps all {n} vertices of this "
+                                    f"mesh ({f!r} × {n} rounds to {n}): it is solved at full "
+                                    "resolution"))
             elif key == "coarse":
                 unused.append((key, f"{spell('coarse', value)} is not below the {n} vertices "
                                     "of this mesh: it is solved at full resolution"))

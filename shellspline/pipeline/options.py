@@ -18,7 +18,9 @@ from ..errors import ShellsplineError, tol
 from ..io.keyframes import Keyframes
 from ..metrics import length_scale
 from ..mesh.topology import Topology
+from ..shells.geodesic import geodesic_interpolation
 from ..shells.lta_spline import SPLINES, canonical_spline
+from ..shells.nonlinear import nonlinear_spline
 from ..shells.prolong import DEFAULT_TRANSFER, TRANSFERS
 from ..shells.reconstruct import LARGE_MESH, GaussNewton
 from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
@@ -27,7 +29,7 @@ __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_proble
            "coarse_target", "canonical_choice", "METHODS", "REFERENCES", "RIGID_TRACKS",
            "BOUNDARY_CONDITIONS", "AUTO_COARSE_ABOVE", "AUTO_COARSE_VERTICES",
            "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN", "SPLINES", "DEFAULT_SPLINE",
-           "TRANSFERS", "DEFAULT_TRANSFER"]
+           "TRANSFERS", "DEFAULT_TRANSFER", "SOLVER_OPTIONS", "coarse_fraction"]
 
 METHODS = ("lta", "linear", "geodesic", "nonlinear")
 REFERENCES = ("constant", "keyframe", "geodesic")
@@ -106,6 +108,35 @@ def _gn_options(gn_options) -> dict:
     return dict(gn_options)
 
 
+#: Keywords of the solver of each method that ``solver_options`` may set
+#: (:func:`~shellspline.shells.geodesic.geodesic_interpolation`,
+#: :func:`~shellspline.shells.nonlinear.nonlinear_spline`): not those the pipeline sets itself
+#: (the keyframes, frames, weights, pins, boundary condition, start path and progress
+#: callbacks, :mod:`shellspline.pipeline.stages`), nor ``energy``, which ``eta``, ``mu`` and
+#: ``lam`` make (the report records those). ``"lta"`` takes only the ``max_time_s`` of
+#: ``reference="geodesic"`` (:func:`~shellspline.pipeline.interpolation.inapplicable_options`).
+SOLVER_OPTIONS = {
+    method: tuple(p for p in inspect.signature(solver).parameters
+                  if p not in ("Vkey", "frames", "K", "T", "mu", "lam", "eta", "pinned", "bc",
+                               "init", "energy", "callback", "progress"))
+    for method, solver in (("geodesic", geodesic_interpolation),
+                           ("nonlinear", nonlinear_spline))}
+
+
+def _solver_options(solver_options, method: str) -> dict:
+    if solver_options is None:
+        return {}
+    if not isinstance(solver_options, dict):
+        raise ShellsplineError(f"`solver_options` must be a dict, got "
+                               f"{type(solver_options).__name__}")
+    valid = SOLVER_OPTIONS.get(method)
+    bad = [k for k in solver_options if valid is not None and k not in valid]
+    if bad:  # other methods: inapplicable_options says what applies
+        raise ShellsplineError(f"`solver_options`: unknown option {bad[0]!r} for "
+                               f"method={method!r}; valid: {', '.join(valid)}")
+    return dict(solver_options)
+
+
 def _canonical_reference(reference):
     if isinstance(reference, (int, np.integer)) and not isinstance(reference, (bool, np.bool_)):
         return int(reference)
@@ -120,7 +151,9 @@ class InterpolationOptions:
     Constructing one validates every field: choices are lower-cased and checked, ``eta``,
     ``mu``, ``lam`` finite and non-negative (``mu`` and ``lam`` not both zero), ``workers``
     >= 1, ``fixpoint`` >= 0, ``reference`` a choice or an int keyframe index, ``spline`` one
-    of :data:`SPLINES`; ``coarse`` is
+    of :data:`SPLINES`, the keys of ``gn_options`` and (for ``"geodesic"`` and
+    ``"nonlinear"``) of ``solver_options`` those of the solver (:data:`GN_OPTIONS`,
+    :data:`SOLVER_OPTIONS`); ``coarse`` is
     kept as given and resolved against the mesh by :func:`coarse_target`.
 
     Raises
@@ -171,10 +204,7 @@ class InterpolationOptions:
         put("fixpoint", int(self.fixpoint))
         put("reference", _canonical_reference(self.reference))
         put("gn_options", _gn_options(self.gn_options))
-        if self.solver_options is not None and not isinstance(self.solver_options, dict):
-            raise ShellsplineError(f"`solver_options` must be a dict, got "
-                                   f"{type(self.solver_options).__name__}")
-        put("solver_options", dict(self.solver_options or {}))
+        put("solver_options", _solver_options(self.solver_options, self.method))
         put("warm_start", bool(self.warm_start))
         put("fine", bool(self.fine))
         fade = _real(self.fade_angle, "fade_angle") if self.fade_angle is not None else 0.0
@@ -370,15 +400,9 @@ def coarse_target(coarse, n: int, method: str = "lta"):
         above = AUTO_NONLINEAR_ABOVE if method in ("nonlinear", "geodesic") \
             else AUTO_COARSE_ABOVE
         return AUTO_COARSE_VERTICES if n > above else None
-    if isinstance(coarse, str):
-        c = coarse.strip().lower()
-        if c in ("none", "off", "no"):
-            return None
-        try:
-            coarse = float(c) if any(ch in c for ch in ".e") else int(c)
-        except ValueError:
-            raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction "
-                                   f"in (0, 1), got {coarse!r}") from None
+    coarse = _coarse_number(coarse)
+    if coarse is None:
+        return None
     if isinstance(coarse, bool):
         raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, "
                                f"got {coarse!r}")
@@ -390,3 +414,50 @@ def coarse_target(coarse, n: int, method: str = "lta"):
         raise ShellsplineError(f"`coarse` must be a vertex count >= 4 or a fraction in (0, 1), got "
                                f"{coarse!r}")
     return None if target >= n else max(target, 4)
+
+
+def _coarse_number(coarse):
+    """A ``coarse`` other than ``"auto"`` as given, a string read as its number (``"0.1"``,
+    ``"700"``, ``"1e3"``: a float where it has a point or an exponent), or None for
+    ``"none"``."""
+    if not isinstance(coarse, str):
+        return coarse
+    c = coarse.strip().lower()
+    if c in ("none", "off", "no"):
+        return None
+    try:
+        return float(c) if any(ch in c for ch in ".e") else int(c)
+    except ValueError:
+        raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction "
+                               f"in (0, 1), got {coarse!r}") from None
+
+
+def coarse_fraction(coarse):
+    """The fraction of the vertices that ``coarse`` asks for, or None.
+
+    Parameters
+    ----------
+    coarse : "auto", "none", int, float in (0, 1), or such a string
+        As :func:`coarse_target` takes it.
+
+    Returns
+    -------
+    float or None
+        ``coarse`` as a float when it is a fraction in (0, 1) (or a string of one); None for
+        ``"auto"``, ``"none"`` and a vertex count. :func:`coarse_target` rounds it times the
+        vertex count.
+
+    Raises
+    ------
+    ShellsplineError
+        For a string that is none of these.
+
+    Examples
+    --------
+    >>> coarse_fraction(0.25), coarse_fraction("0.999"), coarse_fraction(700)
+    (0.25, 0.999, None)
+    """
+    if coarse is None or (isinstance(coarse, str) and coarse.strip().lower() == "auto"):
+        return None
+    c = _coarse_number(coarse)
+    return float(c) if isinstance(c, (float, np.floating)) and 0 < c < 1 else None

@@ -363,6 +363,21 @@ def test_rigid_placement_options_with_pins_that_fix_the_placement(ell_dir, tmp_p
     assert json.loads((out / "report.json").read_text())["parameters"]["rigid_track"] == "spline"
 
 
+def test_a_coarse_fraction_that_keeps_every_vertex_is_a_note_in_flags(ell_dir, tmp_path,
+                                                                        capsys):
+    """0.999 of the 162 vertices rounds to 162: the note says so in the command line's
+    spelling (it read "--coarse 0.999 is not below the 162 vertices"), the run is at full
+    resolution and report.json records coarse "none"."""
+    out = tmp_path / "frac"
+    assert main(["interpolate", *_poses(ell_dir), "--frames", str(ell_dir / "frames.txt"),
+                 "-o", str(out), "--coarse", "0.999"]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("  note: ")]
+    assert notes == ["  note: --coarse 0.999 keeps all 162 vertices of this mesh (0.999 × 162 "
+                     "rounds to 162): it is solved at full resolution"]
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["parameters"]["coarse"] == "none" and "multires" not in rep
+
+
 def test_options_this_mesh_leaves_unused_are_a_note_and_recorded_as_applied(ell_dir, tmp_path,
                                                                              capsys):
     """A --coarse count not below the mesh's vertices, and a --transfer where nothing is
