@@ -139,3 +139,61 @@ def test_every_defect_of_the_sliver_joint_is_counted_at_a_seam():
         (q["flipped_faces"], q["folded_edges"], q["collapsed_faces"])
     flipped = np.flatnonzero(np.array(q["per_frame"]["flipped"])).tolist()
     assert set(flipped) <= set(at["frames"])
+
+
+def test_gap_continuations_start_on_the_pool_and_change_no_frame(monkeypatch):
+    """The continuation of a keyframe gap (continued_runs) is handed to the process pool as
+    soon as the gap's two runs are solved, while other runs still go on, instead of in a
+    second pass after all of them. Each run starts its solver afresh, so the frames, records
+    and continued flags are those of the separate pass, bit for bit."""
+    import shellspline as ss
+    from data_synth import stress
+
+    monkeypatch.setattr(R, "SERIAL_RECONSTRUCT_WORK", 0)  # this small case: use the pool
+    d = stress.joint()
+
+    def run():
+        ev = []
+        res = ss.interpolate((d["V"], d["F"]), frames=d["frames"], pinned=d["pinned"],
+                             coarse="none", workers=2, progress=ev.append)
+        end = next(i for i, e in enumerate(ev)
+                   if e["kind"] == "stage_end" and e["stage"] == "reconstruct")
+        early = [e for e in ev[:end]
+                 if e["kind"] == "advance" and e["stage"] == "reconstruct (continue)"]
+        return res, early
+
+    piped, early = run()
+    monkeypatch.setattr(R.GapContinuations, "ready", lambda self, results: [])
+    separate, none = run()
+    assert len(early) >= 1 and none == []
+    cont = [f["frame"] for f in piped.report["frames"] if f.get("continued")]
+    assert cont and cont == [f["frame"] for f in separate.report["frames"]
+                             if f.get("continued")]
+    assert np.array_equal(piped.V, separate.V)
+    keep = ("frame", "status", "nit", "energy_final", "cg_iterations")
+    assert [{k: f[k] for k in keep} for f in piped.report["frames"]] == \
+        [{k: f[k] for k in keep} for f in separate.report["frames"]]
+
+
+def test_gap_continuations_pair_the_runs_of_each_gap():
+    """GapContinuations hands out each gap's continuation once, when both of its runs are
+    in the results, and the same tasks as continued_runs over all runs."""
+    ks = np.setdiff1d(np.arange(1, 20), [10])
+    runs = R.reconstruction_runs(ks, [0, 10, 20], 20, False)
+    Vinit = np.zeros((21, 4, 3))
+    results = {}
+    rng = np.random.default_rng(0)
+    g = R.GapContinuations(runs, Vinit, "reconstruct (continue)")
+    assert [[tuple(r) for r, _ in gap] for gap in g.gaps] == \
+        [[tuple(range(1, 6)), tuple(range(9, 5, -1))],
+         [tuple(range(11, 16)), tuple(range(19, 15, -1))]]
+    for r, _ in runs:  # the runs finish in this order
+        for k in r:
+            results[int(k)] = (rng.standard_normal((4, 3)),
+                               {"energy_final": float(rng.random())})
+        got = g.ready(results)
+        done = int(r[-1])
+        assert len(got) == (1 if done in (6, 16) else 0)
+    assert g.ready(results) == []  # each gap once
+    every = R.continued_runs(runs, results, Vinit)
+    assert g.submitted == {tuple(int(k) for k in t[0]) for t in every}
