@@ -691,22 +691,28 @@ def test_write_expected_with_a_failed_sequence_still_reports(tmp_path, capsys):
     assert "wrote expected values" not in err
 
 
-def test_geodesic_takes_max_time_as_interpolate_does(tmp_path, monkeypatch):
-    p = _synth_job(tmp_path, ["g"], defaults='method = "geodesic"\nmax_time = 30\n')
-    job = batch.load_job(p)
-    spec = job.sequences[0]
-    assert spec.params["method"] == "geodesic" and spec.params["max_time"] == 30.0
+def _interpolate_keywords(spec, monkeypatch) -> dict:
+    """The keywords a sequence's run passes to ``shellspline.interpolate`` (stopped there)."""
+    import shellspline.pipeline as pipeline
+
     seen = {}
 
     def fake_interpolate(*args, **kw):
         seen.update(kw)
         raise RuntimeError("stop here")
 
-    import shellspline.pipeline as pipeline
-
     monkeypatch.setattr(pipeline, "interpolate", fake_interpolate)
     out = run_sequence(spec, "k")
     assert out["status"] == "failed" and "stop here" in out["reason"]
+    return seen
+
+
+def test_geodesic_takes_max_time_as_interpolate_does(tmp_path, monkeypatch):
+    p = _synth_job(tmp_path, ["g"], defaults='method = "geodesic"\nmax_time = 30\n')
+    job = batch.load_job(p)
+    spec = job.sequences[0]
+    assert spec.params["method"] == "geodesic" and spec.params["max_time"] == 30.0
+    seen = _interpolate_keywords(spec, monkeypatch)
     assert seen["method"] == "geodesic"
     assert seen["solver_options"]["max_time_s"] == 30.0
 
@@ -718,17 +724,7 @@ def test_max_time_bounds_the_reference_geodesic_of_an_lta_sequence(tmp_path, mon
     p = _synth_job(tmp_path, ["g"], defaults='reference = "geodesic"\nmax_time = 30\n')
     spec = batch.load_job(p).sequences[0]
     assert spec.params["method"] == "lta" and spec.params["max_time"] == 30.0
-    seen = {}
-
-    def fake_interpolate(*args, **kw):
-        seen.update(kw)
-        raise RuntimeError("stop here")
-
-    import shellspline.pipeline as pipeline
-
-    monkeypatch.setattr(pipeline, "interpolate", fake_interpolate)
-    out = run_sequence(spec, "k")
-    assert out["status"] == "failed" and "stop here" in out["reason"]
+    seen = _interpolate_keywords(spec, monkeypatch)
     assert seen["reference"] == "geodesic" and seen["solver_options"] == {"max_time_s": 30.0}
     p = _synth_job(tmp_path, ["g"], defaults="max_time = 30\n")
     with pytest.raises(ss.ShellsplineError) as e:

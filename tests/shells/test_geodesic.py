@@ -202,6 +202,22 @@ def test_soft_midpoint_converges_quadratically_below_the_energy_resolution():
     assert g[-2] <= 1e-8 and g[-1] <= 1e-3 * g[-2]  # quadratic, not a round-off plateau
 
 
+def _stopped_in_segment_0(d, geo, monkeypatch):
+    """The geodesic through the ellipsoids ``d`` at frames 0, 3, 6 with ``max_time_s=2`` on
+    a clock (``geo.time.perf_counter``) that advances one "second" per reading: the limit
+    falls inside segment 0."""
+    clock = {"t": 0.0}
+
+    def fake_clock():
+        clock["t"] += 1.0
+        return clock["t"]
+
+    monkeypatch.setattr(geo.time, "perf_counter", fake_clock)
+    with pytest.warns(RuntimeWarning, match="time limit"):
+        return geodesic_interpolation(d["V"], [0, 3, 6], 6, topology(d["F"]), eta=0.1,
+                                      max_time_s=2)
+
+
 def test_time_limit_keeps_the_path_so_far_and_reports_it_unconverged(ellipsoids, monkeypatch):
     """Issue 13 item 2: the geodesic ran for minutes on the horse with no bound. With
     ``max_time_s`` no Newton iteration starts after the limit: the segment it interrupts keeps
@@ -210,18 +226,8 @@ def test_time_limit_keeps_the_path_so_far_and_reports_it_unconverged(ellipsoids,
     import importlib
 
     geo = importlib.import_module("shellspline.shells.geodesic")
-    d = ellipsoids
-    T = topology(d["F"])
-    V = d["V"]
-    clock = {"t": 0.0}
-
-    def fake_clock():          # one "second" per reading: the limit falls inside segment 0
-        clock["t"] += 1.0
-        return clock["t"]
-
-    monkeypatch.setattr(geo.time, "perf_counter", fake_clock)
-    with pytest.warns(RuntimeWarning, match="time limit"):
-        res = geodesic_interpolation(V, [0, 3, 6], 6, T, eta=0.1, max_time_s=2)
+    T, V = topology(ellipsoids["F"]), ellipsoids["V"]
+    res = _stopped_in_segment_0(ellipsoids, geo, monkeypatch)
     assert not res.success and "time limit" in res.message
     s0, s1 = res.segments
     assert not s0.success and s0.message == "time limit reached" and 1 <= s0.nit < 50
@@ -357,18 +363,8 @@ def test_histories_of_stopped_and_failed_solves_have_one_entry_per_iterate(ellip
         bad = discrete_geodesic(V0, V0 * [-1.0, -1.0, 1.0], 2, topology(F), eta=0.1)
     assert bad.status == "failed" and bad.nit == 0
     assert len(bad.energies) == len(bad.grad_norms) == 1
-    d = ellipsoids
-    T = topology(d["F"])
-    V = d["V"]
-    clock = {"t": 0.0}
-
-    def fake_clock():          # one "second" per reading: the limit falls inside segment 0
-        clock["t"] += 1.0
-        return clock["t"]
-
-    monkeypatch.setattr(geo.time, "perf_counter", fake_clock)
-    with pytest.warns(RuntimeWarning, match="time limit"):
-        res = geodesic_interpolation(V, [0, 3, 6], 6, T, eta=0.1, max_time_s=2)
+    T, V = topology(ellipsoids["F"]), ellipsoids["V"]
+    res = _stopped_in_segment_0(ellipsoids, geo, monkeypatch)
     s0, s1 = res.segments
     assert res.status == "limit" and res.time_limit_reached
     assert s0.nit >= 1 and s1.nit == 0 and "before the segment started" in s1.message

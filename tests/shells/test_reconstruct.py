@@ -171,6 +171,19 @@ def test_cg_tolerance_follows_the_forcing_term(monkeypatch):
     assert r.nit >= 2 and set(tols) == {0.1}
 
 
+def _joint_frame():
+    """``(case, solver, solve)``: the flexing joint of data_synth.stress 70 % of the way from
+    its first keyframe's descriptors to its second's (a frame that stops on the decrement
+    test), plain Gauss–Newton steps; ``solve()`` reconstructs it from the vertex blend."""
+    from data_synth import stress
+
+    d = stress.joint()
+    T, V = topology(d["F"]), d["V"]
+    z = 0.3 * lta_descriptors(V[0], T) + 0.7 * lta_descriptors(V[1], T)
+    gn = GaussNewton(T, pinned=d["pinned"], subspace=False)
+    return d, gn, lambda: gn.solve(z, lta_weights(V[0], T), 0.3 * V[0] + 0.7 * V[1])
+
+
 def test_decrement_test_is_judged_on_a_solve_to_cg_tol(monkeypatch):
     # a frame stops on the Gauss–Newton decrement -g·p <= dtol f; a CG solve stopped early
     # (the forcing term's looser tolerance) underestimates -g·p, so where the test passes on
@@ -179,12 +192,8 @@ def test_decrement_test_is_judged_on_a_solve_to_cg_tol(monkeypatch):
     import scipy.sparse as sp
 
     import shellspline.shells.reconstruct as rec
-    from data_synth import stress
 
-    d = stress.joint()
-    T, V = topology(d["F"]), d["V"]
-    z = 0.3 * lta_descriptors(V[0], T) + 0.7 * lta_descriptors(V[1], T)
-    gn = GaussNewton(T, pinned=d["pinned"], subspace=False)
+    d, gn, solve = _joint_frame()
     calls = []
     _pcg = rec.GaussNewton._pcg
 
@@ -194,7 +203,7 @@ def test_decrement_test_is_judged_on_a_solve_to_cg_tol(monkeypatch):
         return out
 
     monkeypatch.setattr(rec.GaussNewton, "_pcg", spy)
-    r = gn.solve(z, lta_weights(V[0], T), 0.3 * V[0] + 0.7 * V[1])
+    r = solve()
     assert r.success and r.message == "Gauss–Newton decrement below dtol"
     rtol, continued, J, w, b, delta, p = calls[-1]
     assert continued and rtol == gn.cg_tol and calls[-2][0] > gn.cg_tol
@@ -212,12 +221,8 @@ def test_a_continued_solve_that_fails_refreshes_the_factor(monkeypatch):
     # refactors. It was not marked: the next step kept the stale factor, its loose solve
     # passed, the continuation failed again, and the frame could only stall
     import shellspline.shells.reconstruct as rec
-    from data_synth import stress
 
-    d = stress.joint()
-    T, V = topology(d["F"]), d["V"]
-    z = 0.3 * lta_descriptors(V[0], T) + 0.7 * lta_descriptors(V[1], T)
-    gn = GaussNewton(T, pinned=d["pinned"], subspace=False)
+    _, gn, solve = _joint_frame()
     events = []
     _pcg, _refresh = rec.GaussNewton._pcg, rec.GaussNewton._refresh
 
@@ -234,7 +239,7 @@ def test_a_continued_solve_that_fails_refreshes_the_factor(monkeypatch):
 
     monkeypatch.setattr(rec.GaussNewton, "_pcg", pcg_spy)
     monkeypatch.setattr(rec.GaussNewton, "_refresh", refresh_spy)
-    r = gn.solve(z, lta_weights(V[0], T), 0.3 * V[0] + 0.7 * V[1])
+    r = solve()
     assert "failed" in events, events
     after = events[events.index("failed") + 1:]
     assert after[:1] == ["refresh"], events
