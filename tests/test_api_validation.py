@@ -300,6 +300,25 @@ def test_unknown_solver_options_are_refused_up_front(kf, method, key):
         assert InterpolationOptions(method=method, solver_options={k: 1}).solver_options == {k: 1}
 
 
+@pytest.mark.parametrize("method, key, value, what", [
+    ("nonlinear", "max_iter", "x", "a positive integer"),  # int() inside the stage before
+    ("geodesic", "max_iter", 2.5, "a positive integer"),
+    ("geodesic", "tol", "x", "a finite non-negative number"),  # a comparison in the solver
+    ("nonlinear", "gtol", -1.0, "a finite non-negative number"),
+    ("nonlinear", "max_iter", True, "a positive integer"),
+    ("geodesic", "max_time_s", 0, "a positive number of seconds"),
+    ("lta", "max_time_s", float("nan"), "a positive number of seconds"),  # reference geodesic
+])
+def test_solver_option_values_are_checked_up_front(kf, method, key, value, what):
+    """A numeric solver option with a value of the wrong kind is a one-line error naming the
+    key, before any work (it was a raw ValueError/TypeError from inside the solver, or, for
+    the reference geodesic, only once its solve started)."""
+    extra = {"reference": "geodesic"} if method == "lta" else {}
+    with pytest.raises(ShellsplineError) as e:
+        ss.interpolate(kf, method=method, solver_options={key: value}, **extra)
+    assert _one_line(e) == f"`solver_options`: {key!r} must be {what}, got {value!r}"
+
+
 def test_pins_fix_placement():
     from shellspline.pipeline.interpolation import pins_fix_placement
 

@@ -134,7 +134,37 @@ def _solver_options(solver_options, method: str) -> dict:
     if bad:  # other methods: inapplicable_options says what applies
         raise ShellsplineError(f"`solver_options`: unknown option {bad[0]!r} for "
                                f"method={method!r}; valid: {', '.join(valid)}")
+    for key, value in solver_options.items():
+        _check_solver_value(key, value)
     return dict(solver_options)
+
+
+#: ``solver_options`` keys whose default is None but whose values are numbers.
+_NUMERIC_SOLVER_KEYS = ("max_time_s", "cg_tol")
+
+
+def _check_solver_value(key: str, value) -> None:
+    """A numeric solver option (an int or float default, or :data:`_NUMERIC_SOLVER_KEYS`)
+    must be a finite non-negative number (``max_time_s``: positive; an int default: a
+    positive integer), so that a bad value is a one-line error here rather than a raw
+    ``int()`` or comparison error inside the solver. Other values the solvers check."""
+    defaults = [inspect.signature(f).parameters[key].default
+                for f in (geodesic_interpolation, nonlinear_spline)
+                if key in inspect.signature(f).parameters]
+    default = defaults[0] if defaults else None
+    integer = isinstance(default, int) and not isinstance(default, bool)
+    if not (integer or isinstance(default, float) or key in _NUMERIC_SOLVER_KEYS):
+        return
+    ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and \
+        np.isfinite(value) and value >= 0
+    if ok and integer:
+        ok = float(value) == int(value) and value >= 1
+    if ok and key == "max_time_s":
+        ok = value > 0
+    if not ok:
+        what = ("a positive integer" if integer else "a positive number of seconds"
+                if key == "max_time_s" else "a finite non-negative number")
+        raise ShellsplineError(f"`solver_options`: {key!r} must be {what}, got {value!r}")
 
 
 def _canonical_reference(reference):
