@@ -141,7 +141,7 @@ def _read_times(path, nanoseconds=False):
     """Times from a text file: the first field of every line (``#`` comments; fields split
     at whitespace or commas, so a TUM or EuRoC file gives its timestamps; a first line of
     column names is skipped); with ``nanoseconds`` integers kept exact (EuRoC timestamps
-    exceed float64's 16 digits)."""
+    exceed float64's 16 digits), also written with a fraction of zeros."""
     import re
 
     path = Path(path)
@@ -154,6 +154,8 @@ def _read_times(path, nanoseconds=False):
             continue
         fields = re.split(r"[,\s]+", s)
         tok = fields[0]
+        if nanoseconds and re.fullmatch(r"-?\d+\.0*", tok):
+            tok = tok.split(".")[0]  # 1403636580863555584.000000 (ORB-SLAM3 writes 1e9 * t)
         try:
             v = int(tok) if nanoseconds else float(tok)
         except ValueError:

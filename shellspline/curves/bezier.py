@@ -31,6 +31,7 @@ def _expand(G, P, s):
     if P.ndim < k + 1 or P.shape[P.ndim - k:] != tuple(G.shape):
         raise ShellsplineError(f"control points must have shape (..., n+1, "
                                f"{', '.join(map(str, G.shape))}), got {P.shape}")
+    P = G.check(P, "P")  # finite, rotations that are rotations (a NaN pose went through)
     lead = P.shape[:P.ndim - k - 1]
     b = np.broadcast_to(np.expand_dims(P, P.ndim - k - 1), lead + (s.size,) + P.shape[-k - 1:])
     return b, k

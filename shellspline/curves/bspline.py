@@ -83,6 +83,7 @@ class BSpline:
         if d.ndim < k + 1 or d.shape[d.ndim - k:] != tuple(G.shape):
             raise ShellsplineError(f"control must have shape (..., n, "
                                    f"{', '.join(map(str, G.shape))}), got {d.shape}")
+        d = G.check(d, "control")  # finite, rotations that are rotations
         n = d.shape[d.ndim - k - 1]
         if m < 1 or n <= m:
             raise ShellsplineError(f"degree must be >= 1 and below the number of control points "

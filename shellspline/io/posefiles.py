@@ -25,13 +25,15 @@ data line with no number on it, e.g. ``timestamp tx ty ...``), a trailing comma 
 line, and a line repeated verbatim right after itself (the same time and pose: dropped).
 Column names above the data, when they name the quaternion (``qx ... qw``, ``q_RS_w []``),
 are checked against the detected format: integer nanoseconds under scalar-last names are
-ours (``csv``), not EuRoC; a scalar-first header over TUM-like
-data is refused (every quaternion would still be a unit one, read wrong). Integer time
-stamps of 13 digits or more (nanoseconds: EuRoC, and TUM or CSV files from ROS tools) are
-kept exact: ``t`` is seconds since ``origin_ns`` and ``time_unit`` is ``"ns"``, so they are
-written back as the same integers. COLMAP
-``images.txt`` is recognised and refused with a message (not supported). Writing is atomic
-(a temporary file in the target folder, then a rename) and makes quaternion signs continuous.
+ours (``csv``), not EuRoC, even under a header that starts as EuRoC's (``#timestamp [ns],``);
+a scalar-first header over TUM-like data is refused (every quaternion would still be a unit
+one, read wrong). Integer time stamps of 13 digits or more (nanoseconds: EuRoC, and TUM or
+CSV files from ROS tools; also with a fraction of zeros, as ORB-SLAM3 writes ``1e9 * t``)
+are kept exact: ``t`` is seconds since ``origin_ns`` and ``time_unit`` is ``"ns"``, so they
+are written back as the same integers. COLMAP ``images.txt`` is recognised and refused with
+a message (not supported). Writing is atomic (a temporary file in the target folder, then a
+rename), makes quaternion signs continuous, and first refuses what the reader would refuse
+(non-finite numbers, rotation blocks that are not rotations).
 Layer rule: numpy, :mod:`shellspline.groups`, :mod:`shellspline.errors` and
 :mod:`shellspline.io.atomic` only.
 """
@@ -133,7 +135,7 @@ def detect_format(path) -> str:
             _fail(path, k, "COLMAP images.txt is not supported (convert it to TUM: camera "
                            "centre -R^T t and the inverse rotation, with a time per image)")
         if "," in s and (low.startswith("#timestamp") or "p_rs_r" in low):
-            return "euroc"
+            return _agree_with_header(path, (k, s), "euroc")  # '#timestamp,...,qx,qy,qz,qw'
         if low.replace(" ", "").startswith("t,tx,ty,tz"):
             return "csv"
         if s.startswith("#") or _is_header(s.replace(",", " ").split()):
@@ -214,12 +216,14 @@ def _quats(path, lines, q):
     return q / nq[:, None]
 
 
-def _check_times(path, t, lines):
+def _check_times(path, t, lines, tns=None):
+    """Strictly increasing times; the error names the line and the two stamps as the file
+    has them (``tns``: its integer nanoseconds, else the seconds ``t``)."""
     d = np.diff(t)
     if np.any(d <= 0):
         i = int(np.argmax(d <= 0))
-        _fail(path, lines[i + 1], f"times must increase strictly, got {float(t[i + 1])!r} "
-                                  f"after {float(t[i])!r}")
+        a, b = (tns[i], tns[i + 1]) if tns else (repr(float(t[i])), repr(float(t[i + 1])))
+        _fail(path, lines[i + 1], f"times must increase strictly, got {b} after {a}")
 
 
 _LAYOUT = {"tum": (8, "t tx ty tz qx qy qz qw"), "kitti": (12, "a 3x4 matrix row by row"),
@@ -272,7 +276,7 @@ def read_poses(path, format=None) -> PoseTrack:
                 _fail(path, k, f"EuRoC timestamps are integer nanoseconds, got {f[0]!r}")
             tns.append(int(f[0]))
         elif fmt != "kitti" and (tns or not rows) and _is_nanoseconds(f[0]):
-            tns.append(int(f[0]))  # integer nanosecond stamps (ROS): kept exact, as EuRoC
+            tns.append(int(f[0].split(".")[0]))  # nanosecond stamps (ROS, ORB-SLAM3): exact
         elif tns:
             _fail(path, k, f"the first time stamps are integer nanoseconds, this one is "
                            f"{f[0]!r}")
@@ -311,15 +315,15 @@ def read_poses(path, format=None) -> PoseTrack:
             t = V[:, 0]
         q = V[:, [5, 6, 7, 4]] if fmt == "euroc" else V[:, 4:8]
         R, p = so3.matrix_from_quat(_quats(path, lines, q)), V[:, 1:4]
-    _check_times(path, t, lines)
+    _check_times(path, t, lines, tns)
     return PoseTrack(t, se3.from_rt(R, p), fmt, origin, unit, np.array(lines, dtype=np.int64))
 
 
 def _is_nanoseconds(x: str) -> bool:
     """An integer time stamp of 13 digits or more: nanoseconds since an epoch (seconds
-    since 1970 have 10 digits; EuRoC's format detection uses the same length)."""
-    d = x[1:] if x[:1] == "-" else x
-    return d.isdigit() and len(d) >= 13
+    since 1970 have 10 digits; EuRoC's format detection uses the same length), also with a
+    fraction of zeros (``1403636580863555584.000000``: ORB-SLAM3 writes ``1e9 * t`` so)."""
+    return re.fullmatch(r"-?\d{13,}(\.0*)?", x) is not None
 
 
 def _rotations(path, lines, M):
@@ -398,6 +402,24 @@ def _decimal_seconds(ns: int) -> str:
     return f"{sign}{ns // 1_000_000_000}.{frac}"
 
 
+def _check_writable(t, T) -> None:
+    """Refuse what :func:`read_poses` would refuse in the written file, or read as another
+    pose: non-finite times or poses, rotation blocks farther than the reader's 1e-3 from
+    orthonormal or reflecting (their quaternion is some other rotation's)."""
+    bad_t, bad_T = ~np.isfinite(t), ~np.all(np.isfinite(T), axis=(1, 2))
+    if np.any(bad_t) or np.any(bad_T):
+        i = int(np.argmax(bad_t | bad_T))
+        raise ShellsplineError(f"write_poses: non-finite {'t' if bad_t[i] else 'T'}[{i}]")
+    R = T[:, :3, :3]
+    err = np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = (err > 1e-3) | (det < 0)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ShellsplineError(f"write_poses: T[{i}]: the rotation block is not a rotation "
+                               f"(|R R^T - I| = {err[i]:.2g}, det = {det[i]:.3g})")
+
+
 def write_poses(path, t, T, format, *, origin_ns: int = 0, time_unit: str = "s") -> None:
     """Write poses in one of :data:`FORMATS` (atomically).
 
@@ -419,6 +441,13 @@ def write_poses(path, t, T, format, *, origin_ns: int = 0, time_unit: str = "s")
         1e9)`` (a file read with such stamps is written back with them:
         :attr:`PoseTrack.time_unit`). EuRoC always writes nanoseconds, JSON seconds.
 
+    Raises
+    ------
+    ShellsplineError
+        Before anything is written: wrong shapes, non-finite times or poses, a rotation
+        block that the reader would refuse (more than 1e-3 from orthonormal, or a
+        reflection).
+
     Notes
     -----
     Numbers are written in their shortest exact form, so reading a written file gives the
@@ -432,6 +461,7 @@ def write_poses(path, t, T, format, *, origin_ns: int = 0, time_unit: str = "s")
     if T.ndim != 3 or T.shape[1:] != (4, 4) or t.shape != (T.shape[0],):
         raise ShellsplineError(f"write_poses: expected t (n,) and T (n, 4, 4), got {t.shape} and "
                                f"{T.shape}")
+    _check_writable(t, T)
     p = T[:, :3, 3]
     q = so3.quat_continuous(so3.quat_from_matrix(T[:, :3, :3]))
     if time_unit not in ("s", "ns"):
