@@ -338,35 +338,119 @@ def _position_axes(chans) -> str:
     return "".join(c[0] for c in chans if c.endswith("position"))
 
 
+def _joint_key(name: str) -> str:
+    """A joint name as compared between clips: without a namespace (``mixamorig:Hips``,
+    ``mixamorig1:Hips`` and ``Hips`` are one joint) and case-insensitive."""
+    return name.rsplit(":", 1)[-1].strip().lower()
+
+
+def _joints_by_name(a: Motion, b: Motion) -> np.ndarray | None:
+    """The index in ``b`` of every joint of ``a``, matched by name (:func:`_joint_key`), or
+    None when names do not identify the joints: a name twice in one clip, or not the same
+    names in both."""
+    ka, kb = [_joint_key(n) for n in a.names], [_joint_key(n) for n in b.names]
+    if len(set(ka)) != len(ka) or len(set(kb)) != len(kb) or set(ka) != set(kb):
+        return None
+    at = {k: i for i, k in enumerate(kb)}
+    return np.array([at[k] for k in ka], dtype=np.int64)
+
+
+def _joints_reordered(motion: Motion, order) -> Motion:
+    """``motion`` with its joints in ``order`` (old indices; parents first): names, parents,
+    offsets, channels, value columns and End Sites carried along."""
+    order = [int(j) for j in order]
+    if order == list(range(motion.n_joints)):
+        return motion
+    new = {j: i for i, j in enumerate(order)}
+    parents = [-1 if motion.parents[j] < 0 else new[int(motion.parents[j])] for j in order]
+    cols = np.concatenate([motion.channel_columns(j) for j in order])
+    ends = sorted(((new[p], o) for p, o in motion.end_sites), key=lambda e: e[0])
+    return Motion(tuple(motion.names[j] for j in order), parents, motion.offsets[order],
+                  tuple(motion.channels[j] for j in order), motion.frame_time,
+                  motion.values[:, cols], tuple(ends))
+
+
+def _parent_name(m: Motion, p) -> str:
+    return "none (a root)" if p < 0 else m.names[int(p)]
+
+
+def _name_list(names, k: int = 3) -> str:
+    return ", ".join(names[:k]) + (f" and {len(names) - k} more" if len(names) > k else "")
+
+
 def skeleton_mismatch(a: Motion, b: Motion) -> str | None:
     """Why two motions are not clips of one skeleton, or None when they are.
 
-    One skeleton: the same joint count and parents, and on every joint the same position
-    channels (in any order) and rotation channels that give the same rotations: the same
-    axes in the same order, or three distinct axes in each (any Euler order: ZXY and XYZ
-    files of one rig are one skeleton, see :func:`with_channel_layout`). Names and offsets
-    may differ (another performer, another naming convention).
+    One skeleton: the same joints with the same parents, and on every joint the same
+    position channels (in any order) and rotation channels that give the same rotations:
+    the same axes in the same order, or three distinct axes in each (any Euler order: ZXY
+    and XYZ files of one rig are one skeleton, see :func:`with_channel_layout`). When the
+    joint names match one to one (ignoring case and a namespace such as ``mixamorig:``),
+    joints are matched by name, in any file order (exporters list the legs or the arms
+    first; the left leg listed before the right one in one file and after it in the other
+    is not the same joint); otherwise by position in the file, and names may differ
+    (another naming convention). Offsets may differ (another performer).
     """
     why = None
-    if a.n_joints != b.n_joints or not np.array_equal(a.parents, b.parents):
-        why = ""
-        if a.n_joints == b.n_joints:
-            j = int(np.flatnonzero(np.asarray(a.parents) != np.asarray(b.parents))[0])
-            why = f"; joint {j} ({a.names[j]}): parent {a.parents[j]} against {b.parents[j]}"
-    else:
-        for j in range(a.n_joints):
-            ra, rb = _rotation_axes(a.channels[j]), _rotation_axes(b.channels[j])
-            pa, pb = _position_axes(a.channels[j]), _position_axes(b.channels[j])
-            rot_ok = ra == rb or (len(set(ra)) == len(ra) == 3 and len(set(rb)) == len(rb) == 3)
-            if not rot_ok or sorted(pa) != sorted(pb) or len(a.channels[j]) != len(b.channels[j]):
-                why = (f"; joint {j} ({a.names[j]}): channels {' '.join(a.channels[j])} "
-                       f"against {' '.join(b.channels[j])}")
-                break
+    order = _joints_by_name(a, b)
+    if order is not None:  # b's joints in a's order, their parents matched by name too
+        where = np.empty(b.n_joints, dtype=np.int64)
+        where[order] = np.arange(b.n_joints)
+        pb = np.array([-1 if b.parents[j] < 0 else where[b.parents[j]] for j in order])
+        if not np.array_equal(pb, a.parents):
+            j = int(np.flatnonzero(pb != a.parents)[0])
+            why = (f"; joint {a.names[j]}: parent {_parent_name(a, a.parents[j])} against "
+                   f"{_parent_name(a, pb[j])}")
+        else:
+            b = _joints_reordered(b, order)
+    if why is None:
+        why = _layout_difference(a, b)
     if why is None:
         return None
     return (f"the two motions have different skeletons: {a.n_joints} joints "
             f"({sum(map(len, a.channels))} channels) against {b.n_joints} joints "
             f"({sum(map(len, b.channels))} channels){why}")
+
+
+def _joint_order_like(motion: Motion, template: Motion) -> Motion:
+    """``motion`` with its joints in ``template``'s file order when they are matched by name
+    (:func:`skeleton_mismatch`), so that joint ``j`` is the same joint in both; raises when
+    the skeletons differ."""
+    why = skeleton_mismatch(template, motion)
+    if why is not None:
+        raise ShellsplineError(why)
+    order = _joints_by_name(template, motion)
+    return motion if order is None else _joints_reordered(motion, order)
+
+
+def _layout_difference(a: Motion, b: Motion) -> str | None:
+    """The first difference of two skeletons with joints matched by position in the file
+    (``"; ..."``, to append to a message), or None."""
+    if a.n_joints != b.n_joints:
+        ka, kb = {_joint_key(n) for n in a.names}, {_joint_key(n) for n in b.names}
+        only = [(which, [n for n in m.names if _joint_key(n) not in other])
+                for which, m, other in (("first", a, kb), ("second", b, ka))]
+        if ka & kb and any(names for _, names in only):  # one naming: the joints one lacks
+            return "; " + "; ".join(f"only in the {which}: {_name_list(names)}"
+                                    for which, names in only if names)
+    n = min(a.n_joints, b.n_joints)
+    diff = np.flatnonzero(a.parents[:n] != b.parents[:n])
+    if diff.size or a.n_joints != b.n_joints:
+        j = int(diff[0]) if diff.size else n
+
+        def joint(m):
+            return "no joint" if j >= m.n_joints else \
+                f"{m.names[j]} (parent {_parent_name(m, m.parents[j])})"
+        return f"; joint {j}: {joint(a)} against {joint(b)}"
+    for j in range(a.n_joints):
+        ra, rb = _rotation_axes(a.channels[j]), _rotation_axes(b.channels[j])
+        pa, pb = _position_axes(a.channels[j]), _position_axes(b.channels[j])
+        rot_ok = ra == rb or (len(set(ra)) == len(ra) == 3 and len(set(rb)) == len(rb) == 3)
+        if not rot_ok or sorted(pa) != sorted(pb) or len(a.channels[j]) != len(b.channels[j]):
+            return (f"; joint {j} ({a.names[j]}): channels "
+                    f"{' '.join(a.channels[j]) or 'none'} against "
+                    f"{' '.join(b.channels[j]) or 'none'}")
+    return None
 
 
 def with_channel_layout(motion: Motion, template: Motion) -> Motion:
@@ -382,8 +466,10 @@ def with_channel_layout(motion: Motion, template: Motion) -> Motion:
     -------
     Motion
         ``motion``'s names, offsets, frames and poses, written in ``template``'s channels:
-        every joint's rotation converted to the template's Euler order (angles continuous
-        along the clip), position channels reordered. Unchanged when the layouts agree.
+        its joints in the template's file order when they are matched by name
+        (:func:`skeleton_mismatch`), every joint's rotation converted to the template's
+        Euler order (angles continuous along the clip), position channels reordered.
+        Unchanged when the layouts agree.
 
     Raises
     ------
@@ -404,9 +490,7 @@ def with_channel_layout(motion: Motion, template: Motion) -> Motion:
     >>> bool(np.allclose(euler_matrices(m.values, "XYZ"), euler_matrices(zxy.values, "ZXY")))
     True
     """
-    why = skeleton_mismatch(template, motion)
-    if why is not None:
-        raise ShellsplineError(why)
+    motion = _joint_order_like(motion, template)
     if tuple(motion.channels) == tuple(template.channels):
         return motion
     values = np.zeros((motion.n_frames, template.values.shape[1]))
@@ -1167,6 +1251,7 @@ def contact_features(a: Motion, b: Motion, *, up=None) -> np.ndarray:
     (k,2) float64 numpy array
         ``(t_a, t_b)`` in normalised time ``[0, 1]`` of each clip, sorted by ``t_a``.
     """
+    b = _joint_order_like(b, a)  # a's feet are the same joints of b
     fa, fb = foot_contacts(a, up=up), foot_contacts(b, up=up)
     fb = foot_contacts(b, up=up, feet=fa.feet) if fb.feet != fa.feet else fb  # own stage
     pairs = []

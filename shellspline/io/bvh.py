@@ -10,7 +10,11 @@ Conventions (what real files from Blender, CMU, motion builders and game studios
 * **Rotation channels** are intrinsic Euler angles in degrees, composed in the order they
   are written: ``Zrotation Xrotation Yrotation`` means ``R = Rz(z) @ Rx(x) @ Ry(y)``
   applied to column vectors (scipy: ``Rotation.from_euler("ZXY", [z, x, y],
-  degrees=True)``). Any order, and any number of rotation channels (0 to 3), per joint.
+  degrees=True)``). Any order, and any number of rotation channels (0 to 3), per joint
+  (``CHANNELS 0``, or no ``CHANNELS`` line: a fixed joint). Refused, naming the joint:
+  a position channel twice (which value?), more than 3 rotation channels, or two
+  rotations about one axis in a row (``Xrotation Xrotation Yrotation``: no Euler order;
+  ``ZXZ`` is one).
 * **Position channels** may appear on any joint. When present, they *replace* the matching
   component of the joint's ``OFFSET`` as its translation in the parent frame (the files of
   the Bandai Namco set store every joint's bone vector there, equal to its offset, and
@@ -27,7 +31,9 @@ Conventions (what real files from Blender, CMU, motion builders and game studios
   ``Frames:`` count disagrees (exporters write off-by-one counts) a ``UserWarning`` says
   so and all frame lines are kept; a truncated last line still fails (wrong value count).
   Malformed input raises :class:`~shellspline.errors.ShellsplineError` with one line that
-  names the file and the line number.
+  names the file and the line number (a non-finite ``OFFSET`` or channel value too).
+* Hierarchies of any depth (a chain of thousands of joints: a rope, a tail) are read and
+  written without recursion.
 
 Writing uses ``repr`` of every float (the shortest string that parses back to the same
 double), so ``read_bvh(write_bvh(m))`` reproduces channel values, offsets and the frame time
@@ -100,6 +106,14 @@ class Motion:
                                    f"-1 for a root), got parents {parents.tolist()}")
         channels = tuple(tuple(_canonical_channel(c, "Motion") for c in cs)
                          for cs in self.channels)
+        for j, cs in enumerate(channels):
+            why = _channel_problem(cs)
+            if why is not None:
+                raise ShellsplineError(f"Motion: joint {self.names[j]!r}: {why}")
+        if not np.all(np.isfinite(offsets)):
+            j = int(np.argwhere(~np.isfinite(offsets))[0, 0])
+            raise ShellsplineError(f"Motion: the OFFSET of joint {self.names[j]!r} is not "
+                                   f"finite: {offsets[j].tolist()}")
         C = sum(len(c) for c in channels)
         values = np.asarray(self.values, dtype=np.float64)
         if values.ndim != 2 or values.shape[1] != C:
@@ -299,6 +313,8 @@ class _Tokens:
                 out.append(float(tok))
             except ValueError:
                 raise self.error(f"{what}: expected a number, got {tok!r}", line) from None
+            if not np.isfinite(out[-1]):
+                raise self.error(f"{what}: expected a finite number, got {tok!r}", line)
         return np.array(out)
 
 
@@ -308,6 +324,23 @@ def _canonical_channel(c: str, where: str) -> str:
     except (KeyError, AttributeError):
         raise ShellsplineError(f"{where}: unknown channel {c!r} (expected one of "
                                f"{', '.join(CHANNEL_NAMES)})") from None
+
+
+def _channel_problem(chans) -> str | None:
+    """Why a joint's channel list (canonical names) gives no well-defined transform, or None:
+    a position channel twice (which value?), more than 3 rotation channels, or two rotations
+    about one axis in a row (``Xrotation Xrotation Yrotation``: no Euler order; ``ZXZ`` is
+    one)."""
+    pos = [c for c in chans if c.endswith("position")]
+    dup = next((c for c in pos if pos.count(c) > 1), None)
+    if dup is not None:
+        return f"{dup} appears twice in {' '.join(chans)}"
+    rot = "".join(c[0] for c in chans if c.endswith("rotation"))
+    if len(rot) > 3:
+        return f"{len(rot)} rotation channels (at most 3, one Euler order) in {' '.join(chans)}"
+    if any(x == y for x, y in zip(rot, rot[1:])):
+        return f"two rotations about one axis in a row in {' '.join(chans)} (no Euler order)"
+    return None
 
 
 def read_bvh(path) -> Motion:
@@ -357,7 +390,7 @@ def read_bvh(path) -> Motion:
         tok, line = toks.next("ROOT")
         if tok.upper() != "ROOT":
             raise toks.error(f"expected 'ROOT', got {tok!r}", line)
-        _read_joint(toks, -1, names, parents, offsets, channels, ends)
+        _read_tree(toks, names, parents, offsets, channels, ends)
     if not names:
         raise ShellsplineError(f"{name}:{first + 1}: HIERARCHY declares no joint")
     frame_time, values = _read_motion(lines, motion_at, sum(len(c) for c in channels), name)
@@ -365,7 +398,34 @@ def read_bvh(path) -> Motion:
                   tuple(channels), frame_time, values, tuple(ends))
 
 
-def _read_joint(toks: _Tokens, parent, names, parents, offsets, channels, ends) -> None:
+def _read_tree(toks: _Tokens, names, parents, offsets, channels, ends) -> None:
+    """The joints of one ``ROOT`` (its keyword read), depth first. A stack of the joints
+    whose ``}`` is pending, not recursion: a chain of thousands of joints (a rope, a tail)
+    reads like any other."""
+    stack = [_read_joint(toks, -1, names, parents, offsets, channels)]
+    while stack:
+        j = stack[-1]
+        jname = names[j]
+        tok, line = toks.next(f"'}}' closing {jname}")
+        key = tok.upper()
+        if key == "}":
+            stack.pop()
+        elif key == "JOINT":
+            stack.append(_read_joint(toks, j, names, parents, offsets, channels))
+        elif key == "END":
+            toks.expect("Site")
+            toks.expect("{")
+            toks.expect("OFFSET")
+            ends.append((j, toks.floats(3, f"End Site OFFSET of {jname}")))
+            toks.expect("}")
+        else:
+            raise toks.error(f"in joint {jname}: expected 'JOINT', 'End Site' or '}}', "
+                             f"got {tok!r}", line)
+
+
+def _read_joint(toks: _Tokens, parent, names, parents, offsets, channels) -> int:
+    """A joint's name, ``{``, ``OFFSET`` and ``CHANNELS`` (the ``ROOT``/``JOINT`` keyword
+    read); returns its index."""
     jname, line = toks.next("a joint name")
     if jname == "{":
         raise toks.error("joint without a name", line)
@@ -379,7 +439,7 @@ def _read_joint(toks: _Tokens, parent, names, parents, offsets, channels, ends) 
     offsets.append(toks.floats(3, f"OFFSET of {jname}"))
     chans = []
     if (toks.peek() or "").upper() == "CHANNELS":
-        toks.next("CHANNELS")
+        _, cline = toks.next("CHANNELS")
         tok, line = toks.next("the channel count")
         if not tok.isdigit():
             raise toks.error(f"CHANNELS of {jname}: expected a count, got {tok!r}", line)
@@ -389,23 +449,11 @@ def _read_joint(toks: _Tokens, parent, names, parents, offsets, channels, ends) 
                 raise toks.error(f"CHANNELS of {jname}: unknown channel {c!r} (expected "
                                  f"{tok} of {', '.join(CHANNEL_NAMES)})", line)
             chans.append(_CANONICAL[c.lower()])
+        why = _channel_problem(chans)
+        if why is not None:
+            raise toks.error(f"CHANNELS of {jname}: {why}", cline)
     channels.append(tuple(chans))
-    while True:
-        tok, line = toks.next(f"'}}' closing {jname}")
-        key = tok.upper()
-        if key == "}":
-            return
-        if key == "JOINT":
-            _read_joint(toks, j, names, parents, offsets, channels, ends)
-        elif key == "END":
-            toks.expect("Site")
-            toks.expect("{")
-            toks.expect("OFFSET")
-            ends.append((j, toks.floats(3, f"End Site OFFSET of {jname}")))
-            toks.expect("}")
-        else:
-            raise toks.error(f"in joint {jname}: expected 'JOINT', 'End Site' or '}}', "
-                             f"got {tok!r}", line)
+    return j
 
 
 _HEADER = re.compile(r"^\s*(frames|frame\s+time)\s*:\s*(\S+)\s*$", re.IGNORECASE)
@@ -482,11 +530,27 @@ def write_bvh(motion: Motion, path) -> Path:
     Path
         ``path``.
 
+    Raises
+    ------
+    ShellsplineError
+        Before anything is written, for what would not read back: a joint name that is
+        empty or holds a line break or a ``{`` word, a non-finite channel value.
+
     Notes
     -----
     ``repr`` gives the shortest decimal string that parses back to the same double, so
     reading the file back reproduces ``values``, ``offsets`` and ``frame_time`` exactly.
     """
+    for n in motion.names:
+        if not n.split() or "{" in n.split() or "\n" in n or "\r" in n:
+            raise ShellsplineError(f"write_bvh: {path}: joint name {n!r} cannot be written "
+                                   "(empty, a line break or a '{' word)")
+    if not np.all(np.isfinite(motion.values)):
+        f, c = map(int, np.argwhere(~np.isfinite(motion.values))[0])
+        j = int(np.searchsorted(np.cumsum([len(ch) for ch in motion.channels]), c, "right"))
+        raise ShellsplineError(f"write_bvh: {path}: frame {f} has a non-finite value "
+                               f"({float(motion.values[f, c])!r}) in a channel of joint "
+                               f"{motion.names[j]!r}")
     out = ["HIERARCHY"]
     children = [[] for _ in motion.names]
     for j, p in enumerate(motion.parents):
@@ -499,21 +563,6 @@ def write_bvh(motion: Motion, path) -> Path:
     def fmt(xs):
         return " ".join(repr(float(x)) for x in xs)
 
-    def joint(j, depth):
-        ind = "\t" * depth
-        out.append(f"{ind}{'ROOT' if motion.parents[j] < 0 else 'JOINT'} {motion.names[j]}")
-        out.append(ind + "{")
-        out.append(f"{ind}\tOFFSET {fmt(motion.offsets[j])}")
-        if motion.channels[j]:
-            out.append(f"{ind}\tCHANNELS {len(motion.channels[j])} "
-                       + " ".join(motion.channels[j]))
-        for c in children[j]:
-            joint(c, depth + 1)
-        for o in ends[j]:
-            out.extend([f"{ind}\tEnd Site", ind + "\t{", f"{ind}\t\tOFFSET {fmt(o)}",
-                        ind + "\t}"])
-        out.append(ind + "}")
-
     order = []
     stack = [int(j) for j in np.flatnonzero(motion.parents < 0)][::-1]
     while stack:
@@ -523,8 +572,26 @@ def write_bvh(motion: Motion, path) -> Path:
     if order != list(range(motion.n_joints)):
         raise ShellsplineError(f"write_bvh: {path}: joints must be in depth-first order (every "
                                f"joint's subtree right after it), got order {order}")
-    for j in np.flatnonzero(motion.parents < 0):
-        joint(int(j), 0)
+    # a stack, not recursion (chains of thousands of joints): a joint's header, its
+    # children, then its End Sites and its closing brace
+    todo = [(False, int(j), 0) for j in np.flatnonzero(motion.parents < 0)][::-1]
+    while todo:
+        closing, j, depth = todo.pop()
+        ind = "\t" * depth
+        if closing:
+            for o in ends[j]:
+                out.extend([f"{ind}\tEnd Site", ind + "\t{", f"{ind}\t\tOFFSET {fmt(o)}",
+                            ind + "\t}"])
+            out.append(ind + "}")
+            continue
+        out.append(f"{ind}{'ROOT' if motion.parents[j] < 0 else 'JOINT'} {motion.names[j]}")
+        out.append(ind + "{")
+        out.append(f"{ind}\tOFFSET {fmt(motion.offsets[j])}")
+        if motion.channels[j]:
+            out.append(f"{ind}\tCHANNELS {len(motion.channels[j])} "
+                       + " ".join(motion.channels[j]))
+        todo.append((True, j, depth))
+        todo += [(False, c, depth + 1) for c in children[j][::-1]]
     out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {motion.frame_time!r}"]
     out += [" ".join(map(repr, row)) for row in motion.values.tolist()]
     return write_text_atomic(path, "\n".join(out) + "\n")
