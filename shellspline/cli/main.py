@@ -107,7 +107,7 @@ def _build_parser() -> argparse.ArgumentParser:
                                             "animations.")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     sub = p.add_subparsers(dest="command")
-    q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF/USD)",
+    q = sub.add_parser("interpolate", help="interpolate keyframe meshes (OBJ/PLY/OFF/glTF/USD)",
                        description="Interpolate keyframes of one triangle mesh (same "
                                    "connectivity) and write OUT/frame_0000.obj ... plus "
                                    "OUT/report.json. An option given that the run cannot "
@@ -120,8 +120,9 @@ def _build_parser() -> argparse.ArgumentParser:
                               f"error (a bug; {DEBUG_ENV}=1 prints the traceback); 130/143 "
                               "interrupted by SIGINT/SIGTERM")
     q.add_argument("keyframes", nargs="+",
-                   help="keyframe mesh files, in time order, or one USD file whose mesh has "
-                        "time-sampled points (one keyframe per sample)")
+                   help="keyframe mesh files (OBJ, PLY, OFF, glTF/GLB), in time order, or "
+                        "one USD file whose mesh has time-sampled points (one keyframe per "
+                        "sample)")
     q.add_argument("-o", "--out", required=True, help="output directory (created atomically)")
     g = q.add_mutually_exclusive_group()
     g.add_argument("--frames", help="keyframe frames, e.g. 0,10,20 (or a file of integers)")

@@ -12,7 +12,9 @@ Written by hand with :mod:`struct` and :mod:`json` (no dependency). The file hol
   linearly in between; ``STEP`` holds each frame.
 
 Standard viewers (Blender, three.js / the glTF sample viewers, Babylon.js, Windows 3D Viewer)
-play it as a loop. :func:`read_glb` reads such a file back (it is not a general glTF reader).
+play it as a loop. :func:`read_glb` reads such a file back (it is not a general glTF reader);
+:func:`read_gltf_mesh` reads the one mesh of a glTF scene as a DCC tool exports it (a
+keyframe).
 
 Size: ``K × n × 3`` float32 per attribute, i.e. 12 bytes per vertex and frame for positions
 (24 with normals), plus ``(K+1) × K`` animation weights.
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import json
 import struct
+from pathlib import Path
 
 import numpy as np
 
@@ -29,7 +32,11 @@ from ..mesh.geometry import vertex_normals
 from .atomic import write_bytes_atomic
 
 __all__ = ["glb_bytes", "write_glb", "read_glb", "glb_up_axis", "UP_ROTATIONS",
+           "read_gltf_mesh", "GLTF_EXTENSIONS",
            "vertex_normals"]  # the last: mesh.geometry's
+
+GLTF_EXTENSIONS = (".gltf", ".glb")
+"""Extensions of the glTF files :func:`read_gltf_mesh` reads (JSON or binary)."""
 
 _GLB_MAGIC = 0x46546C67  # b"glTF"
 _CHUNK_JSON = 0x4E4F534A  # b"JSON"
@@ -74,13 +81,9 @@ def glb_up_axis(path) -> str:
             if magic != _GLB_MAGIC or jtype != _CHUNK_JSON:
                 return "y"
             doc = json.loads(fh.read(jlen))
-        rot = (doc.get("nodes") or [{}])[0].get("rotation")
-    except (OSError, ValueError, struct.error, AttributeError, IndexError):
+        return _first_node_up(doc)
+    except (OSError, ValueError, struct.error, AttributeError, IndexError, TypeError):
         return "y"
-    for axis, q in UP_ROTATIONS.items():
-        if q is not None and rot is not None and np.allclose(rot, q, atol=1e-7):
-            return axis
-    return "y"
 
 
 def glb_bytes(V, F, *, fps: float = 24.0, interpolation: str = "LINEAR", normals: bool = True,
@@ -323,3 +326,253 @@ def read_glb(path) -> tuple[np.ndarray, np.ndarray, float]:
     except (ValueError, KeyError, IndexError, TypeError, struct.error) as exc:
         raise ShellsplineError(f"cannot read '{name}': {exc}") from None
     return np.stack(poses), F, fps
+
+
+# ----------------------------------------------------------------------------------------
+# Reading the mesh of a glTF scene (keyframe input)
+# ----------------------------------------------------------------------------------------
+_COMPONENTS = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def read_gltf_mesh(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The one mesh of a glTF 2.0 scene (``.gltf`` with its buffers, or ``.glb``) in world space.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    V : (n,3) float64 numpy array
+        The vertices of every triangle primitive of the mesh, primitive after primitive (an
+        exporter writes one per material, each with its own vertices), moved by the world
+        transform of its node (the node and its ancestors' ``matrix`` or TRS) and with the
+        morph targets applied at their default weights (the node's ``weights``, else the
+        mesh's: the shape the file shows).
+    offsets : (m+1,) int64 numpy array
+        Offsets of the triangles (every face has 3 corners).
+    indices : (3m,) int64 numpy array
+        Triangle corners: the primitive's ``indices``, or its vertices three by three when it
+        has none; strips and fans are cut into triangles, point and line primitives are
+        skipped. Under a mirroring transform the corners are reversed (counter-clockwise
+        front faces in world space).
+    info : dict
+        ``mesh`` (its name, or ``mesh <i>``) and ``node`` (the node's name, or ``node <i>``).
+
+    Raises
+    ------
+    ShellsplineError
+        In one line naming the file: unreadable or not glTF 2.0, a missing or short buffer,
+        no mesh in the scene or more than one mesh node, a skinned mesh (its positions are the
+        bind pose, not the pose shown), compressed geometry (Draco, meshopt), a primitive
+        whose index count is not a multiple of 3 or whose indices lie out of range.
+    """
+    import base64
+    from urllib.parse import unquote
+
+    name = str(path)
+    p = Path(path)
+
+    def bad(why):
+        return ShellsplineError(f"cannot read '{name}': {why}")
+
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise bad(exc.strerror or exc) from None
+    try:
+        chunk = None
+        if data[:4] == b"glTF":
+            _, version, total = struct.unpack_from("<III", data, 0)
+            if version != 2:
+                raise bad(f"glTF version {version}; only glTF 2.0 is read")
+            jlen, jtype = struct.unpack_from("<II", data, 12)
+            if jtype != _CHUNK_JSON:
+                raise bad("the first chunk of the GLB file is not JSON")
+            doc = json.loads(data[20:20 + jlen])
+            at = 20 + jlen + (-jlen) % 4
+            if at + 8 <= len(data):
+                blen, btype = struct.unpack_from("<II", data, at)
+                if btype == _CHUNK_BIN:
+                    chunk = data[at + 8:at + 8 + blen]
+        else:
+            doc = json.loads(data.decode("utf-8-sig"))
+        if not isinstance(doc, dict) or not str(doc.get("asset", {}).get("version", "")
+                                                 ).startswith("2"):
+            raise bad("not a glTF 2.0 file (asset.version is not 2.x)")
+        packed = sorted({"KHR_draco_mesh_compression", "EXT_meshopt_compression",
+                         "KHR_meshopt_compression"} & set(doc.get("extensionsUsed", [])))
+        if packed:
+            raise bad(f"its geometry is compressed ({packed[0]}); export it without "
+                      "compression")
+        buffers = []
+        for b, buf in enumerate(doc.get("buffers", [])):
+            uri = buf.get("uri")
+            if uri is None:
+                if chunk is None:
+                    raise bad(f"buffer {b} has no uri and the file has no binary chunk")
+                raw = chunk
+            elif uri.startswith("data:"):
+                raw = base64.b64decode(uri.split(",", 1)[1])
+            else:
+                try:
+                    raw = (p.parent / unquote(uri)).read_bytes()
+                except OSError as exc:
+                    raise bad(f"buffer {b}: cannot read '{unquote(uri)}' "
+                              f"({exc.strerror or exc})") from None
+            if len(raw) < int(buf.get("byteLength", 0)):
+                raise bad(f"buffer {b} holds {len(raw)} bytes, fewer than its byteLength "
+                          f"{buf['byteLength']}")
+            buffers.append(raw)
+
+        def accessor(i) -> np.ndarray:
+            a = doc["accessors"][i]
+            dt = np.dtype(_COMPONENTS[a["componentType"]])
+            width, count = _WIDTHS[a["type"]], int(a["count"])
+            if "bufferView" in a:
+                v = doc["bufferViews"][a["bufferView"]]
+                raw = buffers[v["buffer"]]
+                start = v.get("byteOffset", 0) + a.get("byteOffset", 0)
+                stride = v.get("byteStride") or width * dt.itemsize
+                end = start + (count - 1) * stride + width * dt.itemsize if count else start
+                if end > v.get("byteOffset", 0) + v["byteLength"] or end > len(raw):
+                    raise bad(f"accessor {i} reaches past the end of its buffer view")
+                arr = np.ndarray((count, width), dtype=dt, buffer=raw, offset=start,
+                                 strides=(stride, dt.itemsize)).astype(np.float64)
+            else:
+                arr = np.zeros((count, width))
+            if a.get("normalized") and dt.kind in "iu":
+                arr = np.maximum(arr / np.iinfo(dt).max, -1.0)
+            if "sparse" in a:
+                sp = a["sparse"]
+                k = int(sp["count"])
+                iv, vv = sp["indices"], sp["values"]
+                idt = np.dtype(_COMPONENTS[iv["componentType"]])
+                ib = doc["bufferViews"][iv["bufferView"]]
+                vb = doc["bufferViews"][vv["bufferView"]]
+                where = np.frombuffer(buffers[ib["buffer"]], idt, k,
+                                      ib.get("byteOffset", 0) + iv.get("byteOffset", 0))
+                vals = np.frombuffer(buffers[vb["buffer"]], dt, k * width,
+                                     vb.get("byteOffset", 0) + vv.get("byteOffset", 0))
+                arr[where.astype(np.int64)] = vals.reshape(k, width)
+            return arr
+
+        # the scene's nodes with a mesh, depth first, with their world transforms
+        nodes = doc.get("nodes", [])
+        scenes = doc.get("scenes")
+        if scenes:
+            roots = scenes[doc.get("scene", 0)].get("nodes", [])
+        else:
+            children = {c for nd in nodes for c in nd.get("children", [])}
+            roots = [i for i in range(len(nodes)) if i not in children]
+        found, stack = [], [(i, np.eye(4)) for i in reversed(roots)]
+        while stack:
+            i, parent = stack.pop()
+            nd = nodes[i]
+            M = parent @ _node_matrix(nd)
+            if "mesh" in nd:
+                found.append((i, M))
+            stack += [(c, M) for c in reversed(nd.get("children", []))]
+        if not found:
+            raise ShellsplineError(f"'{name}' holds no mesh in its scene")
+        if len(found) > 1:
+            shown = ", ".join(nodes[i].get("name") or f"node {i}" for i, _ in found[:3])
+            raise ShellsplineError(f"'{name}' holds {len(found)} mesh nodes ({shown}"
+                                   f"{', ...' if len(found) > 3 else ''}); one mesh per file "
+                                   "is read (join them into one object before export)")
+        i, M = found[0]
+        nd = nodes[i]
+        mesh = doc["meshes"][nd["mesh"]]
+        where = f"mesh '{mesh.get('name') or nd['mesh']}'"
+        if "skin" in nd:
+            raise ShellsplineError(f"'{name}': {where} is skinned (glTF skin): its vertex "
+                                   "positions are the bind pose, not the pose shown; export "
+                                   "the deformed mesh (Blender: glTF export without "
+                                   "Skinning, modifiers applied)")
+        weights = nd.get("weights", mesh.get("weights"))
+        Vs, faces, base = [], [], 0
+        for k, prim in enumerate(mesh["primitives"]):
+            mode = prim.get("mode", 4)
+            if mode not in (4, 5, 6):
+                continue  # points and lines: nothing the shell model can use
+            X = accessor(prim["attributes"]["POSITION"])[:, :3]
+            for t, target in enumerate(prim.get("targets", [])):
+                w = float(weights[t]) if weights is not None and t < len(weights) else 0.0
+                if w != 0.0 and "POSITION" in target:
+                    X = X + w * accessor(target["POSITION"])[:, :3]
+            n = X.shape[0]
+            idx = (accessor(prim["indices"])[:, 0] if "indices" in prim
+                   else np.arange(n, dtype=np.float64)).astype(np.int64)
+            if mode == 4:
+                if idx.size % 3:
+                    raise ShellsplineError(f"'{name}': primitive {k} of {where} has "
+                                           f"{idx.size} triangle indices, not a multiple of 3")
+                T = idx.reshape(-1, 3)
+            elif mode == 5:  # strip: every other triangle turned to keep the winding
+                j = np.arange(max(idx.size - 2, 0))
+                T = np.stack([idx[j + (j % 2)], idx[j + 1 - (j % 2)], idx[j + 2]], axis=1)
+            else:            # fan about the first vertex
+                j = np.arange(1, max(idx.size - 1, 1))
+                T = np.stack([np.full(j.size, idx[0] if idx.size else 0), idx[j], idx[j + 1]],
+                             axis=1)
+            if T.size and (T.min() < 0 or T.max() >= n):
+                raise ShellsplineError(f"'{name}': primitive {k} of {where} indexes vertex "
+                                       f"{int(T.max())} of its {n}")
+            Vs.append(X)
+            faces.append(T + base)
+            base += n
+    except ShellsplineError:
+        raise
+    except (ValueError, KeyError, IndexError, TypeError, struct.error, OverflowError) as exc:
+        raise bad(f"malformed glTF ({type(exc).__name__}: {exc})") from None
+    V = np.concatenate(Vs) if Vs else np.zeros((0, 3))
+    F = np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64)
+    if not np.array_equal(M, np.eye(4)):
+        V = V @ M[:3, :3].T + M[:3, 3]
+        if np.linalg.det(M[:3, :3]) < 0:
+            F = F[:, ::-1]
+    up = _first_node_up(doc) if data[:4] == b"glTF" else "y"
+    if up != "y":
+        # the GLB says its data are z-up (x-up) by the rotation of its first node, as
+        # glb_up_axis reads it and our writer puts it: the positions in that frame, so that
+        # the file's up axis (shellspline.io.usd.conventional_up_axis) describes them and a
+        # GLB we wrote reads back as the poses it holds
+        V = V @ _quat_matrix(UP_ROTATIONS[up])
+    offsets = np.arange(F.shape[0] + 1, dtype=np.int64) * 3
+    return V, offsets, np.ascontiguousarray(F).ravel(), {
+        "mesh": mesh.get("name") or f"mesh {nd['mesh']}", "node": nd.get("name") or f"node {i}"}
+
+
+def _first_node_up(doc) -> str:
+    """``"z"`` or ``"x"`` where the first node of a glTF document carries the rotation of
+    :data:`UP_ROTATIONS` for that axis, else ``"y"``."""
+    nodes = doc.get("nodes") or [{}]
+    rot = nodes[0].get("rotation") if isinstance(nodes[0], dict) else None
+    for axis, q in UP_ROTATIONS.items():
+        if q is not None and rot is not None and np.allclose(rot, q, atol=1e-7):
+            return axis
+    return "y"
+
+
+def _quat_matrix(q) -> np.ndarray:
+    """The rotation matrix of a glTF quaternion ``[x, y, z, w]``."""
+    return _node_matrix({"rotation": q})[:3, :3]
+
+
+def _node_matrix(node: dict) -> np.ndarray:
+    """The local transform (4x4, column vectors) of a glTF node: ``matrix`` (column-major)
+    or translation x rotation (quaternion ``[x, y, z, w]``) x scale."""
+    if "matrix" in node:
+        return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T
+    x, y, z, w = (float(c) for c in node.get("rotation", (0.0, 0.0, 0.0, 1.0)))
+    q = np.array([x, y, z, w])
+    q = q / (np.linalg.norm(q) or 1.0)
+    x, y, z, w = q
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    M = np.eye(4)
+    M[:3, :3] = R * np.asarray(node.get("scale", (1.0, 1.0, 1.0)), dtype=np.float64)
+    M[:3, 3] = node.get("translation", (0.0, 0.0, 0.0))
+    return M

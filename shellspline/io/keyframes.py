@@ -22,6 +22,7 @@ from ..mesh.source_mesh import SourceMesh, solve_mesh
 from ..mesh.topology import Topology, topology
 from .meshes import (MESH_EXTENSIONS, check_indices, obj_face, polygon_offsets, read_polygons,
                      wide_text_encoding)
+from .gltf import GLTF_EXTENSIONS, read_gltf_mesh
 from .usd import USD_EXTENSIONS
 
 __all__ = ["Keyframes", "read_keyframes", "keyframes_from_arrays", "read_indices", "read_frames"]
@@ -130,8 +131,10 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
     Parameters
     ----------
     paths : sequence of str or path-like, or one USD file
-        One mesh file per keyframe (OBJ, PLY, OFF, or a USD file ``.usd``/``.usda``/``.usdc``
-        holding one mesh with one pose; formats may be mixed), in time order. Every keyframe
+        One mesh file per keyframe (OBJ, PLY, OFF, glTF ``.gltf``/``.glb`` holding one mesh
+        (:func:`shellspline.io.gltf.read_gltf_mesh`, world space), or a USD file
+        ``.usd``/``.usda``/``.usdc`` holding one mesh with one pose; formats may be mixed), in
+        time order. Every keyframe
         has the same polygons (triangles, quads, n-gons). A single USD file holding one mesh
         whose points are time-sampled is a keyframe sequence: one keyframe per time sample
         (:func:`shellspline.io.usd.read_usd`, world space).
@@ -162,7 +165,8 @@ def read_keyframes(paths, frames=None, *, pinned=None) -> Keyframes:
         (zero-area) faces, NaN/inf or overflowing coordinates, fewer than two keyframes, bad
         ``frames`` or ``pinned`` (or a pinned vertex that is set aside); for USD: no mesh or
         more than one, a topology that changes over time, several poses in a file of a list,
-        time samples not whole frames apart.
+        time samples not whole frames apart; for glTF: no mesh or more than one mesh node, a
+        skinned mesh, compressed geometry.
     UsdUnavailableError
         For a USD file when ``pxr`` is not installed (extra ``usd``; a
         :class:`~shellspline.errors.ShellsplineError` and an ImportError).
@@ -245,13 +249,21 @@ def _read_usd(path):
 
 def _read_pose(path, info=None):
     """One keyframe file: ``(V (n,3), offsets, indices, uv or None)``; a USD file must hold
-    one pose (its points with at most one time sample). ``info``: see
+    one pose (its points with at most one time sample), a glTF file one mesh
+    (:func:`~shellspline.io.gltf.read_gltf_mesh`, world space). ``info``: see
     :func:`~shellspline.io.meshes.read_polygons`."""
     ext = Path(path).suffix.lower()
+    if ext in GLTF_EXTENSIONS:
+        try:
+            V, offsets, indices, _ = read_gltf_mesh(path)
+        except ShellsplineError as exc:
+            raise MeshError(str(exc)) from None
+        return V, offsets, indices, None
     if ext not in USD_EXTENSIONS:
         if ext not in MESH_EXTENSIONS:
             raise MeshError(f"cannot read '{path}': unknown extension '{Path(path).suffix}' "
-                            f"(supported: {', '.join(MESH_EXTENSIONS + USD_EXTENSIONS)})")
+                            f"(supported: {', '.join(MESH_EXTENSIONS + GLTF_EXTENSIONS)}, "
+                            f"{', '.join(USD_EXTENSIONS)})")
         return read_polygons(path, info)
     V, offsets, indices, info = _read_usd(path)
     if V.shape[0] != 1:

@@ -175,7 +175,7 @@ def _parse_obj(data: bytes, name: str, info: dict | None = None):
     if b"\0" in data:
         raise _Unreadable("binary data in a text OBJ file")
     if b"\\\n" in data or b"\\\r\n" in data:  # line continuations
-        data = re.sub(rb"\\\r?\n", b" ", data)
+        data = joined_continuations(data)
     lines = data.splitlines()
     if b"#" in data:
         lines = [ln[:ln.find(b"#")] if b"#" in ln else ln for ln in lines]
@@ -196,6 +196,17 @@ def _parse_obj(data: bytes, name: str, info: dict | None = None):
         info.setdefault("texture_note", None)
         info["statements"] = obj_statements(lines)
     return V, offsets, indices, uv
+
+
+def joined_continuations(data: bytes) -> bytes:
+    """OBJ text with every line that ends in a backslash joined to the next one, the joined
+    line followed by one empty line per line it took in, so that later lines keep their
+    numbers (messages name the file's lines)."""
+    def join(m):
+        text = m.group(0)
+        return re.sub(rb"\\\r?\n", b" ", text) + b"\n" * text.count(b"\n")
+
+    return re.sub(rb"[^\r\n]*(?:\\\r?\n[^\r\n]*)+", join, data)
 
 
 _STATEMENTS = (b"mtllib ", b"usemtl ", b"o ", b"g ", b"s ")
@@ -498,7 +509,7 @@ def obj_face(path, t: int) -> str | None:
     except OSError:
         return None
     if b"\\\n" in data or b"\\\r\n" in data:
-        data = re.sub(rb"\\\r?\n", b" ", data)
+        data = joined_continuations(data)
     lines = [ln.strip().replace(b"\t", b" ") for ln in data.lstrip(b"\xef\xbb\xbf").splitlines()]
     at, text = _face_line(lines, t)
     if at < 0:

@@ -8,7 +8,9 @@ one triangle mesh for the solve, and a :class:`SourceMesh` maps its results back
   keyframe has the same triangles: a quad takes the diagonal whose worst triangle, over all
   keyframes, has the best quality; an n-gon (5 or more corners) is cut by ``mapbox_earcut``
   (the ear-clipping library trimesh uses; optional extra ``dcc``) in its plane in every
-  keyframe, and the candidate whose worst triangle over all keyframes is best is kept.
+  keyframe, and the candidate whose worst triangle over all keyframes is best is kept; when
+  every candidate folds a triangle over the polygon in some keyframe, the best of all the
+  polygon's triangulations (:func:`_maxmin_triangulation`) is taken instead.
 * **Seams**: vertices that are coincident in **every** keyframe (to round-off: the same cell of
   a grid of ``1e-10 x`` the bounding-box diagonal) are welded into one solve vertex, so a mesh
   split at UV or normal seams cannot tear.
@@ -341,6 +343,15 @@ def _best_candidate(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarr
     signed quality over all poses; returns (p,t,3). The quality is unit-free (each pose is
     divided by its polygon's size first), and candidates within :data:`QUALITY_TIE` of the
     best count as tied: the first of them is kept, whatever the scale of the poses."""
+    score = _candidate_scores(Vs, C, cand)                        # (p,c)
+    tied = score >= score.max(axis=1, keepdims=True) - QUALITY_TIE
+    best = np.argmax(tied, axis=1)                                # the first of the tied
+    return cand[np.arange(cand.shape[0]), best]
+
+
+def _candidate_scores(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarray:
+    """Worst signed quality (p,c) over all poses and triangles of each candidate triangulation
+    ``cand`` (p,c,t,3) of polygons ``C`` (p,s) (see :func:`_best_candidate`)."""
     P = Vs[:, C]                                                  # (J,p,s,3)
     centre = P.mean(axis=2)
     size = np.sqrt(((P - centre[:, :, None]) ** 2).sum(axis=(2, 3)))   # (J,p)
@@ -355,14 +366,53 @@ def _best_candidate(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarr
     l2 = (((B - A) ** 2).sum(-1) + ((Cc - B) ** 2).sum(-1) + ((A - Cc) ** 2).sum(-1))
     with np.errstate(invalid="ignore", divide="ignore"):
         q = np.where(l2 > 0, 0.5 * _SQRT3x4 * area2 / np.where(l2 > 0, l2, 1.0), -2.0)
-    score = q.min(axis=(0, 3))                                    # (p,c)
-    tied = score >= score.max(axis=1, keepdims=True) - QUALITY_TIE
-    best = np.argmax(tied, axis=1)                                # the first of the tied
-    return cand[np.arange(cand.shape[0]), best]
+    return q.min(axis=(0, 3))                                     # (p,c)
+
+
+#: Polygons of up to this many corners that ear clipping cannot triangulate without a
+#: triangle folding over the polygon in some pose are triangulated by
+#: :func:`_maxmin_triangulation` (O(s³) work and memory per polygon).
+MAXMIN_CORNERS = 64
+
+
+def _maxmin_triangulation(Vs: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, float]:
+    """Among all triangulations of the polygon ``C`` (s,) by its diagonals, the one whose worst
+    signed quality over all poses and triangles is best (``(s-2,3)`` corners, oriented like
+    the polygon), and that quality: dynamic programming over the corner intervals.
+
+    A triangulation whose triangles all have positive area against the polygon's normal in a
+    pose covers the polygon exactly once there, so a positive score means valid in every
+    pose; ear clipping, run on each pose alone, can miss such a triangulation."""
+    s = C.size
+    i, k, j = (a.ravel() for a in np.meshgrid(*(np.arange(s),) * 3, indexing="ij"))
+    keep = (i < k) & (k < j)
+    i, k, j = i[keep], k[keep], j[keep]
+    score = np.full((s, s, s), -np.inf)
+    tri = C[np.stack([i, k, j], axis=1)]            # every triangle of corners, in order
+    score[i, k, j] = _candidate_scores(Vs, C[None], tri[None, :, None])[0]
+    best = np.full((s, s), np.inf)                   # best[a, b]: the chain a..b closed by ab
+    split = np.zeros((s, s), dtype=np.int64)
+    for length in range(2, s):
+        for a in range(s - length):
+            b = a + length
+            mid = np.arange(a + 1, b)
+            val = np.minimum(np.minimum(best[a, mid], best[mid, b]), score[a, mid, b])
+            m = int(np.argmax(val))                  # the first of equals: deterministic
+            best[a, b], split[a, b] = val[m], mid[m]
+    tris, stack = [], [(0, s - 1)]
+    while stack:
+        a, b = stack.pop()
+        m = int(split[a, b])
+        tris.append([a, m, b])
+        stack += [(x, y) for x, y in ((a, m), (m, b)) if y - x >= 2]
+    tris.sort()
+    return C[np.array(tris, dtype=np.int64)], float(best[0, s - 1])
 
 
 def _earcut_polygons(Vs: np.ndarray, C: np.ndarray, polys: np.ndarray, name: str) -> np.ndarray:
-    """Triangulations (p,s-2,3) of s-gons by ear clipping in their plane, best over poses."""
+    """Triangulations (p,s-2,3) of s-gons by ear clipping in their plane, best over poses;
+    where every ear-clipping candidate folds in some pose, the best triangulation of all
+    (:func:`_maxmin_triangulation`, up to :data:`MAXMIN_CORNERS` corners)."""
     try:
         import mapbox_earcut
     except ImportError:
@@ -397,11 +447,18 @@ def _earcut_polygons(Vs: np.ndarray, C: np.ndarray, polys: np.ndarray, name: str
             t = t[np.lexsort(t.T[::-1])]
             if not any(np.array_equal(t, c) for c in cands):
                 cands.append(t)
+        worst = 0.0
+        if cands:
+            cand = C[i][np.stack(cands)]                           # (c,s-2,3)
+            out[i] = _best_candidate(Vs, C[i:i + 1], cand[None])[0]
+            worst = float(_candidate_scores(Vs, C[i:i + 1], out[i][None, None])[0, 0])
+        if worst <= 0 and s <= MAXMIN_CORNERS:  # folds (or none) in some pose: try them all
+            T, score = _maxmin_triangulation(Vs, C[i])
+            if score > worst if cands else score > 0:
+                out[i], worst, cands = T, score, [T]
         if not cands:
             raise MeshError(f"{name}: polygon {int(polys[i])} with {s} corners cannot be "
                             "triangulated (degenerate or self-intersecting in every keyframe)")
-        cand = C[i][np.stack(cands)]                               # (c,s-2,3)
-        out[i] = _best_candidate(Vs, C[i:i + 1], cand[None])[0]
     return out
 
 
