@@ -43,9 +43,9 @@ __all__ = ["MotionCurve", "motion_curve", "euler_angles", "resample", "skeleton_
            "contact_features", "AlignReport", "align", "distance", "blend", "CloseReport",
            "loop_range", "close", "MeshCurve", "mesh_curve", "reconstruct_frames", "MeshReport",
            "mesh_close", "close_euclidean", "MESH_C1_MAX_DIMS", "mesh_align", "mesh_distance",
-           "mesh_blend", "reparametrize_vertices", "track_length", "track_curve",
-           "TRACK_DP_SAMPLES", "TrackReport", "track_close", "track_align", "track_distance",
-           "track_blend"]
+           "mesh_blend", "reparametrize_vertices", "mesh_on_source", "CLOSE_TOL",
+           "track_length", "track_curve", "TRACK_DP_SAMPLES", "TrackReport", "track_close",
+           "track_align", "track_distance", "track_blend"]
 
 # Contact thresholds, relative to the leg length L (hip branch point to the foot leaf):
 # a foot joint is planted when it is within CONTACT_HEIGHT * L of its own lowest level and
@@ -1919,6 +1919,13 @@ class MeshReport:
         Seam gap per closing iteration (closing only).
     align : object or None
         The alignment result (blending with ``align="dp"``).
+    status : str or None
+        Closing only: ``"converged"`` (the seam gap fell below the closing's tolerance),
+        ``"limit"`` (``iterations`` reached first) or ``"stalled"`` (no step lowered it).
+    times : (K,) float64 numpy array or None
+        The normalised time of the (first) input that each output frame was read at: its own
+        frame ``k / (N-1)`` when closing, the aligned time when blending
+        (:func:`mesh_on_source` uses them).
     """
 
     converged: int
@@ -1926,6 +1933,13 @@ class MeshReport:
     descriptor_error: float
     history: np.ndarray | None = None
     align: object = None
+    status: str | None = None
+    times: np.ndarray | None = None
+
+    @property
+    def success(self) -> bool:
+        """Every frame's reconstruction converged and, when closing, the seam closed."""
+        return self.converged == self.frames and self.status in (None, "converged")
 
 
 def _mesh_report(Vs, Z, curve, results, **extra) -> MeshReport:
@@ -1942,7 +1956,7 @@ def _mesh_report(Vs, Z, curve, results, **extra) -> MeshReport:
 
 
 def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
-               **options) -> tuple[np.ndarray, MeshReport]:
+               root_motion: str = "keep", **options) -> tuple[np.ndarray, MeshReport]:
     """Make a mesh animation loop: close its LΘA descriptor curve, then reconstruct.
 
     Parameters
@@ -1956,6 +1970,13 @@ def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
         ``MESH_C1_MAX_DIMS`` descriptors (about 125 vertices).
     method : {None, "gauss-newton", "gradient"}
         The closing method (``"gradient"``: seed 000's flow, by the generic closing).
+    root_motion : {"keep", "close"}
+        ``"keep"``: every frame placed rigidly on its input frame, so the last frame is the
+        first frame's shape where the input's last frame is (a walk loops forward, as BVH
+        clips do with ``root_motion="keep"``); ``"close"``: the rigid motion from the last
+        frame to the first is then taken out along the sequence (frame ``k`` moved by the
+        screw motion's fraction ``k / (N-1)``), so the last frame equals the first and the
+        loop plays in place.
     **options
         Gauss–Newton options.
 
@@ -1968,6 +1989,8 @@ def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
     """
     from .curves.closing import close as close_curve
 
+    if root_motion not in ("keep", "close"):
+        raise ShellsplineError(f"root_motion must be 'keep' or 'close', got {root_motion!r}")
     Vs = _mesh_frames(Vs)
     if Vs.shape[0] < 3:
         raise ShellsplineError(f"mesh_close: need at least 3 frames, got {Vs.shape[0]}")
@@ -1977,6 +2000,9 @@ def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
     gauss_newton = method in (None, "gauss-newton")
     if gauss_newton and not c1:  # the same Gauss-Newton closing, O(frames x D)
         Xc, history = close_euclidean(X, iterations=iterations)
+        # close_euclidean's own test: it stops there, or at the limit, or when stalled
+        status = ("converged" if history[-1] <= CLOSE_TOL * max(1.0, np.abs(X).max()) else
+                  "limit" if history.size > iterations else "stalled")
     else:
         if gauss_newton and D > MESH_C1_MAX_DIMS:
             raise ShellsplineError(
@@ -1985,10 +2011,26 @@ def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
                 f"{MESH_C1_MAX_DIMS} descriptors: decimate the mesh or close without c1")
         kw = {} if method is None else {"method": method}
         res = close_curve(mc.product_curve(), iterations=iterations, c1=c1, **kw)
-        Xc, history = res.curve.X, np.asarray(res.seam_gap)
+        Xc, history, status = res.curve.X, np.asarray(res.seam_gap), res.status
     Z = Xc / mc.sqrt_w
     out, results = reconstruct_frames(Z, mc, Vs, **options)
-    return out, _mesh_report(out, Z, mc, results, history=history)
+    if root_motion == "close":
+        out = _rigid_drift_removed(out)
+    return out, _mesh_report(out, Z, mc, results, history=history, status=status,
+                             times=np.linspace(0.0, 1.0, Vs.shape[0]))
+
+
+def _rigid_drift_removed(Vs) -> np.ndarray:
+    """Frames ``Vs`` moved by ``exp(k/(N-1) log G)``, ``G`` the rigid motion (Kabsch) that
+    takes the last frame onto the first: the last frame lands on the first."""
+    from .groups import se3
+    from .mesh.rigid import best_rotations
+
+    c_end, c_0 = Vs[-1].mean(axis=0), Vs[0].mean(axis=0)
+    R = best_rotations(Vs[-1] - c_end, Vs[0] - c_0)
+    xi = se3.log(se3.from_rt(R, c_0 - R @ c_end))
+    G = se3.exp(np.linspace(0.0, 1.0, Vs.shape[0])[:, None] * xi)  # (N,4,4)
+    return np.einsum("kij,knj->kni", G[:, :3, :3], Vs) + G[:, None, :3, 3]
 
 
 # curves.closing.close solves its Gauss-Newton step in the constraint space: a (D,D) Schur
@@ -1998,9 +2040,11 @@ def mesh_close(Vs, F, *, iterations: int = 10, c1: bool = False, method=None,
 # 0.26 / 0.07 s for close_euclidean (the same steps in the frame space, equal to 1e-15).
 # So mesh curves are closed by close_euclidean; c1 (which it does not do) only up to:
 MESH_C1_MAX_DIMS = 1000
+# close_euclidean's default tolerance: the seam gap relative to max(1, |X|_max)
+CLOSE_TOL = 1e-12
 
 
-def close_euclidean(X, *, iterations: int = 10, tol: float = 1e-12):
+def close_euclidean(X, *, iterations: int = 10, tol: float = CLOSE_TOL):
     """Close a curve in R^m (``X (N,m)`` on ``linspace(0, 1, N)``) with the least change of
     its SRV: Gauss–Newton steps on the seam gap ``X(1) - X(0) = sum_i h_i |q_i| q_i``.
 
@@ -2134,7 +2178,7 @@ def mesh_blend(Vs0, Vs1, F, s: float = 0.5, *, align: str = "dp", features=None,
     guess = (1 - s) * reparametrize_vertices(Vs0, tu) + \
         s * reparametrize_vertices(Vs1, np.interp(tu, t, phi))
     out, results = reconstruct_frames(Z, c0, guess, **options)
-    return out, _mesh_report(out, Z, c0, results, align=rep)
+    return out, _mesh_report(out, Z, c0, results, align=rep, times=tu)
 
 
 def _lerp(x, y, s: float):
@@ -2179,6 +2223,54 @@ def reparametrize_vertices(Vs, phi) -> np.ndarray:
     i = np.minimum(np.floor(s).astype(np.int64), Vs.shape[0] - 2)
     w = (s - i)[:, None, None]
     return Vs[i] * (1 - w) + Vs[i + 1] * w
+
+
+def mesh_on_source(Vs, kf, times) -> np.ndarray:
+    """Frames made on the solve mesh of a keyframe set, on the vertices of its files.
+
+    Parameters
+    ----------
+    Vs : (K,n,3) array_like
+        Frames of ``kf``'s solve mesh (:func:`mesh_close`, :func:`mesh_blend` of ``kf.V``).
+    kf : Keyframes
+        The input, read from files (:func:`shellspline.io.read_keyframes`): its ``source``
+        maps the solve mesh back to the files' vertices.
+    times : (K,) array_like
+        The normalised time of ``kf`` that each frame was made from (``MeshReport.times``).
+
+    Returns
+    -------
+    (K,n_source,3) float64 numpy array
+        ``Vs`` itself when ``kf.source`` is None. Else a vertex welded at a seam (UV splits)
+        takes its solve vertex's position, a fin's tip keeps its coordinates in its anchor
+        face's frame (those of the input at ``times``, linearly between its frames) and an
+        isolated vertex the input's position at ``times``. (:meth:`SourceMesh.expand` is for
+        in-betweens of the keyframes themselves: it gives every seam vertex the keyframe's
+        coordinates back at the keyframes, which tore the seams of a closed or blended
+        frame.)
+    """
+    from .mesh.source_mesh import _face_frames
+
+    Vs = np.asarray(Vs, dtype=np.float64)
+    src = kf.source
+    if src is None:
+        return Vs
+    out = np.zeros((Vs.shape[0], src.n_source, 3))
+    kept = src.to_solve >= 0
+    out[:, kept] = Vs[:, src.to_solve[kept]]
+    if src.set_aside.size:
+        X = src.exact_V[:, np.searchsorted(src.exact, src.set_aside)]  # (J,s,3) as read
+        fin = src.anchors[:, 0] >= 0
+        local = X.copy()
+        if fin.any():
+            origin, R = _face_frames(np.asarray(kf.V, dtype=np.float64), src.anchors[fin])
+            local[:, fin] = np.einsum("jsba,jsb->jsa", R, X[:, fin] - origin)
+        loc = reparametrize_vertices(local, times)
+        if fin.any():
+            origin, R = _face_frames(Vs, src.anchors[fin])
+            loc[:, fin] = origin + np.einsum("ksab,ksb->ksa", R, loc[:, fin])
+        out[:, src.set_aside] = loc
+    return out
 
 
 def mesh_distance(Vs0, Vs1, F, *, align: str = "dp", **kw) -> float:

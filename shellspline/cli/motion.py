@@ -1,8 +1,10 @@
 """``shellspline motion``: distances, time alignment, blending and loop closing of BVH clips.
 
 Subcommands ``distance``, ``align``, ``blend`` and ``close`` (see :mod:`shellspline.animation`)
-on BVH clips, on mesh sequences (a folder of OBJ/PLY/OFF frames of one mesh, in name order:
-LΘA descriptor curves, frames reconstructed by Gauss–Newton, a sequence folder written), or
+on BVH clips, on mesh sequences (a folder of OBJ/PLY/OFF frames of one mesh, in name order;
+a point cache with ``--topology MESH``; a folder with one animation file: LΘA descriptor
+curves, frames reconstructed by Gauss–Newton, a sequence folder written in the input's
+format), or
 on rigid pose tracks (any file :func:`shellspline.io.posefiles.read_poses` reads: curves in
 SO(3) x R^3, written back in the input's format);
 pictures with ``--render STRIP.png|ANIM.gif`` (stick figures) and ``--plot PNG`` (feet, warp,
@@ -72,6 +74,9 @@ def add_parsers(sub) -> None:
         q.add_argument("--plot", metavar="PNG",
                        help="plot foot heights and contacts, the warp, the seam gap per "
                             "iteration (needs the viz extra)")
+        q.add_argument("--topology", metavar="MESH",
+                       help="mesh sequences given as point caches (.mdd, .pc2 files): the mesh "
+                            "they animate (OBJ, PLY or OFF; its faces, UVs and polygons)")
         q.add_argument("--position-scale", type=float, default=None, metavar="L",
                        help="pose tracks: file units of position that weigh like one radian "
                             "(default: the RMS distance from the mean position)")
@@ -140,7 +145,8 @@ def add_parsers(sub) -> None:
     q.add_argument("--c1", action="store_true", help="also match the velocities at the seam")
     q.add_argument("--root-motion", choices=["keep", "close"], default="keep",
                    help="keep: the root's horizontal travel is the loop's root motion (a walk "
-                        "loops forward; default); close: the root returns to its start")
+                        "loops forward; default); close: the root returns to its start (mesh "
+                        "sequences: the last frame is moved onto the first)")
     q.add_argument("--no-plant", action="store_true",
                    help="do not correct the root where planted feet slide")
     q.add_argument("--trim", action="store_true",
@@ -162,11 +168,18 @@ def _check_outputs(args, out=None):
     if args.up is not None and args.up.strip().lower().lstrip("+-") not in ("x", "y", "z"):
         raise ShellsplineError(f"--up must be one of x, y, z (optionally signed, e.g. --up=-z), "
                                f"got {args.up!r}")
-    folder = Path(args.a).is_dir() and args.motion_command in ("blend", "close")  # sequences
+    meshes = Path(args.a).is_dir() or _animation_file(Path(args.a)) is not None
+    if args.topology is not None:
+        caches = [q for q in (args.a, getattr(args, "b", None))
+                  if q and Path(q).suffix.lower() in _CACHES]
+        if not caches:
+            raise ShellsplineError("--topology: the mesh of point cache inputs (.mdd, .pc2); "
+                                   "none given")
+    folder = meshes and args.motion_command in ("blend", "close")  # sequences
     check_outputs([Output("-o", out, folder=folder),
                    Output("--plot", args.plot, PICTURES),
                    Output("--render", args.render, ANIMATIONS)],
-                  [args.a, getattr(args, "b", None), _feature_file_name(args)],
+                  [args.a, getattr(args, "b", None), _feature_file_name(args), args.topology],
                   overwrite=args.overwrite)
     if args.render or args.plot:
         import importlib.util
@@ -176,30 +189,105 @@ def _check_outputs(args, out=None):
                                    "'shellspline[viz]'")
 
 
-def _read(path):
+_CACHES = (".mdd", ".pc2")
+
+
+def _read(path, topology=None):
     """A BVH clip (a ``.bvh`` file or one that starts with ``HIERARCHY``), a mesh sequence (a
-    folder of mesh frames, natural name order) or a pose track (any other file)."""
+    folder of mesh frames, natural name order; a folder holding one animation file as
+    :func:`~shellspline.io.write_sequence` writes it; a ``.glb`` or USD file; a point cache
+    on the mesh ``topology``) or a pose track (any other file)."""
     from ..io import MESH_EXTENSIONS, read_keyframes
     from ..io.bvh import read_bvh
     from ..io.posefiles import read_poses
-
     from ..io.sequences import frame_files
 
     p = Path(path)
-    if p.is_dir():
+    anim = _animation_file(p)
+    if anim is not None:
+        kf = _read_animation(anim, p / "mesh.obj" if p.is_dir() else topology)
+    elif p.is_dir():
         frames = frame_files(p)  # natural order: mesh.2.obj before mesh.10.obj
         if len(frames) < 3:
             raise ShellsplineError(f"{path}: a mesh sequence needs at least 3 frames "
-                                   f"({', '.join(MESH_EXTENSIONS)} files), found {len(frames)}")
-        return read_keyframes(frames)
-    if not p.is_file():
+                                   f"({', '.join(MESH_EXTENSIONS)} files, or one "
+                                   "animation.mdd/.pc2/.glb/.usdc), found {len(frames)}")
+        kf = read_keyframes(frames)
+    elif not p.is_file():
         raise ShellsplineError(f"{path}: no such file or folder")
+    else:
+        kf = None
+    if kf is not None:
+        if kf.J < 3:
+            raise ShellsplineError(f"{path}: a mesh sequence needs at least 3 frames, found "
+                                   f"{kf.J}")
+        return kf
     if p.suffix.lower() != ".bvh":
         with open(p, "rb") as f:
             head = f.read(64).lstrip()
         if not head.upper().startswith(b"HIERARCHY"):
             return read_poses(p)
     return read_bvh(p)
+
+
+def _animation_file(p: Path):
+    """The one animation file of a mesh sequence given as a file (``.mdd``, ``.pc2``,
+    ``.glb``, USD) or as a folder that holds one by :data:`~shellspline.io.sequences.
+    ANIMATION_NAMES` (the outputs of ``--format mdd|pc2|glb|usd``), or None."""
+    from ..io.sequences import ANIMATION_NAMES
+    from ..io.usd import USD_EXTENSIONS
+
+    if p.is_dir():
+        found = [p / n for n in ANIMATION_NAMES.values() if (p / n).is_file()]
+        return found[0] if found else None
+    if p.is_file() and p.suffix.lower() in (*_CACHES, ".glb", *USD_EXTENSIONS):
+        return p
+    return None
+
+
+def _read_animation(anim: Path, mesh):
+    """Keyframes of every frame of an animation file; a point cache on ``mesh``."""
+    from ..io import keyframes_from_arrays, read_keyframes, read_sequence
+    from ..io.pointcache import keyframes_from_cache, read_point_cache
+
+    if anim.suffix.lower() in _CACHES:
+        if mesh is None:
+            raise ShellsplineError(f"{anim} is a point cache (vertex positions only, no faces): "
+                                   "give the mesh it animates with --topology MESH")
+        if not Path(mesh).is_file():
+            raise ShellsplineError(f"{mesh}: no such mesh file (the mesh {anim.name} animates)")
+        n = read_point_cache(anim)[0].shape[0]  # every sample a frame, evenly spaced
+        return keyframes_from_cache(anim, mesh, np.arange(n))
+    if anim.suffix.lower() == ".glb":
+        V, F, _ = read_sequence(anim)
+        return keyframes_from_arrays(V, F, names=[f"{anim} frame {k}"
+                                                  for k in range(V.shape[0])])
+    return read_keyframes([anim])  # USD: one mesh with time-sampled points
+
+
+def _sequence_format(path) -> tuple[str, float]:
+    """The format of a mesh sequence input and its frame rate, as its output is written:
+    ``("mdd" | "pc2" | "glb" | "usd", fps)`` for an animation file, ``("ply", 24)`` for a
+    folder of PLY frames, ``("obj", 24)`` otherwise (OBJ or OFF frames, or mixed)."""
+    from ..io.sequences import frame_files
+    from ..io.usd import USD_EXTENSIONS
+
+    p = Path(path)
+    anim = _animation_file(p)
+    if anim is None:
+        plys = {f.suffix.lower() == ".ply" for f in frame_files(p)}
+        return ("ply" if plys == {True} else "obj"), 24.0
+    ext = anim.suffix.lower()
+    if ext == ".mdd":
+        from ..io.pointcache import read_mdd
+
+        dt = np.diff(read_mdd(anim)[1])
+        return "mdd", (float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else 24.0)
+    if ext == ".glb":
+        from ..io.gltf import read_glb
+
+        return "glb", float(read_glb(anim)[2])
+    return ("usd" if ext in USD_EXTENSIONS else ext.lstrip(".")), 24.0
 
 
 def _kind(x) -> str:
@@ -219,13 +307,16 @@ def _is_track(x) -> bool:
 
 
 def _track_options(args, a):
-    """Reject the options that only BVH clips have, for pose tracks; ``--position-scale`` for
-    anything else. Returns the ``length`` keyword."""
+    """Reject the options that only BVH clips have, for pose tracks and mesh sequences (they
+    were ignored for meshes: ``--up``, ``--no-plant``, ``--root-motion close``);
+    ``--position-scale`` for anything but pose tracks. Returns the ``length`` keyword."""
     L = args.position_scale
-    if not _is_track(a):
+    if _kind(a) == "bvh":
         if L is not None:
             raise ShellsplineError("--position-scale: pose tracks only")
         return None
+    if _is_mesh(a) and L is not None:
+        raise ShellsplineError("--position-scale: pose tracks only")
     if L is not None and not (np.isfinite(L) and L > 0):
         raise ShellsplineError(f"--position-scale must be a positive number, got {L!r}")
     bvh_only = [("--up", args.up is not None), ("--render", bool(args.render)),
@@ -233,10 +324,12 @@ def _track_options(args, a):
                 ("--plant", getattr(args, "plant", False)),
                 ("--trim", getattr(args, "trim", False)),
                 ("--no-plant", getattr(args, "no_plant", False)),
-                ("--root-motion close", getattr(args, "root_motion", "keep") != "keep")]
+                ("--root-motion close", getattr(args, "root_motion", "keep") != "keep"
+                 and not _is_mesh(a))]
     bad = [name for name, given in bvh_only if given]
     if bad:
-        raise ShellsplineError(f"{', '.join(bad)}: BVH clips only, not pose tracks")
+        what = "mesh sequences" if _is_mesh(a) else "pose tracks"
+        raise ShellsplineError(f"{', '.join(bad)}: BVH clips only, not {what}")
     return L
 
 
@@ -259,7 +352,7 @@ def _pictures_possible(args, a) -> None:
 
 
 def _read_pair(args):
-    a, b = _read(args.a), _read(args.b)
+    a, b = _read(args.a, args.topology), _read(args.b, args.topology)
     if _kind(a) != _kind(b):
         what = {"bvh": "a BVH clip", "mesh": "a mesh sequence folder", "poses": "a pose file"}
         raise ShellsplineError(f"{args.a} and {args.b}: give two BVH files, two mesh "
@@ -285,16 +378,71 @@ def _read_pair(args):
         if args.render:
             raise ShellsplineError("--render draws skeletons: BVH clips only")
         if a.n != b.n or not np.array_equal(a.F, b.F):
+            a, b = _read_jointly(args, a, b)
+        if a.n != b.n or not np.array_equal(a.F, b.F):
             raise ShellsplineError(f"{args.a} and {args.b} are not frames of one mesh: "
                                    f"{a.n} and {b.n} vertices, {a.m} and {b.m} faces")
     return a, b
 
 
-def _write_mesh(args, Vs, kf, report):
+def _file_positions(path, topology):
+    """A mesh sequence's frames as its files hold them, with the polygons, texture
+    coordinates and OBJ lines of its first frame (or mesh): ``(P (J,n,3), offsets, indices,
+    uv, statements, faces_file)``; None for a glTF or USD animation."""
+    from ..io.meshes import read_polygons
+    from ..io.pointcache import read_point_cache
+    from ..io.sequences import frame_files
+
+    p, info = Path(path), {}
+    anim = _animation_file(p)
+    if anim is None:
+        files = frame_files(p)
+        first = read_polygons(files[0], info)
+        P = np.stack([first[0]] + [read_polygons(f)[0] for f in files[1:]])
+        return (P, *first[1:], info.get("statements"), str(files[0]))
+    if anim.suffix.lower() in _CACHES:
+        mesh = p / "mesh.obj" if p.is_dir() else topology
+        _, offsets, indices, uv = read_polygons(mesh, info)
+        return read_point_cache(anim)[0], offsets, indices, uv, info.get("statements"), str(mesh)
+    return None
+
+
+def _read_jointly(args, a, b):
+    """Two sequences of one polygon mesh validated as one keyframe set, so that they share
+    the triangles and welds (each sequence alone chose a quad's diagonal by its own frames:
+    two animations of one quad mesh were "not frames of one mesh"); ``(a, b)`` unchanged
+    when their files' polygons differ."""
+    import dataclasses
+
+    from ..io.keyframes import keyframes_from_polygons
+
+    ra, rb = _file_positions(args.a, args.topology), _file_positions(args.b, args.topology)
+    if ra is None or rb is None or ra[0].shape[1] != rb[0].shape[1] or \
+            not (np.array_equal(ra[1], rb[1]) and np.array_equal(ra[2], rb[2])):
+        return a, b
+    kf = keyframes_from_polygons(np.concatenate([ra[0], rb[0]]), ra[1], ra[2],
+                                 names=a.names + b.names, uv=ra[3], statements=ra[4],
+                                 faces_file=ra[5])
+    J = a.J
+
+    def part(x, rows, names):
+        src = None if kf.source is None else dataclasses.replace(
+            kf.source, exact_V=kf.source.exact_V[rows])
+        return dataclasses.replace(kf, V=kf.V[rows], names=names, source=src)
+    return part(kf, slice(0, J), a.names), part(kf, slice(J, None), b.names)
+
+
+def _write_mesh(args, Vs, kf, report, times):
+    """Write frames of ``kf``'s solve mesh as a sequence folder in the format of the input
+    ``args.a`` (:func:`_sequence_format`), on its files' vertices and polygons (UVs, seams:
+    :func:`shellspline.animation.mesh_on_source`)."""
+    from ..animation import mesh_on_source
     from ..io import write_sequence
 
-    write_sequence(args.out, Vs, kf.F, report, overwrite=args.overwrite, source=kf.source,
-                   protect=[q for q in (args.a, getattr(args, "b", None)) if q])
+    fmt, fps = _sequence_format(args.a)
+    write_sequence(args.out, mesh_on_source(Vs, kf, times), kf.F, report, fmt=fmt, fps=fps,
+                   overwrite=args.overwrite, source=kf.source,
+                   protect=[q for q in (args.a, getattr(args, "b", None), args.topology) if q])
 
 
 def _feature_kw(args) -> dict:
@@ -608,7 +756,7 @@ def _blend_meshes(args, a, b, say) -> int:
     Vs, rep = mesh_blend(a.V, b.V, a.F, args.s, align=args.align)
     _write_mesh(args, Vs, a, {"operation": "motion blend", "s": args.s, "align": args.align,
                               "frames": rep.frames, "converged": rep.converged,
-                              "descriptor_error": rep.descriptor_error})
+                              "descriptor_error": rep.descriptor_error}, rep.times)
     say(f"  blend       s = {args.s:g}, align {args.align}: {rep.frames} frames, "
         f"{rep.converged} reconstructions converged, descriptor error "
         f"{rep.descriptor_error:.2g}")
@@ -626,21 +774,25 @@ def _close_meshes(args, kf, say) -> int:
 
     if args.render or args.trim:
         raise ShellsplineError("--render and --trim: BVH clips only")
-    Vs, rep = mesh_close(kf.V, kf.F, iterations=args.iterations, c1=args.c1)
+    Vs, rep = mesh_close(kf.V, kf.F, iterations=args.iterations, c1=args.c1,
+                         root_motion=args.root_motion)
     _write_mesh(args, Vs, kf, {"operation": "motion close", "c1": args.c1,
-                               "seam_gap": rep.history, "frames": rep.frames,
-                               "converged": rep.converged,
-                               "descriptor_error": rep.descriptor_error})
+                               "root_motion": args.root_motion,
+                               "seam_gap": rep.history, "status": rep.status,
+                               "frames": rep.frames, "converged": rep.converged,
+                               "descriptor_error": rep.descriptor_error}, rep.times)
     say(f"  seam gap    {rep.history[0]:.3g} -> {rep.history[-1]:.3g} (LΘA) in "
-        f"{rep.history.size - 1} iterations; {rep.converged}/{rep.frames} reconstructions "
-        f"converged, descriptor error {rep.descriptor_error:.2g}")
+        f"{rep.history.size - 1} iterations ({rep.status}); {rep.converged}/{rep.frames} "
+        f"reconstructions converged, descriptor error {rep.descriptor_error:.2g}")
     say(f"  wrote       {args.out}")
     if args.plot:
         from ..motion_viz import plot_motion
 
         plot_motion(args.plot, seam_history=rep.history)
         say(f"  plot        {args.plot}")
-    return EXIT_OK if rep.converged == rep.frames else EXIT_WARN
+    if rep.status != "converged":
+        say(f"  warning: the seam did not close ({rep.status}): more --iterations")
+    return EXIT_OK if rep.success else EXIT_WARN
 
 
 def _close_track(args, track, length, say) -> int:
@@ -677,7 +829,7 @@ def _close(args) -> int:
         raise ShellsplineError(f"--iterations must be >= 0, got {args.iterations}")
     _check_outputs(args, args.out)
     say = _say(args)
-    m = _read(args.a)
+    m = _read(args.a, args.topology)
     _pictures_possible(args, m)
     length = _track_options(args, m)
     if _is_track(m):

@@ -47,12 +47,40 @@ def natural_key(name: str) -> list:
 
 def frame_files(folder) -> list[Path]:
     """The mesh files (OBJ/PLY/OFF) of ``folder`` in natural name order
-    (:func:`natural_key`), e.g. the frames of an animation exported one file per frame."""
+    (:func:`natural_key`), e.g. the frames of an animation exported one file per frame.
+
+    Other files (``report.json``, materials, notes) are left out. Formats may be mixed.
+
+    Raises
+    ------
+    MeshError
+        When the mesh files are not one numbered sequence: a file named otherwise than the
+        others (``rest.obj`` beside ``frame_0001.obj ...``; it was read as the first frame),
+        or two files of one frame number (``frame_3.obj`` and ``frame_0003.ply``; both were
+        read, one after the other).
+    """
     from .meshes import MESH_EXTENSIONS
 
-    return sorted((f for f in Path(folder).iterdir()
-                   if f.suffix.lower() in MESH_EXTENSIONS and f.is_file()),
-                  key=lambda f: natural_key(f.name))
+    files = sorted((f for f in Path(folder).iterdir()
+                    if f.suffix.lower() in MESH_EXTENSIONS and f.is_file()),
+                   key=lambda f: natural_key(f.name))
+    patterns: dict = {}  # the name with its last number as '#' (no extension): its files
+    numbers = []
+    for f in files:
+        m = re.match(r"^(.*?)(\d+)(\D*)$", f.stem)  # the last run of digits
+        patterns.setdefault(f.stem if m is None else f"{m.group(1)}#{m.group(3)}",
+                            []).append(f)
+        numbers.append(None if m is None else int(m.group(2)))
+    if len(patterns) > 1:
+        (_, f0), (_, f1) = sorted(patterns.items(), key=lambda kv: -len(kv[1]))[:2]
+        raise MeshError(f"{folder}: the mesh files are not one numbered sequence: "
+                        f"{len(f0)} named like {f0[0].name}, {len(f1)} like {f1[0].name}; "
+                        "keep one animation's frames in the folder")
+    for i in range(1, len(files)):  # natural order: one number's files are neighbours
+        if numbers[i] is not None and numbers[i] == numbers[i - 1]:
+            raise MeshError(f"{folder}: two files of frame {numbers[i]}: {files[i - 1].name} "
+                            f"and {files[i].name}")
+    return files
 
 
 # ----------------------------------------------------------------------------------------
