@@ -28,10 +28,14 @@ The joint Gauss–Newton system ``blockdiag(J_kᵀ W_k J_k) + μ (DᵀD)_UU ⊗ 
 conjugate gradients preconditioned by the per-frame blocks (each factored once per bridge,
 with its share of the penalty on the diagonal), under the same line search and no-collapse
 guard as the per-frame solver; the frames' status is the bridge's own (converged only by its
-decrement or gradient criterion).
+decrement or gradient criterion). Everything but the coupling is per frame (Jacobians,
+energies, factors, products, the line search's trial energies), so a bridge can share its
+window's frames with a forked worker, the vectors passing through shared memory
+(``SeamBridge.solve(split=True)``; the same arithmetic, the same result to the bit).
 """
 from __future__ import annotations
 
+import mmap
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,6 +105,141 @@ def _second_differences(ctx, U):
     return D
 
 
+class _FrameTerms:
+    """The per-frame pieces of a bridge's objective for some of its window frames
+    (positions ``idx`` in the window): their Gauss–Newton terms, energies, gradients, factors
+    and products. :class:`SeamBridge` sums and couples them; with ``split`` the frames are
+    shared between this process and one forked worker (:class:`_SplitTerms`)."""
+
+    def __init__(self, problem, idx):
+        self.idx = list(idx)
+        self.gn, self.T = problem.gn, problem.T
+        self.targets = [problem.targets[i] for i in self.idx]
+        self.weights = [problem.weights[i] for i in self.idx]
+        self.tubes = [problem.tubes[i] for i in self.idx]
+        self.floors = [problem.floors[i] for i in self.idx]
+        self.M3, self.free = problem.M3, problem.free
+        self._J, self._w, self._chol = [], [], []
+
+    def evaluate(self, Xs):
+        """Energies and ``Jᵀ W ρ`` of the frames ``Xs (q, 3n)``; keeps their ``J, W``."""
+        self._J, self._w, out = [], [], []
+        for i, x in enumerate(Xs):
+            J, z = lta_jacobian(x.reshape(-1, 3), self.T, return_values=True)
+            f, r, w = self.gn.merit(z, self.targets[i], self.weights[i], self.tubes[i])
+            self._J.append(J)
+            self._w.append(w)
+            out.append((f, J.T @ (w * r)))
+        return out
+
+    def collapsed(self, Xs) -> bool:
+        """Whether a triangle of a frame ``Xs (q, 3n)`` is below its no-collapse floor."""
+        return not all(np.all(face_areas(x.reshape(-1, 3), self.T) > fl)
+                       for x, fl in zip(Xs, self.floors))
+
+    def energies(self, Xs) -> list:
+        """The frames' energies at ``Xs (q, 3n)`` (no Jacobian)."""
+        return [self.gn.merit(lta_descriptors(x.reshape(-1, 3), self.T), self.targets[i],
+                              self.weights[i], self.tubes[i])[0] for i, x in enumerate(Xs)]
+
+    def trial(self, Xs):
+        """The frames' energies at ``Xs (q, 3n)``, or None where a triangle collapsed."""
+        return None if self.collapsed(Xs) else self.energies(Xs)
+
+    def diag_means(self) -> list:
+        """Mean diagonal of each frame's Gauss–Newton matrix over the free coordinates."""
+        return [float((J.multiply(J).T @ w)[self.free].mean()) for J, w in zip(self._J, self._w)]
+
+    def factor(self, coefs) -> None:
+        """Factor each frame's Gauss–Newton block plus ``coefs[i] M`` (its share of the
+        penalty) and the damping on the diagonal."""
+        free, gn = self.free, self.gn
+        self._chol = []
+        for J, w, c in zip(self._J, self._w, coefs):
+            H = (J.T @ sp.diags(w) @ J).tocsc()
+            d = c * self.M3 + gn.damping * H.diagonal()[free].mean()
+            self._chol.append(SparseCholesky(H + sp.diags(np.where(free, d, 1.0)),
+                                             backend=gn.backend))
+
+    def matvec(self, Vs) -> list:
+        """``Jᵀ W J v`` of each frame."""
+        return [J.T @ (w * (J @ v)) for J, w, v in zip(self._J, self._w, Vs)]
+
+    def precond(self, Vs) -> list:
+        """Each frame's factor applied to its part of ``Vs``."""
+        return [c.solve(v) for c, v in zip(self._chol, Vs)]
+
+
+#: the worker's share of a split bridge and the shared memory of its vectors (both inherited
+#: through fork)
+_REMOTE: dict = {}
+
+
+def _remote_init():
+    from .reconstruction import single_blas_thread
+
+    _REMOTE["blas"] = single_blas_thread()
+
+
+def _remote_call(name, with_input, extra):
+    """Run ``_FrameTerms.<name>`` on the worker's frames, its vector input read from and its
+    vector output written to the shared buffers; returns the rest (energies, flags)."""
+    inp, out = _REMOTE["io"]
+    res = getattr(_REMOTE["terms"], name)(*(((inp,) if with_input else ()) + tuple(extra)))
+    if name == "evaluate":
+        out[:] = [g for _, g in res]
+        return [f for f, _ in res]
+    if name in ("matvec", "precond"):
+        out[:] = res
+        return None
+    return res
+
+
+class _SplitTerms:
+    """:class:`_FrameTerms` of the first frames here and of the others in a forked worker:
+    each call is sent to the worker first, computed here meanwhile, then joined (the same
+    arithmetic as one process, so the same result to the bit). Vectors pass through memory
+    shared with the worker (``io``: its input and output rows): pickled through the pool,
+    two frames of the horse (8.4k vertices) cost 2.8 ms a round trip against 0.15 ms for a
+    bare message, several times per CG iteration."""
+
+    def __init__(self, local, pool, io):
+        self.local, self.pool, self.h = local, pool, len(local.idx)
+        self.inp, self.out = io
+
+    def _both(self, name, parts=None):
+        if parts is not None:
+            np.copyto(self.inp, parts[self.h:])
+        fut = self.pool.submit(_remote_call, name, parts is not None, ())
+        mine = getattr(self.local, name)(*(() if parts is None else (parts[:self.h],)))
+        return mine, fut.result()
+
+    def evaluate(self, Xs):
+        a, fs = self._both("evaluate", Xs)
+        return a + [(f, g.copy()) for f, g in zip(fs, self.out)]
+
+    def trial(self, Xs):
+        a, b = self._both("trial", Xs)
+        return None if a is None or b is None else a + b
+
+    def diag_means(self):
+        a, b = self._both("diag_means")
+        return a + b
+
+    def factor(self, coefs):
+        fut = self.pool.submit(_remote_call, "factor", False, (coefs[self.h:],))
+        self.local.factor(coefs[:self.h])
+        fut.result()
+
+    def matvec(self, Vs):
+        a, _ = self._both("matvec", Vs)
+        return a + list(self.out.copy())
+
+    def precond(self, Vs):
+        a, _ = self._both("precond", Vs)
+        return a + list(self.out.copy())
+
+
 class SeamBridge:
     """The joint problem of the frames around one seam (see the module notes and
     :func:`bridge_seam`, which builds and solves it).
@@ -158,19 +297,15 @@ class SeamBridge:
                 X[j] = rigid_placement(X[j].reshape(-1, 3),
                                        track(float(ctx[j])).reshape(-1, 3)).ravel()
         self.X0 = X
-        terms = self.terms(X)
-        diag = np.mean([float((J.multiply(J).T @ w)[self.free].mean()) for _, J, _, w in terms])
-        self.mu = beta * diag
+        self._ops = _FrameTerms(self, range(len(U)))
+        self.terms(X)
+        self.mu = beta * np.mean(self._ops.diag_means())
 
     def terms(self, X) -> list:
-        """Per window frame ``(f, J, r_eff, w_eff)`` at the context frames ``X (c, 3n)``
-        (:meth:`GaussNewton.merit`)."""
-        out = []
-        for i, j in enumerate(self.iu):
-            J, z = lta_jacobian(X[j].reshape(-1, 3), self.T, return_values=True)
-            f, r, w = self.gn.merit(z, self.targets[i], self.weights[i], self.tubes[i])
-            out.append((f, J, r, w))
-        return out
+        """Per window frame ``(f, Jᵀ W_eff r_eff)`` at the context frames ``X (c, 3n)``
+        (:meth:`GaussNewton.merit`); the frames' ``J`` and ``W_eff`` are kept for the
+        factors and products of the next Gauss–Newton step."""
+        return self._ops.evaluate(X[self.iu])
 
     def penalty(self, X) -> float:
         """``Σ_j ‖V_{j+1} − 2 V_j + V_{j−1}‖²_M`` over the context frames ``X (c, 3n)``."""
@@ -181,12 +316,10 @@ class SeamBridge:
         """The objective ``Φ`` at the context frames ``X (c, 3n)``; inf where a window
         frame's triangle is below the no-collapse floor."""
         if terms is None:
-            for i, j in enumerate(self.iu):
-                if not np.all(face_areas(X[j].reshape(-1, 3), self.T) > self.floors[i]):
-                    return np.inf
-            terms = [(self.gn.merit(lta_descriptors(X[j].reshape(-1, 3), self.T),
-                                    self.targets[i], self.weights[i], self.tubes[i])[0],)
-                     for i, j in enumerate(self.iu)]
+            fs = self._ops.trial(X[self.iu])
+            if fs is None:
+                return np.inf
+            terms = [(f,) for f in fs]
         return sum(t[0] for t in terms) + self.mu * self.penalty(X)
 
     def half_gradient(self, X, terms=None) -> np.ndarray:
@@ -194,27 +327,49 @@ class SeamBridge:
         pinned coordinates)."""
         terms = self.terms(X) if terms is None else terms
         DX = self.DtD @ X
-        g = np.stack([J.T @ (w * r) + self.mu * self.M3 * DX[j]
-                      for (f, J, r, w), j in zip(terms, self.iu)])
+        g = np.stack([gr + self.mu * self.M3 * DX[j] for (f, gr), j in zip(terms, self.iu)])
         g[:, ~self.free] = 0.0
         return g
 
-    def _factors(self, terms):
-        """Per window frame, the factor of its Gauss–Newton block with its share of the
-        penalty (the preconditioner)."""
-        gn, free = self.gn, self.free
-        out = []
-        for (f, J, r, w), j in zip(terms, self.iu):
-            H = (J.T @ sp.diags(w) @ J).tocsc()
-            d = self.mu * self.DtD[j, j] * self.M3 + gn.damping * H.diagonal()[free].mean()
-            out.append(SparseCholesky(H + sp.diags(np.where(free, d, 1.0)), backend=gn.backend))
-        return out
+    def _factors(self):
+        """Factor each window frame's Gauss–Newton block (at the last :meth:`terms`) with its
+        share of the penalty (the preconditioner)."""
+        self._ops.factor([self.mu * self.DtD[j, j] for j in self.iu])
 
-    def solve(self, dtol: float = BRIDGE_DTOL, max_iter: int = BRIDGE_MAX_ITER) -> BridgeResult:
+    def solve(self, dtol: float = BRIDGE_DTOL, max_iter: int = BRIDGE_MAX_ITER,
+              split: bool = False) -> BridgeResult:
         """Gauss–Newton on ``Φ`` from :attr:`X0`: each step by CG on the joint system,
         preconditioned by the frames' blocks, then the line search with the no-collapse
         guard; converged when the decrement is below ``dtol`` times ``Φ`` or the gradient
-        below the solver's ``gtol`` times the first."""
+        below the solver's ``gtol`` times the first.
+
+        ``split``: share the window's frames with one forked worker process (their
+        Jacobians, factors, products and energies; the result is the same to the bit). A
+        bridge is a few Gauss–Newton steps of its whole window, and without this the second
+        core idles while a single seam is bridged (:func:`~.reconstruction.bridge_seams`).
+        Where processes cannot be forked, or the window has one frame, it runs here."""
+        from ..parallel import process_pool, start_method
+
+        if not (split and len(self.iu) > 1 and start_method() == "fork"):
+            return self._solve(dtol, max_iter)
+        serial = self._ops
+        nu = len(self.iu)
+        h = (nu + 1) // 2
+        size = (nu - h) * self.X0.shape[1]
+        buf = mmap.mmap(-1, 2 * 8 * size)  # anonymous and shared with the forked worker
+        io = tuple(np.frombuffer(buf, dtype=np.float64, count=size, offset=8 * size * i)
+                   .reshape(nu - h, -1) for i in (0, 1))
+        _REMOTE.update(terms=_FrameTerms(self, range(h, nu)), io=io)
+        try:
+            with process_pool(1, _remote_init, method="fork") as ex:
+                self._ops = _SplitTerms(_FrameTerms(self, range(h)), ex, io)
+                return self._solve(dtol, max_iter)
+        finally:
+            self._ops = serial
+            _REMOTE.pop("terms", None)
+            _REMOTE.pop("io", None)  # the buffer is unmapped with its last view
+
+    def _solve(self, dtol: float, max_iter: int) -> BridgeResult:
         gn, iu, free = self.gn, self.iu, self.free
         n = self.T.n_vertices
         nu = len(iu)
@@ -229,24 +384,22 @@ class SeamBridge:
             return res
         g = self.half_gradient(X, terms)
         g0 = float(np.linalg.norm(g))
-        chol = self._factors(terms)
+        self._factors()
+        ops = self._ops
         E = self.T.E
         Xe = X[iu[0]].reshape(-1, 3)
         h = float(np.mean(np.linalg.norm(Xe[E[:, 1]] - Xe[E[:, 0]], axis=1)))
         Duu = self.DtD[np.ix_(iu, iu)]
         for it in range(1, max_iter + 1):
-            Js = [(t[1], t[3]) for t in terms]
-
             def matvec(v):
                 V_ = v.reshape(nu, -1)
-                out = np.stack([J.T @ (w * (J @ V_[i])) for i, (J, w) in enumerate(Js)])
+                out = np.stack(ops.matvec(V_))
                 out += self.mu * self.M3 * (Duu @ V_)
                 out[:, ~free] = 0.0
                 return out.ravel()
 
             def precond(v):
-                V_ = v.reshape(nu, -1)
-                out = np.stack([c.solve(V_[i]) for i, c in enumerate(chol)])
+                out = np.stack(ops.precond(v.reshape(nu, -1)))
                 out[:, ~free] = 0.0
                 return out.ravel()
 
@@ -289,7 +442,7 @@ class SeamBridge:
             if moved or cg.status != "converged" or cg.iterations > 2 * gn.refresh_cg:
                 # a factor from before a large step preconditions the rotated membrane
                 # poorly (horse: the second step took 78-111 CG iterations instead of ~9)
-                chol = self._factors(terms)
+                self._factors()
         else:
             res.status = "limit"
             res.message = f"iteration limit ({max_iter}) reached"
@@ -300,7 +453,8 @@ class SeamBridge:
 
 def bridge_seam(gn, frame_of, K: int, s: int, a: int, b: int, Z, W_of, *,
                 half: int = BRIDGE_HALF, beta: float = BRIDGE_BETA, dtol: float = BRIDGE_DTOL,
-                max_iter: int = BRIDGE_MAX_ITER, tube_of=None) -> BridgeResult | None:
+                max_iter: int = BRIDGE_MAX_ITER, tube_of=None,
+                split: bool = False) -> BridgeResult | None:
     """Re-solve the frames around the seam at frame ``s`` of the gap ``(a, b)`` jointly.
 
     Parameters
@@ -328,6 +482,8 @@ def bridge_seam(gn, frame_of, K: int, s: int, a: int, b: int, Z, W_of, *,
     tube_of : callable(int) -> (i,) float64 array, optional
         Tube weights of frame ``k``'s dihedral angles
         (:meth:`~shellspline.shells.reconstruct.GaussNewton.merit`).
+    split : bool
+        Share the window's frames with one forked worker (:meth:`SeamBridge.solve`).
 
     Returns
     -------
@@ -338,4 +494,4 @@ def bridge_seam(gn, frame_of, K: int, s: int, a: int, b: int, Z, W_of, *,
                          tube_of=tube_of)
     if not len(problem.frames):
         return None
-    return problem.solve(dtol=dtol, max_iter=max_iter)
+    return problem.solve(dtol=dtol, max_iter=max_iter, split=split)

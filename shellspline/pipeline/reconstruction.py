@@ -7,6 +7,12 @@ keyframe gap into the other half (:func:`continued_runs`); where the two runs of
 meet in different local minima, the frames around the seam are re-solved together
 (:func:`bridge_seams`, :mod:`shellspline.pipeline.bridge`). :func:`reconstruct_frames` is
 the whole stage.
+
+On a process pool each gap goes through these steps as soon as the one before is done for
+that gap, while the other workers still solve other gaps (:class:`GapContinuations`): its
+continuation once its two runs are solved, its seam's bridge once its continuation is. A
+seam bridged after the pool (the last one, or where nothing else was left to overlap) shares
+its window's frames with a forked worker instead (:meth:`~.bridge.SeamBridge.solve`).
 """
 from __future__ import annotations
 
@@ -22,13 +28,17 @@ __all__ = ["reconstruct_frames", "run_reconstruction", "reconstruction_runs", "c
            "GapContinuations",
            "solve_run", "parallel_decode", "safe_init", "single_blas_thread", "seam_jump",
            "seam_records", "bridge_seams", "bridge_kept", "SERIAL_RECONSTRUCT_WORK",
-           "SERIAL_DECODE_WORK", "CONTINUE_MARGIN", "SEAM_POP", "SEAM_DETECT",
+           "SERIAL_DECODE_WORK", "SPLIT_BRIDGE_WORK", "CONTINUE_MARGIN", "SEAM_POP", "SEAM_DETECT",
            "POP_DEFECTS"]
 
 #: Below this many vertex-frames the Gauss–Newton reconstruction runs in this process even
 #: with ``workers > 1``: starting a pool costs more than the work (cactus γ = 0.05, K = 20:
 #: 263 coarse vertices × 18 frames, 0.11 s in-process against 0.19 s with two workers).
 SERIAL_RECONSTRUCT_WORK = 20_000
+#: Below this many vertex-frames in its window a bridge run in this process (one seam, or a
+#: large mesh) keeps all its frames here instead of sharing them with a forked worker
+#: (:meth:`~shellspline.pipeline.bridge.SeamBridge.solve`): the same bound as the frames'.
+SPLIT_BRIDGE_WORK = 20_000
 #: The same for the prolongation decode (cheaper per vertex-frame): the 5.2k-vertex cactus,
 #: K = 20, decodes in 0.08 s in-process and 0.10 s with two workers.
 SERIAL_DECODE_WORK = 250_000
@@ -345,7 +355,7 @@ class GapContinuations:
         Progress stage name of the continuation frames.
     """
 
-    def __init__(self, runs, Vinit, stage: str):
+    def __init__(self, runs, Vinit, stage: str, bridge=None):
         self.Vinit, self.stage = Vinit, stage
         fwd = {int(r[-1]): (r, a) for r, a in runs if len(r) and r[0] > a}
         # the two runs of each gap: the forward run ending just before the backward one
@@ -355,6 +365,11 @@ class GapContinuations:
         self.submitted = set()  # frames (as tuples) of the runs handed out
         self.results = {}
         self._done = self._total = 0
+        self._gap_of = {}       # frames (as tuples) of a continuation run -> its gap
+        self._running = {}      # gap -> its continuation runs still on the pool
+        self._finished = []     # gaps whose continuation is solved, not yet looked at
+        self.bridge = bridge    # (K, half, gn_options): bridge finished gaps on the pool
+        self.bridged = {}       # seam frame -> (s, a, b, BridgeResult, before, after)
 
     def ready(self, results) -> list:
         """The continuation runs of the gaps whose runs are all in ``results`` (each gap
@@ -365,17 +380,70 @@ class GapContinuations:
                 continue
             self._started.add(i)
             for task in continued_runs(gap, results, self.Vinit):
-                self.submitted.add(tuple(int(k) for k in task[0]))
+                key = tuple(int(k) for k in task[0])
+                self.submitted.add(key)
+                self._gap_of[key] = i
+                self._running[i] = self._running.get(i, 0) + 1
                 self._total += len(task[0])
                 out.append(task)
         return out
 
-    def record(self, solved, progress) -> None:
-        """Keep the frames ``[(k, V, record), ...]`` of a continuation run."""
+    def record(self, solved, progress, key=None) -> None:
+        """Keep the frames ``[(k, V, record), ...]`` of a continuation run (``key``: the
+        frames it was given, as a tuple)."""
         for kk, Vk, rec in solved:
             self.results[kk] = (Vk, rec)
             self._done += 1
             progress.advance(self.stage, self._done, self._total, text=_frame_text(rec))
+        i = self._gap_of.get(key)
+        if i is not None:
+            self._running[i] -= 1
+            if not self._running[i]:
+                self._finished.append(i)
+
+    def bridges_ready(self, results, pinned) -> list:
+        """Bridge tasks (:func:`_worker_bridge`) for the gaps whose continuation just
+        finished, where the gap has a seam and no frame that :func:`resume_steady` will
+        change (a frame stopped at its limit): the bridge then sees what it would see after
+        all the passes, and runs while the other workers still solve other gaps (the horse's
+        gaps finish 10 s apart). Empty without ``bridge``."""
+        out = []
+        gaps, self._finished = self._finished, []
+        if self.bridge is None:
+            return out
+        K, half, gn_options = self.bridge
+        for i in gaps:
+            view = _merged_gap(self.gaps[i], results, self.results)
+            if any("to_go" in rec for _, rec in view.values()):
+                continue
+            for seam in seam_records(self.gaps[i], view, self.Vinit, pinned):
+                s = seam["frame"]
+                (rf, a), (rb, b) = self.gaps[i]
+                lo, hi = max(a, s - half - 2), min(b, s + half + 1)
+                # the bridge's context and the window check's frames and keyframes
+                frames = {k: (self.Vinit[k] if k in (a, b) else view[k][0])
+                          for k in [a, b, *range(lo, hi + 1)]}
+                out.append(("bridge", s, a, b, K, half, gn_options, frames))
+        return out
+
+    def record_bridge(self, out) -> None:
+        """Keep a bridge solved on the pool: ``(s, a, b, BridgeResult, before, after)``."""
+        self.bridged[out[0]] = out
+
+
+def _merged_gap(gap, results, continued) -> dict:
+    """``{k: (V, record)}`` of a gap's frames as the passes leave them: the first pass's,
+    replaced by the continuation's (records copied, marked ``"continued"``)."""
+    view = {}
+    for r, _ in gap:
+        for k in r:
+            k = int(k)
+            if k in continued:
+                Vk, rec = continued[k]
+                view[k] = (Vk, {**rec, "continued": True})
+            else:
+                view[k] = results[k]
+    return view
 
 
 def reconstruction_runs(ks, frames, K, periodic):
@@ -417,6 +485,18 @@ def _worker_solve(task):
                           [Vinit[k] for k in ks], _anchor(anchor, Vinit), warm,
                           worse_than=worse, tubes=_tubes(tube_of, ks))
     return solve_run(_WORKER["gn"], *task)
+
+
+def _worker_bridge(task):
+    """A seam bridged on a forked reconstruction worker (see
+    :meth:`GapContinuations.bridges_ready`): ``(s, a, b, BridgeResult, before, after)``."""
+    _, s, a, b, K, half, gn_options, frames = task
+    gn0 = _WORKER["gn"]
+    Z, W_of, Vinit, warm, tube_of = _WORKER["frame_data"]
+    pinned = gn0.pinned if gn0.pinned.size else None
+    out = _bridge_seam_checked(GaussNewton(gn0.T, pinned=pinned, **gn_options),
+                               frames.__getitem__, K, s, a, b, Z, W_of, half, tube_of, False)
+    return (s, a, b) + out
 
 
 def _tubes(tube_of, ks):
@@ -516,6 +596,8 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                          (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
                           _anchor(a, Vinit), warm, None, w, _tubes(tube_of, c)))
 
+    extra = {}  # follow-up futures -> ("continue", frames) or ("bridge", seam)
+
     try:
         with process_pool(workers, _worker_init, (T.F, T.n_vertices, pinned, gn_options),
                           method) as ex:
@@ -526,15 +608,29 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in finished:
                     out = fut.result()
-                    if fut not in firsts:  # a follow-up run
-                        follow.record(out, progress)
+                    if fut in extra:  # a follow-up run or bridge
+                        kind, key = extra.pop(fut)
+                        if kind == "bridge":
+                            follow.record_bridge(out)
+                        else:
+                            follow.record(out, progress, key)
                         continue
                     for kk, Vk, rec in out:
                         results[kk] = (Vk, rec)
                         done += 1
                         progress.advance(stage, done, total, text=_frame_text(rec))
                 if follow is not None:
-                    pending |= {submit(ex, *r) for r in follow.ready(results)}
+                    for r in follow.ready(results):
+                        fut = submit(ex, *r)
+                        extra[fut] = ("continue", tuple(int(k) for k in r[0]))
+                        pending.add(fut)
+                    # a finished gap's bridge while other work is still on the pool (the
+                    # last gap's is bridged after it, split over the workers)
+                    if method == "fork" and pending:
+                        for task in follow.bridges_ready(results, pinned):
+                            fut = ex.submit(_worker_bridge, task)
+                            extra[fut] = ("bridge", task[1])
+                            pending.add(fut)
     finally:
         _WORKER.pop("gn", None)
         _WORKER.pop("frame_data", None)
@@ -613,8 +709,13 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
     runs = reconstruction_runs(ks, frames, K, periodic)
     stage = stage_prefix + "reconstruct"
     # the continuation of a gap starts on the pool as soon as its two runs are solved
-    follow = GapContinuations(runs, Vinit, stage_prefix + "reconstruct (continue)") \
-        if warm == "extrapolate" else None
+    from .bridge import BRIDGE_HALF
+
+    # seams bridged on the pool as their gaps finish (not above LARGE_MESH: a bridge's
+    # factors there are too large to hold next to another worker's)
+    early = (K, BRIDGE_HALF, gn_options) if bridge and T.n_vertices <= LARGE_MESH else None
+    follow = GapContinuations(runs, Vinit, stage_prefix + "reconstruct (continue)",
+                              bridge=early) if warm == "extrapolate" else None
     with prog.stage(stage, total=len(ks)):
         results = run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
                                      warm, stage=stage, runs=runs, tube_of=tube_of,
@@ -642,12 +743,13 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         results[seam["frame"]][1]["seam_jump"] = seam["jump"]
     if bridge and seams:
         bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                     stage_prefix, workers, pop_defects, tube_of)
+                     stage_prefix, workers, pop_defects, tube_of, early=follow.bridged)
     return results
 
 
 def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                 stage_prefix="", workers=1, pop_defects=POP_DEFECTS, tube_of=None):
+                 stage_prefix="", workers=1, pop_defects=POP_DEFECTS, tube_of=None,
+                 early=None):
     """Re-solve the frames around each seam jointly (:func:`~.bridge.bridge_seam`) and
     replace them in ``results`` (in place) where that removes the jump without a new defect.
 
@@ -662,7 +764,9 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
     :data:`~shellspline.shells.reconstruct.LARGE_MESH` vertices a bridge holds one sparse
     factor per window frame (about 1.6 GB each at 155k vertices), so large meshes bridge one
     frame on each side of the seam, one seam at a time (horse, 1 instead of 2 frames a side:
-    pop 1.35 instead of 1.14).
+    pop 1.35 instead of 1.14). ``early``: ``{s: (s, a, b, BridgeResult, before, after)}``,
+    seams already bridged on the reconstruction's pool (:class:`GapContinuations`), taken
+    as they are where the seam and its gap are the same.
     """
     from ..parallel import process_pool, start_method
     from .bridge import BRIDGE_HALF
@@ -682,23 +786,30 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
         tasks.append((s, a, b))
     stage = stage_prefix + "bridge seams"
     large = T.n_vertices > LARGE_MESH
+    half = 1 if large else BRIDGE_HALF
+    # a bridge run here (one seam, or a large mesh) shares its window's frames with a forked
+    # worker where the frames are worth it
+    split = workers > 1 and 2 * half * T.n_vertices >= SPLIT_BRIDGE_WORK
     workers = 1 if large else workers
-    _WORKER["bridge"] = (T, frame_of, K, Z, W_of, pinned, gn_options,
-                         1 if large else BRIDGE_HALF, tube_of)
+    _WORKER["bridge"] = (T, frame_of, K, Z, W_of, pinned, gn_options, half, tube_of)
     try:
         with prog.stage(stage, total=len(tasks)):
-            if workers > 1 and len(tasks) > 1 and start_method() == "fork":
-                with process_pool(min(workers, len(tasks)), _blas_worker_init,
+            early = {t[0]: early[t[0]] for t in tasks
+                     if early and t[0] in early and early[t[0]][:3] == t}
+            todo = [t for t in tasks if t[0] not in early]
+            if workers > 1 and len(todo) > 1 and start_method() == "fork":
+                with process_pool(min(workers, len(todo)), _blas_worker_init,
                                   method="fork") as ex:
-                    done = list(ex.map(_bridge_one, tasks))
+                    done = list(ex.map(_bridge_one, [t + (False,) for t in todo]))
             else:
                 limiter = single_blas_thread()
                 try:
-                    done = [_bridge_one(t) for t in tasks]
+                    done = [_bridge_one(t + (split,)) for t in todo]
                 finally:
                     if limiter is not None:
                         limiter.restore_original_limits()
-            for i, (s, br, before, after) in enumerate(done):
+            done = sorted(done + list(early.values()), key=lambda d: d[0])
+            for i, (s, _, _, br, before, after) in enumerate(done):
                 if br is None:
                     continue
                 keep = bridge_kept(br, before, after, pop_defects)
@@ -742,25 +853,35 @@ def _blas_worker_init():
 
 
 def _bridge_one(task):
-    """Bridge one seam ``(s, a, b)`` (the data in ``_WORKER["bridge"]``) and measure its
-    window before and after: ``(s, BridgeResult or None, before, after)``."""
-    from .bridge import BRIDGE_MAX_ITER, bridge_seam
-
-    s, a, b = task
+    """Bridge one seam ``(s, a, b, split)`` (the data in ``_WORKER["bridge"]``; ``split``:
+    see :meth:`~.bridge.SeamBridge.solve`): ``(s, a, b, BridgeResult or None, before,
+    after)`` (:func:`_bridge_seam_checked`)."""
+    s, a, b, split = task
     T, frame_of, K, Z, W_of, pinned, gn_options, half, tube_of = _WORKER["bridge"]
     gn = GaussNewton(T, pinned=pinned, **gn_options)
+    return (s, a, b) + _bridge_seam_checked(gn, frame_of, K, s, a, b, Z, W_of, half, tube_of,
+                                            split)
+
+
+def _bridge_seam_checked(gn, frame_of, K, s, a, b, Z, W_of, half, tube_of, split):
+    """Bridge the seam at ``s`` of the gap ``(a, b)`` and measure its window before and
+    after (:func:`_window_check`): ``(BridgeResult or None, before, after)``."""
+    from .bridge import BRIDGE_MAX_ITER, bridge_seam
+
+    T = gn.T
+    pinned = gn.pinned if gn.pinned.size else None
     # a lower limit on the frames (the user's --max-iter) holds for their bridge too
     br = bridge_seam(gn, frame_of, K, s, a, b, Z, W_of, half=half, tube_of=tube_of,
-                     max_iter=min(BRIDGE_MAX_ITER, gn.max_iter))
+                     max_iter=min(BRIDGE_MAX_ITER, gn.max_iter), split=split)
     if br is None:
-        return s, None, None, None
+        return None, None, None
     new = dict(zip(br.frames.tolist(), br.V))
 
     def bridged(k):
         return new[k] if k in new else frame_of(k)
 
     win = list(range(max(a, int(br.frames[0]) - 2), min(b, int(br.frames[-1]) + 2) + 1))
-    return (s, br, _window_check(T, win, a, b, frame_of, pinned),
+    return (br, _window_check(T, win, a, b, frame_of, pinned),
             _window_check(T, win, a, b, bridged, pinned))
 
 

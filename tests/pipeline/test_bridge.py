@@ -112,6 +112,50 @@ def test_bridges_on_two_workers_equal_one():
     assert np.array_equal(out[0].V, out[1].V)
 
 
+@pytest.mark.parametrize("pinned", [False, True])
+def test_split_bridge_equals_one_process(pinned):
+    # the window's frames shared with a forked worker: the same arithmetic, the same bits
+    from shellspline.parallel import start_method
+
+    if start_method() != "fork":
+        pytest.skip("a bridge is split only onto a forked worker")
+    gn, seq, Z, W_of = _window_problem(pinned)
+    one = SeamBridge(gn, lambda k: seq[k], 8, 4, 0, 8, Z, W_of, beta=1e-2).solve()
+    two = SeamBridge(gn, lambda k: seq[k], 8, 4, 0, 8, Z, W_of, beta=1e-2).solve(split=True)
+    assert one.iterations >= 2 and one.cg_iterations == two.cg_iterations
+    assert np.array_equal(one.V, two.V) and np.array_equal(one.energies, two.energies)
+    assert one.objective == two.objective and one.status == two.status
+
+
+def test_single_seam_splits_its_bridge_on_two_workers(monkeypatch):
+    # one seam and two workers: the bridge runs here with its frames shared with a worker
+    # (where the frames are worth it), and the sequence is the same as with one worker
+    import shellspline.pipeline.bridge as brm
+    import shellspline.pipeline.reconstruction as rc
+    from shellspline.parallel import start_method
+
+    if start_method() != "fork":
+        pytest.skip("a bridge is split only onto a forked worker")
+    monkeypatch.setattr(rc, "SPLIT_BRIDGE_WORK", 0)
+    calls = []
+    solve = brm.SeamBridge.solve
+
+    def spy(self, *args, **kw):
+        calls.append(kw.get("split"))
+        return solve(self, *args, **kw)
+
+    monkeypatch.setattr(brm.SeamBridge, "solve", spy)
+    d = stress.joint()
+    frames = d["frames"][:2]
+    out = [ss.interpolate((d["V"][:2], d["F"]), frames=frames, workers=w) for w in (1, 2)]
+    assert calls and calls[:len(calls) // 2] == [False] * (len(calls) // 2)
+    assert calls[len(calls) // 2:] == [True] * (len(calls) // 2)
+    b1 = [r.get("bridge") for r in out[0].report["frames"]]
+    b2 = [r.get("bridge") for r in out[1].report["frames"]]
+    assert any(b1) and b1 == b2
+    assert np.array_equal(out[0].V, out[1].V)
+
+
 def test_large_meshes_bridge_one_frame_a_side(monkeypatch):
     # above LARGE_MESH vertices each window frame's factor is large: one frame each side of
     # the seam, one seam at a time

@@ -197,3 +197,37 @@ def test_gap_continuations_pair_the_runs_of_each_gap():
     assert g.ready(results) == []  # each gap once
     every = R.continued_runs(runs, results, Vinit)
     assert g.submitted == {tuple(int(k) for k in t[0]) for t in every}
+
+
+def test_seams_bridged_on_the_pool_as_their_gaps_finish_change_no_frame(monkeypatch):
+    """A gap whose continuation is solved while other work is still on the pool gets its seam
+    bridged there (GapContinuations.bridges_ready), instead of after all the passes; the
+    bridge sees the same frames, so the sequence and every record are those of the bridges
+    run at the end, bit for bit."""
+    import shellspline as ss
+    from data_synth import stress
+
+    monkeypatch.setattr(R, "SERIAL_RECONSTRUCT_WORK", 0)  # this small case: use the pool
+    d = stress.joint(angles=(0.0, 150.0, 0.0, 150.0), frames=(0, 10, 20, 30))
+    on_pool = []
+    keep = R.GapContinuations.record_bridge
+
+    def spy(self, out):
+        on_pool.append(out[0])
+        keep(self, out)
+
+    monkeypatch.setattr(R.GapContinuations, "record_bridge", spy)
+
+    def run():
+        return ss.interpolate((d["V"], d["F"]), frames=d["frames"], pinned=d["pinned"],
+                              coarse="none", workers=2)
+
+    early = run()
+    monkeypatch.setattr(R.GapContinuations, "bridges_ready", lambda self, *a: [])
+    late = run()
+    bridged = [f["frame"] for f in late.report["frames"] if "bridge" in f]
+    assert len(bridged) >= 2 and on_pool and set(on_pool) <= set(bridged)
+    assert np.array_equal(early.V, late.V)
+    drop = ("seconds",)
+    assert [{k: v for k, v in f.items() if k not in drop} for f in early.report["frames"]] == \
+        [{k: v for k, v in f.items() if k not in drop} for f in late.report["frames"]]
