@@ -2249,7 +2249,7 @@ def mesh_on_source(Vs, kf, times) -> np.ndarray:
         coordinates back at the keyframes, which tore the seams of a closed or blended
         frame.)
     """
-    from .mesh.source_mesh import _face_frames
+    from .mesh.source_mesh import face_frames
 
     Vs = np.asarray(Vs, dtype=np.float64)
     src = kf.source
@@ -2263,11 +2263,11 @@ def mesh_on_source(Vs, kf, times) -> np.ndarray:
         fin = src.anchors[:, 0] >= 0
         local = X.copy()
         if fin.any():
-            origin, R = _face_frames(np.asarray(kf.V, dtype=np.float64), src.anchors[fin])
+            origin, R = face_frames(np.asarray(kf.V, dtype=np.float64), src.anchors[fin])
             local[:, fin] = np.einsum("jsba,jsb->jsa", R, X[:, fin] - origin)
         loc = reparametrize_vertices(local, times)
         if fin.any():
-            origin, R = _face_frames(Vs, src.anchors[fin])
+            origin, R = face_frames(Vs, src.anchors[fin])
             loc[:, fin] = origin + np.einsum("ksab,ksb->ksa", R, loc[:, fin])
         out[:, src.set_aside] = loc
     return out

@@ -3,6 +3,8 @@ as exporters write them, UV-seam-split quad frames, point caches and animation f
 the loop a mesh closing writes (status, root motion, the input's format)."""
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 
@@ -71,6 +73,24 @@ def test_a_stray_mesh_or_a_frame_written_twice_is_refused_not_read_as_a_frame(
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "two files of frame 3: frame_3.obj and frame_0003.ply" in err
     assert not (tmp_path / "loop").exists()
+
+
+def test_macos_resource_forks_beside_the_frames_are_left_out(capsys, tmp_path, walk_body):
+    """A frame folder copied by macOS to an exFAT drive or a network share holds a binary
+    ``._frame_0001.obj`` beside every frame (and a ``.DS_Store``): they were taken for a
+    second sequence ("not one numbered sequence", exit 2). Hidden files are not frames."""
+    from shellspline.io.sequences import frame_files
+
+    Vs, F, _ = walk_body
+    a = frame_folder(tmp_path / "a", Vs, F)
+    mac = frame_folder(tmp_path / "mac", Vs, F)
+    fork = b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        " + bytes(4050)
+    for f in sorted(mac.iterdir()):
+        (mac / f"._{f.name}").write_bytes(fork)
+    (mac / ".DS_Store").write_bytes(bytes(6148))
+    assert [f.name for f in frame_files(mac)] == [f.name for f in frame_files(a)]
+    code, out, err = run(capsys, "distance", a, mac, "--align", "none", "-q")
+    assert code == 0 and float(out) == 0.0, err
 
 
 def torus_frames(d, n_frames, *, periods=1.0):
@@ -169,6 +189,28 @@ def test_point_caches_and_animation_folders_are_mesh_sequences(capsys, tmp_path,
     code, _, err = run(capsys, "distance", tmp_path / "mdd", tmp_path / "mdd", "--topology",
                        tmp_path / "rest.obj")
     assert code == 2 and "--topology" in err and "none given" in err
+
+
+def test_a_z_up_glb_or_usd_animation_is_written_back_z_up(capsys, tmp_path, walk_body):
+    """A GLB says its data are z-up by its node's rotation, a USD stage by its upAxis (as
+    ``interpolate`` writes them for PLY keyframes); the loop of such an animation was written
+    y-up, so a viewer showed it lying on its side. Now it is written back in the input's
+    frame: the same up axis, frame 0 where the input's is."""
+    from shellspline.io.usd import conventional_up_axis
+
+    Vs, F, _ = walk_body
+    Vz = Vs[:, :, [0, 2, 1]] * [1.0, -1.0, 1.0]  # the walk with z up (rotation about x)
+    formats = ["glb"] + (["usd"] if importlib.util.find_spec("pxr") else [])
+    for fmt in formats:
+        src = write_sequence(tmp_path / f"in_{fmt}", Vz, F, fmt=fmt, fps=30.0, up_axis="z")
+        out = tmp_path / f"loop_{fmt}"
+        code, _, err = run(capsys, "close", src, "-o", out, "-q")
+        assert code == 0, err
+        anim = next(out.glob("animation.*"))
+        assert conventional_up_axis(anim) == "z", fmt
+        V = read_sequence(out)[0]
+        size = np.ptp(Vz[0], axis=0).max()
+        assert V.shape == Vz.shape and np.abs(V[0] - Vz[0]).max() <= 1e-2 * size, fmt
 
 
 def test_ply_frames_give_ply_frames_and_the_invariances_hold(capsys, tmp_path, walk_body):

@@ -265,29 +265,35 @@ def _read_animation(anim: Path, mesh):
     return read_keyframes([anim])  # USD: one mesh with time-sampled points
 
 
-def _sequence_format(path) -> tuple[str, float]:
-    """The format of a mesh sequence input and its frame rate, as its output is written:
-    ``("mdd" | "pc2" | "glb" | "usd", fps)`` for an animation file, ``("ply", 24)`` for a
-    folder of PLY frames, ``("obj", 24)`` otherwise (OBJ or OFF frames, or mixed)."""
+def _sequence_format(path) -> tuple[str, float, str]:
+    """The format of a mesh sequence input, its frame rate and up axis, as its output is
+    written: ``("mdd" | "pc2" | "glb" | "usd", fps, up)`` for an animation file, ``("ply",
+    24, "y")`` for a folder of PLY frames, ``("obj", 24, "y")`` otherwise (OBJ or OFF frames,
+    or mixed). ``up``: the axis a GLB's node rotation or a USD stage's ``upAxis`` gives its
+    data (:func:`shellspline.io.usd.conventional_up_axis`), written back the same way (a
+    z-up GLB or USD input was written y-up: its loop lay on its side in a viewer)."""
     from ..io.sequences import frame_files
-    from ..io.usd import USD_EXTENSIONS
+    from ..io.usd import USD_EXTENSIONS, conventional_up_axis
 
     p = Path(path)
     anim = _animation_file(p)
     if anim is None:
         plys = {f.suffix.lower() == ".ply" for f in frame_files(p)}
-        return ("ply" if plys == {True} else "obj"), 24.0
+        return ("ply" if plys == {True} else "obj"), 24.0, "y"
     ext = anim.suffix.lower()
     if ext == ".mdd":
         from ..io.pointcache import read_mdd
 
         dt = np.diff(read_mdd(anim)[1])
-        return "mdd", (float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else 24.0)
+        fps = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else 24.0
+        return "mdd", fps, "y"
     if ext == ".glb":
         from ..io.gltf import read_glb
 
-        return "glb", float(read_glb(anim)[2])
-    return ("usd" if ext in USD_EXTENSIONS else ext.lstrip(".")), 24.0
+        return "glb", float(read_glb(anim)[2]), conventional_up_axis(anim)
+    if ext in USD_EXTENSIONS:
+        return "usd", 24.0, conventional_up_axis(anim)
+    return ext.lstrip("."), 24.0, "y"
 
 
 def _kind(x) -> str:
@@ -433,15 +439,15 @@ def _read_jointly(args, a, b):
 
 
 def _write_mesh(args, Vs, kf, report, times):
-    """Write frames of ``kf``'s solve mesh as a sequence folder in the format of the input
-    ``args.a`` (:func:`_sequence_format`), on its files' vertices and polygons (UVs, seams:
-    :func:`shellspline.animation.mesh_on_source`)."""
+    """Write frames of ``kf``'s solve mesh as a sequence folder in the format (and up axis) of
+    the input ``args.a`` (:func:`_sequence_format`), on its files' vertices and polygons (UVs,
+    seams: :func:`shellspline.animation.mesh_on_source`)."""
     from ..animation import mesh_on_source
     from ..io import write_sequence
 
-    fmt, fps = _sequence_format(args.a)
+    fmt, fps, up = _sequence_format(args.a)
     write_sequence(args.out, mesh_on_source(Vs, kf, times), kf.F, report, fmt=fmt, fps=fps,
-                   overwrite=args.overwrite, source=kf.source,
+                   up_axis=up, overwrite=args.overwrite, source=kf.source,
                    protect=[q for q in (args.a, getattr(args, "b", None), args.topology) if q])
 
 

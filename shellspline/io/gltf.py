@@ -442,8 +442,6 @@ def read_gltf_mesh(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
                                  strides=(stride, dt.itemsize)).astype(np.float64)
             else:
                 arr = np.zeros((count, width))
-            if a.get("normalized") and dt.kind in "iu":
-                arr = np.maximum(arr / np.iinfo(dt).max, -1.0)
             if "sparse" in a:
                 sp = a["sparse"]
                 k = int(sp["count"])
@@ -456,6 +454,8 @@ def read_gltf_mesh(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
                 vals = np.frombuffer(buffers[vb["buffer"]], dt, k * width,
                                      vb.get("byteOffset", 0) + vv.get("byteOffset", 0))
                 arr[where.astype(np.int64)] = vals.reshape(k, width)
+            if a.get("normalized") and dt.kind in "iu":  # the sparse values too
+                arr = np.maximum(arr / np.iinfo(dt).max, -1.0)
             return arr
 
         # the scene's nodes with a mesh, depth first, with their world transforms
@@ -546,13 +546,34 @@ def read_gltf_mesh(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
 
 def _first_node_up(doc) -> str:
     """``"z"`` or ``"x"`` where the first node of a glTF document carries the rotation of
-    :data:`UP_ROTATIONS` for that axis, else ``"y"``."""
+    :data:`UP_ROTATIONS` for that axis and holds a mesh (its own, or a descendant's: the
+    rotation moves the mesh data), else ``"y"``. (A DCC tool's first node may be a camera or
+    a light: one added in Blender looks down with just that rotation, and turned the mesh.)"""
     nodes = doc.get("nodes") or [{}]
     rot = nodes[0].get("rotation") if isinstance(nodes[0], dict) else None
+    if rot is None or not _holds_mesh(nodes, 0):
+        return "y"
     for axis, q in UP_ROTATIONS.items():
-        if q is not None and rot is not None and np.allclose(rot, q, atol=1e-7):
+        if q is not None and np.allclose(rot, q, atol=1e-7):
             return axis
     return "y"
+
+
+def _holds_mesh(nodes, first: int) -> bool:
+    """Whether the node ``first`` or one of its descendants has a mesh (children that are
+    not nodes skipped, a cycle walked once)."""
+    seen, todo = set(), [first]
+    while todo:
+        i = todo.pop()
+        if not isinstance(i, int) or not 0 <= i < len(nodes) or i in seen or \
+                not isinstance(nodes[i], dict):
+            continue
+        if "mesh" in nodes[i]:
+            return True
+        seen.add(i)
+        children = nodes[i].get("children")
+        todo += children if isinstance(children, list) else []
+    return False
 
 
 def _quat_matrix(q) -> np.ndarray:

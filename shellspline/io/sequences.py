@@ -49,7 +49,10 @@ def frame_files(folder) -> list[Path]:
     """The mesh files (OBJ/PLY/OFF) of ``folder`` in natural name order
     (:func:`natural_key`), e.g. the frames of an animation exported one file per frame.
 
-    Other files (``report.json``, materials, notes) are left out. Formats may be mixed.
+    Other files (``report.json``, materials, notes) are left out, and so are hidden ones
+    (a name that starts with ``.``: the ``._frame_0001.obj`` resource forks macOS writes
+    beside every file on a FAT/exFAT drive or a network share, binary data that were read
+    as frames or refused as another sequence). Formats may be mixed.
 
     Raises
     ------
@@ -61,8 +64,8 @@ def frame_files(folder) -> list[Path]:
     """
     from .meshes import MESH_EXTENSIONS
 
-    files = sorted((f for f in Path(folder).iterdir()
-                    if f.suffix.lower() in MESH_EXTENSIONS and f.is_file()),
+    files = sorted((f for f in Path(folder).iterdir() if f.suffix.lower() in MESH_EXTENSIONS
+                    and not f.name.startswith(".") and f.is_file()),
                    key=lambda f: natural_key(f.name))
     patterns: dict = {}  # the name with its last number as '#' (no extension): its files
     numbers = []

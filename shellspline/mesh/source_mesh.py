@@ -55,7 +55,8 @@ import numpy as np
 from ..errors import MeshError
 from .geometry import cross, normalized
 
-__all__ = ["SourceMesh", "solve_mesh", "triangulate_polygons", "WELD_TOLERANCE"]
+__all__ = ["SourceMesh", "solve_mesh", "triangulate_polygons", "face_frames",
+           "WELD_TOLERANCE"]
 
 #: Vertices whose positions agree in every keyframe to this fraction of the bounding-box
 #: diagonal of keyframe 0 are welded (a grid cell: round-off of exported text is ~1e-16).
@@ -215,7 +216,7 @@ class SourceMesh:
             fin = self.anchors[:, 0] >= 0
             local = X.copy()                                     # isolated: world coordinates
             if fin.any():
-                origin, R = _face_frames(V, self.anchors[fin])   # (K+1,f,3), (K+1,f,3,3)
+                origin, R = face_frames(V, self.anchors[fin])   # (K+1,f,3), (K+1,f,3,3)
                 local[:, fin] = np.einsum("jsba,jsb->jsa", R[frames], X[:, fin] - origin[frames])
             # piecewise linear in time through the keyframes; periodic: back to keyframe 0 at
             # frame K; frames after the last keyframe hold it
@@ -234,8 +235,24 @@ class SourceMesh:
         return out
 
 
-def _face_frames(V: np.ndarray, tri: np.ndarray):
-    """Origin ``a`` and orthonormal frame ``[e1 e2 n]`` (as columns) of triangles per pose."""
+def face_frames(V: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Origin and orthonormal frame of triangles in every pose (the frame a fin's set-aside
+    vertex moves with: :meth:`SourceMesh.expand`, :func:`shellspline.animation.mesh_on_source`).
+
+    Parameters
+    ----------
+    V : (K,n,3) float64 numpy array
+        Poses.
+    tri : (f,3) int numpy array
+        Triangles ``(a, b, c)``.
+
+    Returns
+    -------
+    origin : (K,f,3) float64 numpy array
+        Their corner ``a``.
+    frame : (K,f,3,3) float64 numpy array
+        ``[e1 e2 n]`` as columns: ``e1`` along ``ab``, ``n`` the unit normal, ``e2 = n x e1``.
+    """
     a, b, c = V[:, tri[:, 0]], V[:, tri[:, 1]], V[:, tri[:, 2]]
     e1 = b - a
     n = normalized(cross(e1, c - a))
@@ -343,10 +360,14 @@ def _best_candidate(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarr
     signed quality over all poses; returns (p,t,3). The quality is unit-free (each pose is
     divided by its polygon's size first), and candidates within :data:`QUALITY_TIE` of the
     best count as tied: the first of them is kept, whatever the scale of the poses."""
-    score = _candidate_scores(Vs, C, cand)                        # (p,c)
-    tied = score >= score.max(axis=1, keepdims=True) - QUALITY_TIE
-    best = np.argmax(tied, axis=1)                                # the first of the tied
+    best = _first_best(_candidate_scores(Vs, C, cand))           # (p,)
     return cand[np.arange(cand.shape[0]), best]
+
+
+def _first_best(score: np.ndarray) -> np.ndarray:
+    """Per row of ``score`` (p,c), the first candidate within :data:`QUALITY_TIE` of the best."""
+    tied = score >= score.max(axis=1, keepdims=True) - QUALITY_TIE
+    return np.argmax(tied, axis=1)
 
 
 def _candidate_scores(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.ndarray:
@@ -371,7 +392,9 @@ def _candidate_scores(Vs: np.ndarray, C: np.ndarray, cand: np.ndarray) -> np.nda
 
 #: Polygons of up to this many corners that ear clipping cannot triangulate without a
 #: triangle folding over the polygon in some pose are triangulated by
-#: :func:`_maxmin_triangulation` (O(s³) work and memory per polygon).
+#: :func:`_maxmin_triangulation` (O(s³) work and memory per polygon; the triangles are
+#: scored in blocks of :data:`_CHUNK` triangles x keyframes: a 64-gon over 50 keyframes
+#: took 350 MB at once, 1.4 GB over 200).
 MAXMIN_CORNERS = 64
 
 
@@ -389,7 +412,10 @@ def _maxmin_triangulation(Vs: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, fl
     i, k, j = i[keep], k[keep], j[keep]
     score = np.full((s, s, s), -np.inf)
     tri = C[np.stack([i, k, j], axis=1)]            # every triangle of corners, in order
-    score[i, k, j] = _candidate_scores(Vs, C[None], tri[None, :, None])[0]
+    step = max(1, _CHUNK // Vs.shape[0])             # bounded memory: (J, step, 3) arrays
+    for a in range(0, tri.shape[0], step):
+        b = slice(a, a + step)
+        score[i[b], k[b], j[b]] = _candidate_scores(Vs, C[None], tri[None, b, None])[0]
     best = np.full((s, s), np.inf)                   # best[a, b]: the chain a..b closed by ab
     split = np.zeros((s, s), dtype=np.int64)
     for length in range(2, s):
@@ -423,6 +449,7 @@ def _earcut_polygons(Vs: np.ndarray, C: np.ndarray, polys: np.ndarray, name: str
     N = _newell_normals(Vs, C)
     rings = np.array([s], dtype=np.uint32)
     out = np.zeros((p, s - 2, 3), dtype=np.int64)
+    found = []                                                     # per polygon: (c,s-2,3)
     for i in range(p):
         cands = []
         for j in range(J):
@@ -447,16 +474,26 @@ def _earcut_polygons(Vs: np.ndarray, C: np.ndarray, polys: np.ndarray, name: str
             t = t[np.lexsort(t.T[::-1])]
             if not any(np.array_equal(t, c) for c in cands):
                 cands.append(t)
-        worst = 0.0
-        if cands:
-            cand = C[i][np.stack(cands)]                           # (c,s-2,3)
-            out[i] = _best_candidate(Vs, C[i:i + 1], cand[None])[0]
-            worst = float(_candidate_scores(Vs, C[i:i + 1], out[i][None, None])[0, 0])
-        if worst <= 0 and s <= MAXMIN_CORNERS:  # folds (or none) in some pose: try them all
+        found.append(C[i][np.stack(cands)] if cands else None)
+    # the candidates scored together, polygons with as many candidates in one block each
+    worst = np.zeros(p)
+    counts = np.array([0 if f is None else f.shape[0] for f in found])
+    for c in np.unique(counts[counts > 0]):
+        rows = np.flatnonzero(counts == c)
+        step = max(1, _CHUNK // (J * c * (s - 2)))  # bounded memory: (J,step,c,s-2,3) arrays
+        for a in range(0, rows.size, step):
+            r = rows[a:a + step]
+            cand = np.stack([found[i] for i in r])                 # (r,c,s-2,3)
+            score = _candidate_scores(Vs, C[r], cand)              # (r,c)
+            best = _first_best(score)
+            out[r], worst[r] = cand[np.arange(r.size), best], score[np.arange(r.size), best]
+    for i in np.flatnonzero(worst <= 0):  # folds (or none) in some pose: try them all
+        ok = found[i] is not None
+        if s <= MAXMIN_CORNERS:
             T, score = _maxmin_triangulation(Vs, C[i])
-            if score > worst if cands else score > 0:
-                out[i], worst, cands = T, score, [T]
-        if not cands:
+            if score > worst[i] if ok else score > 0:
+                out[i], worst[i], ok = T, score, True
+        if not ok:
             raise MeshError(f"{name}: polygon {int(polys[i])} with {s} corners cannot be "
                             "triangulated (degenerate or self-intersecting in every keyframe)")
     return out
