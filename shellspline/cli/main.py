@@ -212,7 +212,7 @@ def _build_parser() -> argparse.ArgumentParser:
                         "three.js, game engines), a point cache animation.mdd or animation.pc2 "
                         "with mesh.obj (float32; Blender's Mesh Cache modifier, Maya, Houdini) "
                         "or animation.usdc (USD, time-sampled points; needs usd-core)")
-    q.add_argument("--fps", type=float, default=24.0,
+    q.add_argument("--fps", type=float, default=None,
                    help="frames per second of the GLB/USD animation and the MDD frame times; "
                         "with --topology, turns MDD times into frames (default 24)")
     q.add_argument("--topology", metavar="MESH",
@@ -277,8 +277,11 @@ def _interpolate(args) -> int:
         raise ShellsplineError(f"--max-iter must be >= 1, got {args.max_iter}")
     if args.frames is not None and not args.frames.strip():
         raise ShellsplineError("--frames is empty")
-    if not (args.fps > 0 and args.fps < float("inf")):
+    if args.fps is not None and not (args.fps > 0 and args.fps < float("inf")):
         raise ShellsplineError(f"--fps must be a positive number, got {args.fps}")
+    fps_note = _unused_fps(args)
+    if args.fps is None:
+        args.fps = 24.0
     t_read = time.perf_counter()
     try:
         frames = read_frames(args.frames) if args.frames else None
@@ -342,7 +345,7 @@ def _interpolate(args) -> int:
             solver_options["ftol"] = args.ftol
     if ref_geodesic and args.max_time is not None:
         solver_options["max_time_s"] = args.max_time
-    unused = _refuse_inapplicable(given, args, kf, pinned)
+    unused = _refuse_inapplicable(given, args, kf, pinned) + ([fps_note] if fps_note else [])
     gn_options = {} if args.max_iter is None else {"max_iter": args.max_iter}
     # the output location is checked before any computing (writable, not over an input,
     # room for the estimated output), so a bad -o costs no solve
@@ -443,6 +446,20 @@ def _refuse_inapplicable(given: dict, args, kf, pinned) -> list:
     return [text for _, text in unused]
 
 
+def _unused_fps(args) -> str:
+    """The note for an ``--fps`` given that nothing of the run uses (``""`` otherwise): OBJ
+    and PLY frames carry no time, a PC2 cache counts it in frames (start 0, one sample per
+    frame); only GLB, MDD and USD outputs and an MDD keyframe cache (``--topology``) have
+    seconds. A note, not an error: one set of options serves several formats."""
+    if args.fps is None or args.format in ("glb", "mdd", "usd"):
+        return ""
+    if args.topology and any(Path(k).suffix.lower() == ".mdd" for k in args.keyframes):
+        return ""
+    why = ("counts time in frames (start frame 0, one sample per frame)" if args.format == "pc2"
+           else "writes one file per frame, with no time")
+    return f"--fps {args.fps:g} is not applied: --format {args.format} {why}"
+
+
 def _vertex_file(path, option: str, kf):
     """Vertex indices read from ``path`` (numbering the input's vertices), checked and mapped to
     the solve mesh's."""
@@ -514,11 +531,19 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
                 fr = gn[key]
                 line += f"; {what}: frames {fr[:8]}{' …' if len(fr) > 8 else ''}"
         lines.append(line)
-    seams = [r for r in rep.get("frames", []) if "seam_jump" in r]
-    if seams:
+    groups = [("seams", rep.get("frames", []))]
+    if rep["parameters"].get("fine"):
+        # the refinement starts from the prolonged coarse frames, whose seams the quality
+        # line counts defects at too (report.seam_defects)
+        groups.append(("seams of the coarse solve",
+                       (rep.get("multires") or {}).get("coarse_frames") or []))
+    for label, records in groups:
+        seams = [r for r in records if "seam_jump" in r]
+        if not seams:
+            continue
         kept = [r for r in seams if r.get("bridge", {}).get("kept")]
-        line = (f"seams: {len(seams)} (the two runs of a gap meet in different minima: frames "
-                f"{[r['frame'] for r in seams][:8]}), {len(kept)} bridged")
+        line = (f"{label}: {len(seams)} (the two runs of a gap meet in different minima: "
+                f"frames {[r['frame'] for r in seams][:8]}), {len(kept)} bridged")
         if kept:
             line += " (window step ratio " + ", ".join(
                 f"{r['bridge']['step_ratio_before']:.2f} -> {r['bridge']['step_ratio_after']:.2f}"

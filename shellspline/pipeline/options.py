@@ -29,7 +29,8 @@ __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_proble
            "coarse_target", "canonical_choice", "METHODS", "REFERENCES", "RIGID_TRACKS",
            "BOUNDARY_CONDITIONS", "AUTO_COARSE_ABOVE", "AUTO_COARSE_VERTICES",
            "AUTO_NONLINEAR_ABOVE", "FULL_RESOLUTION_WARN", "SPLINES", "DEFAULT_SPLINE",
-           "TRANSFERS", "DEFAULT_TRANSFER", "SOLVER_OPTIONS", "coarse_fraction"]
+           "TRANSFERS", "DEFAULT_TRANSFER", "SOLVER_OPTIONS", "coarse_fraction", "size_mismatch",
+           "SIZE_RATIO_NOTE"]
 
 METHODS = ("lta", "linear", "geodesic", "nonlinear")
 REFERENCES = ("constant", "keyframe", "geodesic")
@@ -331,7 +332,10 @@ def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=N
     """
     J, n = kf.V.shape[:2]
     pinned = _vertex_indices(kf.pinned if pinned is None else pinned, n, "pinned")
+    K_given = K is not None
     frames, K = canonical_frames(J, kf.frames if frames is None else frames, K, opts.bc)
+    if opts.bc == "periodic" and not K_given:
+        _refuse_repeated_first_pose(kf, frames)
     if isinstance(opts.reference, int) and not 0 <= opts.reference < J:
         raise ShellsplineError(f"`reference` keyframe index must lie in [0, {J}), got "
                                f"{opts.reference}")
@@ -351,6 +355,25 @@ def interpolation_problem(opts: InterpolationOptions, kf: Keyframes, *, frames=N
     return InterpolationProblem(keyframes=kf, Vkey=kf.V / D if D != 1.0 else kf.V,
                                 T=kf.topology, frames=frames, K=K, pinned=pinned,
                                 n_coarse=n_coarse, rigid_subset=subset, scale=D)
+
+
+def _refuse_repeated_first_pose(kf: Keyframes, frames) -> None:
+    """Refuse a periodic loop whose last keyframe repeats the first (the usual way to close a
+    loop in a DCC tool): frame ``K`` is frame 0 again one keyframe gap after it, so the loop
+    would reach that pose twice and wander off it in between (on the horse, by 0.1 of its
+    1.4 bounding-box diagonal) instead of closing at the repeated keyframe."""
+    V0, Vl = kf.V[0], kf.V[-1]
+    # the same pose to float32 rounding (a re-export of the same frame)
+    if len(kf.V) < 2 or np.abs(Vl - V0).max() > 1e-6 * max(np.abs(V0).max(), tol.zero):
+        return
+    names = list(getattr(kf, "names", None) or [])
+    name = f" ({names[-1]!r})" if len(names) == len(kf.V) else ""
+    f = int(frames[-1])
+    raise ShellsplineError(
+        f"the last keyframe{name}, at frame {f}, repeats the first: with bc='periodic' frame "
+        f"K is frame 0 again (here K={f + int(frames[-1] - frames[-2])}), so the loop would "
+        f"return to that pose twice; drop the repeated keyframe and close the loop at its "
+        f"frame with K={f}")
 
 
 def _rigid_subset(subset, V0, method):
@@ -375,6 +398,9 @@ def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]
     nonlinear spline runs, the cost of a large full-resolution run)."""
     out = []
     frames, K, n, Vkey = prob.frames, prob.K, prob.Vkey.shape[1], prob.keyframes.V
+    size = size_mismatch(prob.keyframes)
+    if size:
+        out.append(size)
     if opts.bc != "periodic" and K > frames[-1] and opts.method != "linear":
         out.append(f"frames {int(frames[-1]) + 1}..{K} lie after the last keyframe: the "
                    "spline extrapolates them (linearly in its variables)")
@@ -407,6 +433,50 @@ def notices(opts: InterpolationOptions, prob: InterpolationProblem) -> list[str]
                     "not from a prolonged coarse result; the multiresolution path "
                     f"(--coarse, default above {AUTO_COARSE_ABOVE} vertices) takes seconds"))
     return out
+
+
+#: :func:`size_mismatch` notes a keyframe whose size (square root of its surface area) is at
+#: least this many times the first keyframe's, or at most its inverse: a pose does not grow
+#: that much (the ellipsoids of ``data_synth`` change by 0.77, the horse and cactus poses by
+#: under 1.1), files exported in different units (cm and m: 100) do.
+SIZE_RATIO_NOTE = 2.0
+
+
+def size_mismatch(kf: Keyframes) -> str:
+    """A note on the keyframe whose size is furthest from the first keyframe's, when it is
+    :data:`SIZE_RATIO_NOTE` times larger or smaller (``""`` otherwise).
+
+    Every method is unit-free (the keyframes are divided by the first one's
+    :func:`~shellspline.metrics.length_scale`), but a keyframe exported in another unit is
+    another shape to them: the in-betweens grow and shrink through it.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from shellspline.io import keyframes_from_arrays
+    >>> m = trimesh.creation.icosphere(subdivisions=1)
+    >>> note = size_mismatch(keyframes_from_arrays([m.vertices, 100 * m.vertices], m.faces))
+    >>> note.split(",")[0]
+    'keyframe 1 is 100 times the size of keyframe 0'
+    >>> size_mismatch(keyframes_from_arrays([m.vertices, 1.5 * m.vertices], m.faces))
+    ''
+    """
+    D = np.array([length_scale(V, kf.topology.F) for V in kf.V])
+    ratio = D / D[0]
+    j = int(np.argmax(np.maximum(ratio, 1.0 / ratio)))
+    r = float(ratio[j])
+    if 1.0 / SIZE_RATIO_NOTE < r < SIZE_RATIO_NOTE:
+        return ""
+    names = list(getattr(kf, "names", None) or [])
+
+    def called(i):  # the file as given, else the keyframe's index
+        name = names[i] if len(names) == len(kf.V) else f"keyframe {i}"
+        return name if name == f"keyframe {i}" else f"{name!r} (keyframe {i})"
+
+    what = f"{r:.3g} times" if r > 1 else f"1/{1 / r:.3g} of"
+    return (f"{called(j)} is {what} the size of {called(0)}, measured as the square root of "
+            "the surface area: the in-betweens grow and shrink with it; if the files use "
+            "different units (e.g. cm and m), scale them to one")
 
 
 def coarse_target(coarse, n: int, method: str = "lta"):

@@ -373,8 +373,11 @@ def gauss_newton_summary(records: list) -> dict:
 def nonlinear_record(nl, n_vertices: int) -> dict:
     """``report["nonlinear"]`` from a :func:`~shellspline.shells.nonlinear.nonlinear_spline`
     result (``energy_initial`` etc. None when the time limit ran out before the first
-    evaluation finished)."""
-    return {"success": bool(nl.success), "nit": int(nl.nit), "nfev": int(nl.nfev),
+    evaluation finished). ``status`` is the solver's (``"converged"``, ``"stalled"``,
+    ``"limit"``, ``"failed"``) and ``time_limit_reached`` says whether ``max_time_s`` stopped
+    it, as in ``report["reference_geodesic"]`` and ``report["geodesic"]``."""
+    return {"success": bool(nl.success), "status": str(nl.status),
+            "time_limit_reached": nl.status == "limit", "nit": int(nl.nit), "nfev": int(nl.nfev),
             "message": nl.message, "optimizer": nl.optimizer,
             "energy_initial": _at(nl.energies, 0), "energy_final": _at(nl.energies, -1),
             "grad_norm_initial": _at(nl.grad_norms, 0),

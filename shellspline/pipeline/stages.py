@@ -144,14 +144,16 @@ def geodesic_stage(prob, opts, prog) -> StageResult:
                                    eta=opts.eta, pinned=pinned, bc=opts.bc,
                                    callback=lambda s, r: prog.advance(stage, s + 1, n_seg),
                                    progress=progress, init=start.V, **opts.solver_options)
-    if not g.success:
-        prog.message(f"geodesic: {g.message}")
+    if not g.success:  # worded as the solver's warning, which the CLI then prints once
+        prog.message(f"geodesic interpolation: {g.message}")
     last = int(frames[-1])
     if not opts.periodic and prob.K > last:
         # geodesics join keyframes only: the frames after the last one (which
         # geodesic_interpolation holds there) are the LΘA start's extrapolation, as announced
         g.V[last + 1:] = start.V[last + 1:]
-    rec = {"success": bool(g.success), "nit": int(g.nit), "message": g.message,
+    rec = {"success": bool(g.success), "status": str(g.status),
+           "time_limit_reached": bool(g.time_limit_reached), "nit": int(g.nit),
+           "message": g.message,
            "segment_energies": [float(e) for e in g.segment_energies], "start": "lta",
            "factorizations": int(g.factorizations),
            "start_frames": start.frame_records}

@@ -432,3 +432,72 @@ def test_options_this_mesh_leaves_unused_are_a_note_and_recorded_as_applied(ell_
     assert lin["0.5"]["parameters"]["gn_options"] == {}  # before: {"max_iter": 5}
     E = {k: r["energies"]["lta_output_energy_per_frame"] for k, r in lin.items()}
     assert E["0.5"][1] > 10 * E["1e-3"][1]
+
+
+def test_fine_summary_lists_the_coarse_seams_its_quality_line_counts(capsys):
+    """With --fine the quality line counted defects "at the seams" of the coarse solve
+    (report.seam_defects reads multires.coarse_frames) while the seams line only looked at the
+    refined frames: the horse pair said "at the seams (steps into frames [1, 2, 3, 4]): 1
+    flipped" with no seams line at all. The coarse seams are now listed."""
+    from types import SimpleNamespace
+
+    from shellspline.cli.main import _summary
+
+    K = 4
+    per = {"flipped": [0, 0, 0, 1, 0], "folded": [0] * 5, "collapsed": [0] * 5}
+    rep = {"parameters": {"fine": True},
+           "quality": {"keyframes_exact": True, "flipped_faces": 1, "collapsed_faces": 0,
+                       "folded_edges": 0, "degenerate_faces": 0, "pop": 1.08,
+                       "per_frame": per},
+           "gauss_newton": {"frames": 3, "converged": 3, "iterations_total": 46,
+                            "iterations_median": 17, "iterations_max": 18,
+                            "factorizations_total": 34},
+           "frames": [{"frame": k} for k in (1, 2, 3)],
+           "multires": {"coarse_vertices": 1000, "coarse_frames": [
+               {"frame": 1}, {"frame": 2},
+               {"frame": 3, "seam_jump": 1.46,
+                "bridge": {"kept": True, "frames": [1, 2, 3], "step_ratio_before": 1.73,
+                           "step_ratio_after": 1.12}}]},
+           "timings": {"total": 1.0}}
+    res = SimpleNamespace(report=rep, K=K, V=np.zeros((K + 1, 8, 3)))
+    assert _summary(res, Path("out"), quiet=False) == 1
+    err = capsys.readouterr().err
+    assert "seams of the coarse solve: 1 (the two runs of a gap meet in different minima: " \
+           "frames [3]), 1 bridged (window step ratio 1.73 -> 1.12)" in err
+    assert "at the seams (steps into frames [1, 2, 3, 4]): 1 flipped" in err
+
+
+def test_geodesic_time_limit_is_one_note(ell_dir, tmp_path, capsys):
+    """A --method geodesic run stopped by --max-time printed its note twice, once as the
+    solver's warning ("geodesic_interpolation: not converged: ...") and once as the
+    pipeline's message ("geodesic: not converged: ..."); once now, exit 1, report "limit"."""
+    out = tmp_path / "g"
+    rc = main(["interpolate", *_poses(ell_dir), "--frames", str(ell_dir / "frames.txt"),
+               "--method", "geodesic", "--max-time", "1e-9", "--eta", "0.1", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    notes = [ln for ln in err.splitlines() if ln.startswith("  note: ") and "time limit" in ln]
+    assert len(notes) == 1, notes
+    assert "geodesic: NOT converged" in err
+    rec = json.loads((out / "report.json").read_text())["geodesic"]
+    assert rec["status"] == "limit" and rec["time_limit_reached"]
+
+
+def test_fps_that_the_output_format_does_not_use_is_a_note(ell_dir, tmp_path, capsys):
+    """``--fps 30 --format obj`` (or ply, pc2) ran without a word, and nothing in OUT keeps
+    the rate: OBJ/PLY frames carry no time and a PC2 cache counts it in frames. A note says
+    so; GLB, MDD and USD use it silently, and no --fps, no note."""
+    base = ["interpolate", *_poses(ell_dir), "--method", "linear", "--K", "4"]
+    for fmt, said in (("obj", "writes one file per frame, with no time"),
+                      ("pc2", "counts time in frames")):
+        assert main([*base, "--fps", "30", "--format", fmt, "-o", str(tmp_path / fmt)]) == 0
+        notes = [ln for ln in capsys.readouterr().err.splitlines() if "note:" in ln]
+        assert notes == [f"  note: --fps 30 is not applied: --format {fmt} {said}"
+                         + ("" if fmt == "obj" else " (start frame 0, one sample per frame)")]
+    for args in (["--fps", "30", "--format", "mdd"], ["--format", "obj"]):
+        out = tmp_path / "_".join(a.strip("-") for a in args)
+        assert main([*base, *args, "-o", str(out)]) == 0
+        assert "note:" not in capsys.readouterr().err
+    times = np.frombuffer((tmp_path / "fps_30_format_mdd" / "animation.mdd").read_bytes(),
+                          ">f4", count=5, offset=8)
+    np.testing.assert_allclose(times, np.arange(5) / 30, rtol=1e-6)

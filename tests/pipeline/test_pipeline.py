@@ -1,4 +1,6 @@
 """End-to-end properties of shellspline.interpolate on synthetic and real keyframes."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -758,3 +760,74 @@ def test_geodesic_method_extrapolates_frames_after_the_last_keyframe():
     np.testing.assert_array_equal(res.V[[0, 3]], Vs)
     lta = ss.interpolate((Vs, F), frames=[0, 3], K=5, eta=0.1)
     np.testing.assert_allclose(res.V[4:], lta.V[4:], atol=1e-6)
+
+
+def test_periodic_loop_refuses_a_last_keyframe_that_repeats_the_first(tmp_path, capsys):
+    """Closing a loop as a DCC tool does, the first pose repeated as the last keyframe, ran
+    with ``bc="periodic"`` as a loop one gap longer: frame K (frame 0 again) came a gap after
+    the repeated pose, and the frames between wandered off that pose and back (horse, frames
+    0/6/12/18: up to 0.1 of its 1.4 diagonal). Refused, saying what to give instead; the loop
+    it asks for runs, and an explicit K keeps the repeated pose as an interior keyframe."""
+    V0, F = icosphere(1)
+    V1, V2 = V0 * np.array([1.3, 1.0, 0.8]), V0 * np.array([0.9, 1.2, 1.0])
+    Vs = np.stack([V0, V1, V2, V0.copy()])
+    with pytest.raises(ss.ShellsplineError, match=r"repeats the first.*K=12.*K=9"):
+        ss.interpolate((Vs, F), frames=[0, 3, 6, 9], bc="periodic", method="linear")
+    closed = ss.interpolate((Vs[:3], F), frames=[0, 3, 6], K=9, bc="periodic",
+                            method="linear")
+    assert np.array_equal(closed.V[9], V0) and closed.V.shape[0] == 10
+    held = ss.interpolate((Vs, F), frames=[0, 3, 6, 9], K=12, bc="periodic", method="linear")
+    assert held.V.shape[0] == 13
+    # files: the message names the repeated file; the CLI exits 2 and writes nothing
+    from shellspline.cli.main import main
+
+    paths = []
+    for j, V in enumerate(Vs):
+        paths.append(str(tmp_path / f"p{j}.obj"))
+        Path(paths[-1]).write_text("".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in V)
+                                   + "".join(f"f {a} {b} {c}\n" for a, b, c in F + 1))
+    rc = main(["interpolate", *paths, "--frames", "0,3,6,9", "--bc", "periodic",
+               "--method", "linear", "-q", "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and not (tmp_path / "out").exists()
+    assert len(err) == 1 and "p3.obj" in err[0] and "repeats the first" in err[0], err
+
+
+def test_a_keyframe_in_other_units_is_noted():
+    """A keyframe exported in centimetres among metre keyframes (100 times the size) ran
+    without a word: the in-betweens grew 100 times and shrank back, thousands of flipped
+    faces (horse, --coarse 1000: 2413). A note names it; poses of one size get none."""
+    V0, F = icosphere(1)
+    c, s = np.cos(0.5), np.sin(0.5)
+    turned = V0 @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]).T
+    Vs = np.stack([V0, 100 * turned, V0])
+    events = []
+    ss.interpolate((Vs, F), frames=[0, 3, 6], method="linear", progress=events.append)
+    notes = [e["text"] for e in events if e.get("kind") == "message"]
+    assert any("keyframe 1 is 100 times the size of keyframe 0" in t and "units" in t
+               for t in notes), notes
+    events.clear()
+    ss.interpolate((Vs[[0, 2]] * [[[1.0]], [[1.5]]], F), frames=[0, 3], method="linear",
+                   progress=events.append)
+    assert not [e for e in events if e.get("kind") == "message"]
+    events.clear()
+    ss.interpolate((np.stack([V0, V0 / 100]), F), frames=[0, 3], method="linear",
+                   progress=events.append)
+    assert any("keyframe 1 is 1/100 of the size of keyframe 0" in e["text"]
+               for e in events if e.get("kind") == "message")
+
+
+@pytest.mark.parametrize("method", ["geodesic", "nonlinear"])
+def test_time_limit_is_a_limit_status_in_the_method_record(method):
+    """``report["geodesic"]`` and ``report["nonlinear"]`` had ``success`` and a message only:
+    a run stopped by ``max_time_s`` could not be told from one that failed or stalled but by
+    parsing the message, while ``reference_geodesic`` says ``status`` "limit" and
+    ``time_limit_reached``. Both records now say it too."""
+    V0, F = icosphere(1)
+    Vs = np.stack([V0, V0 * np.array([1.3, 1.0, 0.8])])
+    res = ss.interpolate((Vs, F), frames=[0, 3], method=method, eta=0.1,
+                         solver_options={"max_time_s": 1e-9})
+    rec = res.report[method]
+    assert not rec["success"] and rec["status"] == "limit" and rec["time_limit_reached"] is True
+    assert "time limit" in rec["message"]
+    np.testing.assert_array_equal(res.V[[0, 3]], Vs)
