@@ -1387,7 +1387,7 @@ _align_motions = align  # the parameters called ``align`` below shadow the funct
 
 
 def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames=None,
-             up=None, heading: str = "align", **kw) -> float:
+             up=None, heading: str = "align", results=None, **kw) -> float:
     """SRV distance of two motions of one skeleton (seed 000 eq. 7).
 
     Parameters
@@ -1402,6 +1402,10 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
     heading : {"align", "keep"}
         As in :func:`align` (default: independent of where and which way each clip was
         recorded).
+    results : list, optional
+        With ``align="dp"``, the two alignments' :class:`~shellspline.curves.align.
+        AlignResult` (``b`` onto ``a``, then ``a`` onto ``b``) are appended to it: their
+        ``status`` and ``success`` tell whether each refinement converged.
 
     Returns
     -------
@@ -1417,14 +1421,15 @@ def distance(a: Motion, b: Motion, *, align: str = "dp", features=None, n_frames
         cols, rots = _varying(ca.X, cb.X), _turning(ca.R, cb.R)
         return srv_distance(_product_curve(ca, H, cols=cols, rots=rots),
                             _product_curve(cb, H, cols=cols, rots=rots))
-    d1 = _align_motions(a, b, features=features, n_frames=n_frames, up=up, heading=heading,
-                        **kw).distance_after
+    r1 = _align_motions(a, b, features=features, n_frames=n_frames, up=up, heading=heading,
+                        **kw)
     F = _features(features, a, b, up)
     F2 = None if F is None else F[:, ::-1] * [(b.n_frames - 1) * b.frame_time,
                                               (a.n_frames - 1) * a.frame_time]
-    d2 = _align_motions(b, a, features=F2, n_frames=n_frames, up=up, heading=heading,
-                        **kw).distance_after
-    return 0.5 * (d1 + d2)
+    r2 = _align_motions(b, a, features=F2, n_frames=n_frames, up=up, heading=heading, **kw)
+    if results is not None:
+        results.extend([r1.result, r2.result])
+    return 0.5 * (r1.distance_after + r2.distance_after)
 
 
 def _blend_weight(s) -> float:
@@ -2273,11 +2278,12 @@ def mesh_on_source(Vs, kf, times) -> np.ndarray:
     return out
 
 
-def mesh_distance(Vs0, Vs1, F, *, align: str = "dp", **kw) -> float:
+def mesh_distance(Vs0, Vs1, F, *, align: str = "dp", results=None, **kw) -> float:
     """SRV distance of two animations of one mesh in LΘA space (weights at the first frame of
     ``Vs0``, the same for both directions): ``"none"`` on one normalised grid (``Vs1``'s
     descriptor curve resampled linearly to ``Vs0``'s frames), ``"dp"`` the mean of the
-    aligned distances both ways (symmetric)."""
+    aligned distances both ways (symmetric; the two ``AlignResult`` are appended to the list
+    ``results`` when one is given, as by :func:`distance`)."""
     from .curves.align import align as align_curves
     from .curves.srv import reparametrize, srv_distance
 
@@ -2289,8 +2295,10 @@ def mesh_distance(Vs0, Vs1, F, *, align: str = "dp", **kw) -> float:
         return srv_distance(p0, reparametrize(p1, p0.t, p0.t))
 
     def aligned(x, y):
-        phi = np.clip(align_curves(x, y, **kw).phi, 0.0, 1.0)
-        return srv_distance(x, reparametrize(y, phi, x.t))
+        r = align_curves(x, y, **kw)
+        if results is not None:
+            results.append(r)
+        return srv_distance(x, reparametrize(y, np.clip(r.phi, 0.0, 1.0), x.t))
     return 0.5 * (aligned(p0, p1) + aligned(p1, p0))
 
 
@@ -2518,14 +2526,15 @@ def _track_warp(ca, cb, features, kw):
                         _uniform(cb, min(cb.n_frames, TRACK_DP_SAMPLES)), features=feats, **kw)
 
 
-def track_distance(a, b, *, align: str = "dp", length=None, **kw) -> float:
+def track_distance(a, b, *, align: str = "dp", length=None, results=None, **kw) -> float:
     """SRV distance of two pose tracks (normalised time; positions divided by ``length``,
     default :func:`track_length` of both).
 
     Both tracks are resampled to ``max(N_a, N_b)`` evenly spaced times over their own spans
     (at most ``TRACK_DP_SAMPLES``);
     ``align="none"`` compares them on that grid, ``"dp"`` is the mean of the aligned
-    distances both ways. Both are symmetric in ``a`` and ``b``.
+    distances both ways (the two ``AlignResult`` are appended to the list ``results`` when
+    one is given, as by :func:`distance`). Both are symmetric in ``a`` and ``b``.
     """
     from .curves.align import align as align_curves
     from .curves.srv import reparametrize, srv_distance
@@ -2539,8 +2548,10 @@ def track_distance(a, b, *, align: str = "dp", length=None, **kw) -> float:
         return srv_distance(ua, ub.with_times(ua.t))
 
     def aligned(x, y):
-        phi = np.clip(align_curves(x, y, **kw).phi, y.t[0], y.t[-1])
-        return srv_distance(x, reparametrize(y, phi, x.t))
+        r = align_curves(x, y, **kw)
+        if results is not None:
+            results.append(r)
+        return srv_distance(x, reparametrize(y, np.clip(r.phi, y.t[0], y.t[-1]), x.t))
     return 0.5 * (aligned(ua, ub) + aligned(ub, ua))
 
 

@@ -1127,7 +1127,8 @@ def test_close_does_not_depend_on_a_static_root_pose(zxy, pos):
 @pytest.mark.parametrize("zxy,pos", STAGES)
 def test_distance_align_blend_do_not_depend_on_a_static_root_pose(zxy, pos):
     """Without alignment to rounding; with DP the lattice optimum is the same to rounding,
-    and the refinement (which stops at its iteration limit on these walks) ends within
+    and the refinement (which stopped at its iteration limit on these walks before its
+    tolerance was tied to the sample grid) ends within
     0.5 % of the distance (0.1 % before the heading alignment turned b by its -0.5 degrees
     of travel direction: another rounding-level start of the refinement)."""
     a, b = real(), real("dataset-1_walk_tired_001.bvh")
@@ -1149,6 +1150,33 @@ def test_distance_align_blend_do_not_depend_on_a_static_root_pose(zxy, pos):
     mt, _ = A.blend(at, bt, 0.4, features="contacts")
     P, P_t = forward_kinematics(m)[0], forward_kinematics(mt)[0]
     assert np.abs(P_t - (P @ S.T + s)).max() < 0.01 * A.body_height(m)
+
+
+def test_alignment_of_a_time_warped_copy_converges_to_the_known_warp():
+    """The walk against itself played at the times ``gam``: the warp is ``gam^-1`` (to the
+    resampling's sub-frame error), and the refinement converges (it stopped "stalled" after
+    200 iterations above the DP energy, and at its limit on walk_tired, with a tolerance of
+    1e-9 that the kinked energy never meets)."""
+    a = real()
+    s = np.linspace(0, 1, a.n_frames)
+    gam = s + 0.04 * np.sin(2 * np.pi * s)
+    rep = A.align(a, A.warp_motion(a, gam))
+    assert rep.result.status == "converged" and rep.result.success
+    assert np.abs(rep.phi - np.interp(s, gam, s)).max() * (a.n_frames - 1) <= 1.0
+    for name in ("dataset-1_walk_tired_001.bvh", "dataset-1_walk_happy_001.bvh"):
+        r = A.align(a, real(name)).result
+        assert r.status == "converged" and r.energy < r.energy_dp
+    res = []
+    A.distance(a, real("dataset-1_walk_tired_001.bvh"), results=res)
+    assert [r.status for r in res] == ["converged", "converged"]
+
+
+def test_alignment_stopped_at_its_iteration_limit_says_so():
+    r = A.align(real(), real("dataset-1_walk_tired_001.bvh"), max_iter=5).result
+    assert r.status == "limit" and not r.success and r.iterations == 5
+    assert "iteration limit (5)" in r.message
+    with pytest.raises(ShellsplineError, match="max_iter must be an integer >= 1"):
+        A.align(real(), real(), max_iter=0)
 
 
 def test_up_override_is_a_world_axis_turned_into_the_stage():

@@ -99,6 +99,11 @@ def add_parsers(sub) -> None:
                             "pose tracks: in the files' times, EuRoC nanoseconds)")
         weight(q)
 
+    def iterations(q):
+        q.add_argument("--iterations", type=int, default=None, metavar="N",
+                       help="iteration limit of the warp's refinement (default max(5000, 4 x "
+                            "frames)); stopping there is reported, exit status 1")
+
     def weight(q):
         q.add_argument("--feature-weight", type=float, default=None, metavar="LAM",
                        help="weight of the feature term lam * sum (phi(a_i) - b_i)^2 in "
@@ -110,6 +115,7 @@ def add_parsers(sub) -> None:
                                   "symmetric shape distance with --align dp).")
     common(q)
     aligning(q)
+    iterations(q)
     q.set_defaults(func=_distance)
 
     q = ms.add_parser("align", help="write the time warp aligning B to A",
@@ -121,6 +127,7 @@ def add_parsers(sub) -> None:
                    help="feature points: contacts, none, or a CSV of time pairs (seconds; "
                         "pose tracks: in the files' times, EuRoC nanoseconds)")
     weight(q)
+    iterations(q)
     q.set_defaults(func=_align)
 
     q = ms.add_parser("blend", help="blend two clips into a new BVH",
@@ -463,6 +470,25 @@ def _feature_kw(args) -> dict:
     return {"lam": float(w)}
 
 
+def _solver_kw(args) -> dict:
+    """``{"max_iter": n}`` from ``--iterations`` (validated), or ``{}``."""
+    n = getattr(args, "iterations", None)
+    if n is None:
+        return {}
+    if n < 1:
+        raise ShellsplineError(f"--iterations must be >= 1, got {n}")
+    if getattr(args, "align", "dp") != "dp":
+        raise ShellsplineError("--iterations needs --align dp")
+    return {"max_iter": n}
+
+
+def _alignment_status(results) -> str:
+    """One status for the alignments of a distance: the first that did not succeed, else
+    ``"converged"`` (``"dp"`` without refinement)."""
+    return next((r.status for r in results if not r.success),
+                results[0].status if results else "converged")
+
+
 def _feature_file_name(args):
     """The ``--features`` CSV file (an input), or None for ``contacts``/``none``."""
     spec = getattr(args, "features", None)
@@ -562,36 +588,58 @@ def _distance(args) -> int:
 
     _check_outputs(args)
     fkw = _feature_kw(args)
+    fkw.update(_solver_kw(args))
     say = _say(args)
     a, b = _read_pair(args)
     length = _track_options(args, a)
+    results = []  # the alignments' results (--align dp)
     if _is_track(a):
         from ..animation import track_distance, track_length
 
         if args.features not in (None, "none"):
             raise ShellsplineError("--features: BVH clips only for distance")
         L = track_length(a, b) if length is None else length
-        d = track_distance(a, b, align=args.align, length=L)
+        d = track_distance(a, b, align=args.align, length=L, results=results, **fkw)
         print(f"{d:.9g}")
         say(f"  distance    SRV in SO(3) x R^3, align {args.align}, position scale {L:.6g} "
-            f"units/rad: {d:.6g}")
-        return EXIT_OK
+            f"units/rad: {d:.6g}{_distance_status(results)}")
+        return _distance_exit(results, say)
     if _is_mesh(a):
         from ..animation import mesh_distance
 
         if args.features not in (None, "none"):
             raise ShellsplineError("--features: BVH clips only")
-        d = mesh_distance(a.V, b.V, a.F, align=args.align)
+        d = mesh_distance(a.V, b.V, a.F, align=args.align, results=results, **fkw)
         print(f"{d:.9g}")
-        say(f"  distance    SRV of the LΘA curves, align {args.align}: {d:.6g}")
-        return EXIT_OK
+        say(f"  distance    SRV of the LΘA curves, align {args.align}: {d:.6g}"
+            f"{_distance_status(results)}")
+        return _distance_exit(results, say)
     with _clips_named(args):
         d = distance(a, b, align=args.align, features=_read_features(args, a, b), up=args.up,
-                     heading=args.heading or "align", **fkw)
+                     heading=args.heading or "align", results=results, **fkw)
     print(f"{d:.9g}")
-    say(f"  distance    SRV, align {args.align}, features {args.features}: {d:.6g}")
+    say(f"  distance    SRV, align {args.align}, features {args.features}: {d:.6g}"
+        f"{_distance_status(results)}")
     if args.render or args.plot:
         _pictures(args, [a, b], say)
+    return _distance_exit(results, say)
+
+
+def _distance_status(results) -> str:
+    """`` (status, N iterations)`` of a distance's alignments for the summary, or ``""``."""
+    if not results:
+        return ""
+    return (f" ({_alignment_status(results)}, "
+            f"{'+'.join(str(r.iterations) for r in results)} refinement iterations)")
+
+
+def _distance_exit(results, say) -> int:
+    """Exit status of a distance: 1 (with a warning) when an alignment did not converge."""
+    bad = [r for r in results if not r.success]
+    if bad:
+        say(f"  warning: the time alignment did not converge ({bad[0].status}: "
+            f"{bad[0].message}); the distance is an upper bound")
+        return EXIT_WARN
     return EXIT_OK
 
 
@@ -601,6 +649,7 @@ def _align(args) -> int:
 
     _check_outputs(args, args.out)
     fkw = _feature_kw(args)
+    fkw.update(_solver_kw(args))
     say = _say(args)
     a, b = _read_pair(args)
     length = _track_options(args, a)
@@ -611,19 +660,19 @@ def _align(args) -> int:
 
         if args.features not in (None, "none"):
             raise ShellsplineError("--features: BVH clips only")
-        r = mesh_align(a.V, b.V, a.F)
+        r = mesh_align(a.V, b.V, a.F, **fkw)
         rows = np.stack([r.t * (a.J - 1), r.phi * (b.J - 1)], axis=1)
         lines = ["frame_a,frame_b"] + [f"{x!r},{y!r}" for x, y in rows.tolist()]
         write_text_atomic(args.out, "\n".join(lines) + "\n")
         say(f"  align       {a.J} frames: energy {r.energy_identity:.4g} -> {r.energy:.4g} "
-            f"({r.status}: {r.message})")
+            f"({r.status} in {r.iterations} iterations: {r.message})")
         say(f"  wrote       {args.out}")
         if args.plot:
             from ..motion_viz import plot_motion
 
             plot_motion(args.plot, warp=(r.t, r.phi))
             say(f"  plot        {args.plot}")
-        return EXIT_OK
+        return _status(r, say)
     with _clips_named(args):
         rep = align(a, b, features=_read_features(args, a, b), up=args.up,
                     heading=args.heading or "align", **fkw)
@@ -631,8 +680,8 @@ def _align(args) -> int:
     write_text_atomic(args.out, "\n".join(lines) + "\n")
     nf = 0 if rep.features is None else rep.features.shape[0]
     say(f"  align       {rep.t.size} frames, {nf} feature pairs: SRV distance "
-        f"{rep.distance_before:.4g} -> {rep.distance_after:.4g} ({rep.result.status}: "
-        f"{rep.result.message})")
+        f"{rep.distance_before:.4g} -> {rep.distance_after:.4g} ({rep.result.status} in "
+        f"{rep.result.iterations} iterations: {rep.result.message})")
     say(f"  wrote       {args.out}")
     if args.render or args.plot:
         from ..animation import common_grid, warp_motion
@@ -677,7 +726,8 @@ def _align_tracks(args, a, b, length, fkw, say) -> int:
                                                             _file_times(b, r.phi))]
     write_text_atomic(args.out, "\n".join(lines) + "\n")
     say(f"  align       {r.t.size} poses (evenly resampled): energy {r.energy_identity:.4g} "
-        f"-> {r.energy:.4g}, SRV distance {r.distance:.4g} ({r.status}: {r.message})")
+        f"-> {r.energy:.4g}, SRV distance {r.distance:.4g} ({r.status} in {r.iterations} "
+        f"iterations: {r.message})")
     say(f"  wrote       {args.out}")
     if args.plot:
         from ..motion_viz import plot_motion
@@ -689,9 +739,13 @@ def _align_tracks(args, a, b, length, fkw, say) -> int:
 
 
 def _status(result, say) -> int:
+    """Exit status of a solve: 1 (with a warning naming its status) when it did not
+    succeed, else 0."""
     ok = getattr(result, "success", True)
     if not ok:
-        say(f"  warning: {getattr(result, 'message', 'the solver did not converge')}")
+        status = getattr(result, "status", None)
+        say("  warning: " + ("" if status is None else f"did not converge ({status}): ")
+            + getattr(result, "message", "the solver did not converge"))
         return EXIT_WARN
     return EXIT_OK
 

@@ -67,6 +67,26 @@ def test_align_writes_the_warp(capsys, tmp_path):
         assert code == 2 and "--feature-weight" in err
 
 
+def test_align_and_distance_exit_status_says_whether_the_refinement_converged(capsys,
+                                                                              tmp_path):
+    """Exit 0 and "converged" when the warp's refinement met its tolerance; exit 1 and
+    "limit" when it stopped at --iterations (it exited 0 whatever the refinement did)."""
+    out = tmp_path / "warp.csv"
+    a, b = walk(), walk("dataset-1_walk_tired_001.bvh")
+    code, _, err = run(capsys, "align", a, b, "-o", out)
+    assert code == 0 and "(converged in " in err and "warning" not in err
+    code, _, err = run(capsys, "align", a, b, "-o", out, "--overwrite", "--iterations", "5")
+    assert code == 1 and "(limit in 5 iterations" in err and "warning: did not converge" in err
+    assert np.loadtxt(out, delimiter=",", skiprows=1).shape[1] == 2  # the warp is written
+    code, d, err = run(capsys, "distance", a, b)
+    assert code == 0 and "(converged, " in err and float(d) > 0
+    code, d, err = run(capsys, "distance", a, b, "--iterations", "3")
+    assert code == 1 and "(limit, 3+3 refinement iterations)" in err and float(d) > 0
+    for bad in (["--iterations", "0"], ["--iterations", "3", "--align", "none"]):
+        code, _, err = run(capsys, "distance", a, b, *bad)
+        assert code == 2 and "--iterations" in err
+
+
 def test_blend_writes_a_bvh_that_reads_back(capsys, tmp_path):
     out = tmp_path / "blend.bvh"
     code, _, err = run(capsys, "blend", walk(), walk("dataset-1_walk_happy_001.bvh"),
