@@ -16,6 +16,7 @@ its window's frames with a forked worker instead (:meth:`~.bridge.SeamBridge.sol
 """
 from __future__ import annotations
 
+import mmap
 import time
 
 import numpy as np
@@ -29,6 +30,7 @@ __all__ = ["reconstruct_frames", "run_reconstruction", "reconstruction_runs", "c
            "solve_run", "parallel_decode", "safe_init", "single_blas_thread", "seam_jump",
            "seam_records", "bridge_seams", "bridge_kept", "SERIAL_RECONSTRUCT_WORK",
            "SERIAL_DECODE_WORK", "SPLIT_BRIDGE_WORK", "CONTINUE_MARGIN", "SEAM_POP", "SEAM_DETECT",
+           "SEAM_ROUNDOFF",
            "POP_DEFECTS"]
 
 #: Below this many vertex-frames the Gauss–Newton reconstruction runs in this process even
@@ -73,7 +75,7 @@ def _worker_init(F, n, pinned, gn_options):
 
 
 def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
-               worse_than=None, tubes=None):
+               worse_than=None, tubes=None, gate=None):
     """Reconstruct a run of consecutive frames, in the run's order (see :func:`reconstruction_runs`).
 
     ``Vanchor`` is the keyframe next to the run's first frame, or a pair of solved frames
@@ -92,6 +94,13 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
 
     ``tubes`` (one ``(i,)`` array or None per frame): the frames' tube weights
     (:meth:`~shellspline.shells.reconstruct.GaussNewton.solve`).
+
+    ``gate`` (a speculative continuation, see :class:`GapContinuations`): called before each
+    frame, returns ``(state, energies)``: :data:`GATE_WAIT` (energies not known yet: go on),
+    :data:`GATE_ABORT` (stop), or :data:`GATE_GO` with the energies to beat, which then act as
+    ``worse_than`` from the first frame on (frames already solved that do not beat theirs
+    are dropped with all after them): the frames returned are those of the same run given
+    ``worse_than`` from the start.
     """
     out = []
     gn.reset()  # a run's result does not depend on which runs this solver did before, so
@@ -102,6 +111,16 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
     else:
         prev2, prev, prev_init = None, Vanchor, Vanchor
     for i, (k, z, w, v) in enumerate(zip(ks, Zs, Ws, Vinit)):
+        if gate is not None:
+            state, energies = gate()
+            if state == GATE_ABORT:
+                break
+            if state == GATE_GO:
+                worse_than, gate = energies, None
+                cut = beaten_prefix(out, worse_than)
+                if cut < len(out):
+                    del out[cut:]
+                    break
         t0 = time.perf_counter()
         v0 = v
         tube = None if tubes is None else tubes[i]
@@ -120,6 +139,21 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
         if on_frame is not None:
             on_frame(i + 1, rec)
     return out
+
+
+#: States of a speculative continuation's gate (see :func:`solve_run`): the energies to beat
+#: are not known yet; known (go on while beating them); the other run of the gap won (stop).
+GATE_WAIT, GATE_GO, GATE_ABORT = 0, 1, 2
+
+
+def beaten_prefix(solved, worse_than) -> int:
+    """How many of the solved frames ``[(k, V, record), ...]`` of a continuation beat the
+    energies ``worse_than`` of the first pass, in order (the frames a run given
+    ``worse_than`` keeps: it stops at the first that does not)."""
+    for i, (_, _, rec) in enumerate(solved):
+        if not rec["energy_final"] < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
+            return i
+    return len(solved)
 
 
 #: Gauss–Newton iterations a frame stopped at its limit while still converging steadily may
@@ -324,15 +358,24 @@ def continued_runs(runs, results, Vinit):
         rf, af = fwd[m]
         ef = results[m][1]["energy_final"]
         eb = results[int(r[-1])][1]["energy_final"]
-        if ef <= eb:   # continue the forward run into the backward half
-            frames_, seq, anchor_ = r[::-1], rf, af
-        else:          # continue the backward run into the forward half
-            frames_, seq, anchor_ = rf[::-1], r, a
-        V1 = results[int(seq[-1])][0]
-        V2 = results[int(seq[-2])][0] if len(seq) >= 2 else Vinit[anchor_]
-        tasks.append((frames_, (V2, V1),
+        frames_, anchor_ = continuation(((rf, af), (r, a)), ef <= eb, results, Vinit)
+        tasks.append((frames_, anchor_,
                       np.array([results[int(k)][1]["energy_final"] for k in frames_])))
     return tasks
+
+
+def continuation(gap, forward: bool, results, Vinit):
+    """The frames and anchor of the run continuing one run of a keyframe ``gap`` (its
+    forward and backward runs) into the other half: the forward run's (``forward``) or the
+    backward run's, solved in ``results``. Returns ``(frames, (V[k∓2], V[k∓1]))``."""
+    (rf, af), (rb, ab) = gap
+    if forward:    # continue the forward run into the backward half
+        frames_, seq, anchor_ = rb[::-1], rf, af
+    else:          # continue the backward run into the forward half
+        frames_, seq, anchor_ = rf[::-1], rb, ab
+    V1 = results[int(seq[-1])][0]
+    V2 = results[int(seq[-2])][0] if len(seq) >= 2 else Vinit[anchor_]
+    return frames_, (V2, V1)
 
 
 class GapContinuations:
@@ -370,10 +413,14 @@ class GapContinuations:
         self._finished = []     # gaps whose continuation is solved, not yet looked at
         self.bridge = bridge    # (K, half, gn_options): bridge finished gaps on the pool
         self.bridged = {}       # seam frame -> (s, a, b, BridgeResult, before, after)
+        self.gate = None        # (state (g,), energies (g, L)) shared with the workers
+        self._spec = {}         # gap -> its speculative continuation (see speculate)
 
     def ready(self, results) -> list:
         """The continuation runs of the gaps whose runs are all in ``results`` (each gap
-        once), as :func:`run_reconstruction` takes runs."""
+        once), as :func:`run_reconstruction` takes runs. A gap whose continuation is
+        already being solved speculatively in the same direction gets none: its gate is
+        opened with the energies to beat instead (see :meth:`speculate`)."""
         out = []
         for i, gap in enumerate(self.gaps):
             if i in self._started or not all(int(k) in results for r, _ in gap for k in r):
@@ -385,8 +432,57 @@ class GapContinuations:
                 self._gap_of[key] = i
                 self._running[i] = self._running.get(i, 0) + 1
                 self._total += len(task[0])
-                out.append(task)
+                spec = self._spec.get(i)
+                if spec is not None and spec["key"] == key:
+                    state, energies = self.gate
+                    energies[i, :len(key)] = task[2]
+                    state[i] = GATE_GO  # after the energies: the worker reads them next
+                    spec["worse_than"] = task[2]
+                else:
+                    if spec is not None:
+                        self.gate[0][i] = GATE_ABORT
+                    out.append(task)
         return out
+
+    def speculate(self, results, slots: int) -> list:
+        """Speculative continuations for up to ``slots`` idle workers: a gap with one run
+        solved and the other still going is continued from the solved run into the other
+        half at once, before it is known which of the two runs is better (the run at the
+        gap's middle with the lower energy, :func:`continued_runs`) or which energies its
+        frames must beat. The worker reads both, once known, through the shared ``gate``
+        between frames (:func:`solve_run`): the same direction keeps the frames a
+        continuation given the energies from the start keeps, the other direction stops
+        it. Horse, three keyframes: the second gap's continuation (frame 31, 29 iterations)
+        ran 5 s after its runs, with one worker idle for those 5 s before."""
+        out = []
+        if self.gate is None or slots <= 0:
+            return out
+        for i, gap in enumerate(self.gaps):
+            if len(out) >= slots:
+                break
+            if i in self._started or i in self._spec:
+                continue
+            done = [all(int(k) in results for k in r) for r, _ in gap]
+            if done[0] == done[1]:
+                continue
+            frames_, anchor = continuation(gap, done[0], results, self.Vinit)
+            self._spec[i] = {"key": tuple(int(k) for k in frames_), "out": None}
+            out.append(("speculate", i, frames_, anchor))
+        return out
+
+    def speculated(self, i, solved) -> None:
+        """Keep the frames a speculative continuation of gap ``i`` returned."""
+        self._spec[i]["out"] = solved
+
+    def settle(self, progress) -> None:
+        """Record the speculative continuations that are back and whose direction won, cut
+        to the frames that beat the first pass (:func:`beaten_prefix`)."""
+        for i, spec in self._spec.items():
+            if spec["out"] is not None and "worse_than" in spec and not spec.get("done"):
+                spec["done"] = True
+                solved = spec["out"]
+                self.record(solved[:beaten_prefix(solved, spec["worse_than"])], progress,
+                            spec["key"])
 
     def record(self, solved, progress, key=None) -> None:
         """Keep the frames ``[(k, V, record), ...]`` of a continuation run (``key``: the
@@ -485,6 +581,22 @@ def _worker_solve(task):
                           [Vinit[k] for k in ks], _anchor(anchor, Vinit), warm,
                           worse_than=worse, tubes=_tubes(tube_of, ks))
     return solve_run(_WORKER["gn"], *task)
+
+
+def _worker_speculate(task):
+    """A speculative continuation on a forked worker (:meth:`GapContinuations.speculate`):
+    the run's frames, read from the shared gate of its gap between frames."""
+    _, i, ks, anchor = task
+    Z, W_of, Vinit, warm, tube_of = _WORKER["frame_data"]
+    state, energies = _WORKER["gate"]
+
+    def gate():
+        st = int(state[i])
+        return st, (energies[i, :len(ks)].copy() if st == GATE_GO else None)
+
+    return solve_run(_WORKER["gn"], ks, [Z[k] for k in ks], [W_of(k) for k in ks],
+                     [Vinit[k] for k in ks], anchor, warm, tubes=_tubes(tube_of, ks),
+                     gate=gate)
 
 
 def _worker_bridge(task):
@@ -589,6 +701,14 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
         gn.prepare(Vinit[ks[0]])  # and the fill-reducing order (large meshes), also inherited
         _WORKER["gn"] = gn
         _WORKER["frame_data"] = (Z, W_of, Vinit, warm, tube_of)
+        if follow is not None and follow.gaps:
+            # the gates of speculative continuations: memory shared with the forked workers
+            ng, longest = len(follow.gaps), max(len(r) for r, *_ in runs)
+            buf = mmap.mmap(-1, 8 * ng * (1 + longest))
+            follow.gate = _WORKER["gate"] = (
+                np.frombuffer(buf, dtype=np.int64, count=ng),
+                np.frombuffer(buf, dtype=np.float64, count=ng * longest, offset=8 * ng)
+                .reshape(ng, longest))
     done = 0
 
     def submit(ex, c, a, w):
@@ -612,6 +732,8 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                         kind, key = extra.pop(fut)
                         if kind == "bridge":
                             follow.record_bridge(out)
+                        elif kind == "speculate":
+                            follow.speculated(key, out)
                         else:
                             follow.record(out, progress, key)
                         continue
@@ -624,6 +746,13 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                         fut = submit(ex, *r)
                         extra[fut] = ("continue", tuple(int(k) for k in r[0]))
                         pending.add(fut)
+                    follow.settle(progress)
+                    # an idle worker starts a gap's continuation before the gap's other
+                    # run is done
+                    for task in follow.speculate(results, workers - len(pending)):
+                        fut = ex.submit(_worker_speculate, task)
+                        extra[fut] = ("speculate", task[1])
+                        pending.add(fut)
                     # a finished gap's bridge while other work is still on the pool (the
                     # last gap's is bridged after it, split over the workers)
                     if method == "fork" and pending:
@@ -634,6 +763,9 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
     finally:
         _WORKER.pop("gn", None)
         _WORKER.pop("frame_data", None)
+        _WORKER.pop("gate", None)
+        if follow is not None:
+            follow.gate = None
     return results
 
 
@@ -922,6 +1054,13 @@ SEAM_POP = 1.5
 SEAM_DETECT = 1.25
 
 
+#: A step across a seam below this fraction of the frame's bounding-box diagonal is
+#: round-off, not a jump (:func:`seam_jump`): identical keyframes aligned rigidly differ by
+#: ~1e-16, and the ratio of such steps bridged a "seam" whose joint solve could only reach
+#: its iteration limit (frames reported unconverged, exit 1).
+SEAM_ROUNDOFF = 1e-10
+
+
 def seam_jump(V_before2, V_before, V_after, V_after2, pinned=None) -> float:
     """The step across a seam over the typical step next to it.
 
@@ -949,7 +1088,11 @@ def seam_jump(V_before2, V_before, V_after, V_after2, pinned=None) -> float:
 
     typical = 0.5 * (step(V_before2, V_before) + step(V_after2, V_after))
     jump = step(V_after, V_before)
-    return jump / typical if typical > 0 else (np.inf if jump > 0 else 1.0)
+    # steps at round-off (one shape held: keyframes equal up to a rigid motion) are no seam
+    size = float(np.linalg.norm(np.ptp(np.asarray(V_before, dtype=np.float64), axis=0)))
+    if jump <= SEAM_ROUNDOFF * size:
+        return 1.0
+    return jump / typical if typical > 0 else np.inf
 
 
 def seam_records(runs, results, Vinit, pinned=None) -> list:

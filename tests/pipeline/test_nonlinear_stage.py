@@ -100,3 +100,15 @@ def test_geodesic_from_a_degenerate_start_fails_instead_of_raising():
     with np.errstate(all="ignore"):
         g = discrete_geodesic(Vs[0], Vs[1], 2, ss.topology(F), init=init)
     assert g.status == "failed" and not g.success and "degenerate" in g.message
+
+
+def test_nonlinear_spline_between_one_shape_twice_converges_at_once():
+    """Keyframes that are one shape (a hold, or poses a rigid motion apart once aligned):
+    the spline energy is round-off (~1e-28) and so is its gradient, which no iteration
+    reduces; it ran 500 iterations and reported "maximum number of iterations reached"."""
+    Vs, F = _tet_half_turn()
+    res = ss.interpolate((np.stack([Vs[0], Vs[0]]), F), K=6, method="nonlinear")
+    rec = res.report["nonlinear"]
+    assert rec["success"] and rec["status"] == "converged" and rec["nit"] == 0
+    assert "round-off" in rec["message"]
+    assert np.allclose(res.V, Vs[0], atol=1e-12)

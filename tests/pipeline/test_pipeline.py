@@ -831,3 +831,29 @@ def test_time_limit_is_a_limit_status_in_the_method_record(method):
     assert not rec["success"] and rec["status"] == "limit" and rec["time_limit_reached"] is True
     assert "time limit" in rec["message"]
     np.testing.assert_array_equal(res.V[[0, 3]], Vs)
+
+
+def test_shapes_do_not_depend_on_where_the_keyframes_sit():
+    # shell energies ignore rigid motions, and so does the whole method: the horse with one
+    # keyframe turned by a quarter turn and moved far away gives the same shapes. The
+    # frames' starts came from the blend of the keyframes as given: frames up to 0.10 of the
+    # diagonal apart, 36 flipped faces against 25 (and in place, where horse-03 and 07 sit
+    # 0.4 of the diagonal away from the reference, 25 against 7 now)
+    from conftest import shared_data
+    from shellspline.shells.reconstruct import rigid_placement
+
+    kf = ss.read_keyframes([shared_data("horse", f"horse-{p}.obj")
+                            for p in ("reference", "03", "07")])
+    V = np.array(kf.V, dtype=np.float64)
+    th = np.pi / 2
+    R = np.array([[np.cos(th), 0.0, np.sin(th)], [0.0, 1.0, 0.0],
+                  [-np.sin(th), 0.0, np.cos(th)]])
+    moved = V.copy()
+    moved[1] = V[1] @ R.T + np.array([54.0, 3.0, -7.0])
+    runs = [ss.interpolate((X, kf.F), frames=[0, 6, 12], coarse=1000, workers=2)
+            for X in (V, moved)]
+    assert np.array_equal(runs[1].V[[0, 6, 12]], moved)          # keyframes as given
+    diag = np.linalg.norm(V[0].max(axis=0) - V[0].min(axis=0))
+    for a, b in zip(runs[0].V, runs[1].V):
+        assert np.abs(rigid_placement(b, a) - a).max() < 1e-5 * diag
+    assert runs[1].report["keyframe_alignment"]["max_shift"] > 1.0

@@ -231,3 +231,81 @@ def test_seams_bridged_on_the_pool_as_their_gaps_finish_change_no_frame(monkeypa
     drop = ("seconds",)
     assert [{k: v for k, v in f.items() if k not in drop} for f in early.report["frames"]] == \
         [{k: v for k, v in f.items() if k not in drop} for f in late.report["frames"]]
+
+
+def test_speculative_continuations_change_no_frame(monkeypatch):
+    """An idle worker starts a gap's continuation from the run that is solved before the
+    gap's other run is (GapContinuations.speculate); the energies to beat reach it through
+    shared memory once known, or it is stopped when the other direction wins. The frames and
+    records are those of continuations started after both runs, bit for bit."""
+    import shellspline as ss
+    from data_synth import stress
+
+    monkeypatch.setattr(R, "SERIAL_RECONSTRUCT_WORK", 0)  # this small case: use the pool
+    d = stress.joint(angles=(0.0, 150.0), frames=(0, 20))
+    specs = []
+    settle = R.GapContinuations.settle
+
+    def spy(self, progress):
+        settle(self, progress)
+        specs.append({i: dict(v) for i, v in self._spec.items()})
+
+    monkeypatch.setattr(R.GapContinuations, "settle", spy)
+
+    def run():
+        return ss.interpolate((d["V"], d["F"]), frames=d["frames"], pinned=d["pinned"],
+                              coarse="none", workers=2)
+
+    fast = run()
+    final = specs[-1] if specs else {}
+    used = [i for i, v in final.items() if v.get("done")]
+    monkeypatch.setattr(R.GapContinuations, "speculate", lambda self, *a: [])
+    plain = run()
+    assert final  # the pair's first run to finish left a worker idle: it speculated
+    assert np.array_equal(fast.V, plain.V)
+    drop = ("seconds",)
+    assert [{k: v for k, v in f.items() if k not in drop} for f in fast.report["frames"]] == \
+        [{k: v for k, v in f.items() if k not in drop} for f in plain.report["frames"]]
+
+
+def test_gated_run_keeps_what_the_run_given_its_energies_keeps():
+    """solve_run with a gate: energies not known for the first frames, then known (GO): the
+    frames kept are those of the same run given worse_than from the start, also where
+    frames already solved must be dropped; ABORT stops it."""
+    import shellspline as ss
+    from data_synth import stress
+    from shellspline.shells.descriptors import lta_descriptors, lta_weights
+    from shellspline.shells.reconstruct import GaussNewton
+
+    d = stress.joint(angles=(0.0, 90.0), frames=(0, 8), rings=8, segments=8)
+    V0, V1 = d["V"]
+    T = ss.topology(d["F"])
+    t = np.linspace(0.0, 1.0, 9)[:, None, None]
+    blend = (1 - t) * V0 + t * V1
+    # descriptors blended linearly: not those of a mesh, so every frame has an energy
+    Z = (1 - t[:, :, 0]) * lta_descriptors(V0, T) + t[:, :, 0] * lta_descriptors(V1, T)
+    w = lta_weights(V0, T)
+    gn = GaussNewton(T)
+    ks = np.arange(1, 8)
+
+    def run(**kw):
+        return R.solve_run(gn, ks, Z[ks], [w] * len(ks), blend[ks], V0, "extrapolate", **kw)
+
+    free = run()
+    e = np.array([rec["energy_final"] for _, _, rec in free])
+    assert np.all(e > 0)
+    for keep in (5, 2):   # the gate opens after frame 3: a later cut, and one in the past
+        worse = e * 2.0
+        worse[keep] = e[keep] * 0.5
+        given = run(worse_than=worse)
+        calls = []
+
+        def gate():
+            calls.append(1)
+            return (R.GATE_WAIT, None) if len(calls) <= 3 else (R.GATE_GO, worse)
+
+        gated = run(gate=gate)
+        assert len(given) == keep and [k for k, _, _ in gated] == [k for k, _, _ in given]
+        assert all(np.array_equal(a[1], b[1]) for a, b in zip(gated, given))
+    stopped = run(gate=lambda: (R.GATE_ABORT, None))
+    assert stopped == []

@@ -88,8 +88,11 @@ def test_a_squeezed_face_next_to_a_keyframe_converges_in_few_iterations(monkeypa
     """data_synth.stress.squeezed_face: without the start choice the extrapolated starts after
     the squeezed keyframe push the sliver past its hinge (frame 4: energy 10.4 at the start
     against 0.05 at its predecessor) and two frames reached the 60-iteration limit on an AMD
-    EPYC (121 iterations at a limit of 200); with it every frame converges, and in far fewer
-    iterations than without."""
+    EPYC (121 iterations at a limit of 200); with it every frame converges, in few iterations,
+    and no frame starts past the hinge. (Since the keyframes are aligned rigidly before the
+    solve, the frames that start past the hinge without the choice also recover in time:
+    292 → 106 iterations against 82 with it; the starts themselves are what the choice
+    changes, energy 10.4 against at most 0.1.)"""
     from data_synth import stress
     from shellspline.pipeline import reconstruction
 
@@ -100,5 +103,7 @@ def test_a_squeezed_face_next_to_a_keyframe_converges_in_few_iterations(monkeypa
     assert max(r["nit"] for r in res.report["frames"]) <= 30
     monkeypatch.setattr(reconstruction, "START_PREFERENCE", 0.0)
     old = ss.interpolate((d["V"], d["F"]), frames=d["frames"], eta=0.1,
-                         gn_options={"max_iter": 200}).report["gauss_newton"]
-    assert gn["iterations_total"] < 0.75 * old["iterations_total"]
+                         gn_options={"max_iter": 200}).report
+    assert gn["iterations_total"] < old["gauss_newton"]["iterations_total"]
+    worst = max(r["energy_initial"] for r in res.report["frames"])
+    assert worst < 0.01 * max(r["energy_initial"] for r in old["frames"])

@@ -87,6 +87,26 @@ class NonlinearSplineResult(SolverResult):
     final_phase_iteration: int | None = None
 
 
+#: Energies below this fraction of the problem's energy scale (:func:`energy_scale` times
+#: the spline's ``4 K³``) are round-off: the energy of shells that differ by a rigid motion
+#: only computes to ~1e-28 of it.
+ROUNDOFF = 1e-20
+
+
+def energy_scale(energy, V) -> float:
+    """The shell energy of a unit strain of the shell ``V (n,3)``: ``(μ + λ)`` times its
+    area (membrane terms are ``μ d ρ²`` and ``λ (A − Ã)²/A`` summed over the surface), the
+    parameters of ``energy`` where it has them (else 1)."""
+    T = getattr(energy, "T", None)
+    if T is None:
+        return 1.0
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(T.F)
+    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]],
+                                               V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+    return (float(getattr(energy, "mu", 1.0)) + float(getattr(energy, "lam", 1.0))) * area
+
+
 class StopPolicy:
     """When the nonlinear spline stops, tested after every accepted iterate (and at the start).
 
@@ -124,6 +144,9 @@ class StopPolicy:
             raise ShellsplineError(f"`max_iter` must be a non-negative integer, got "
                                    f"{max_iter!r}")
         self.gtol, self.ftol = float(gtol), float(ftol)
+        #: an energy at or below this is round-off (set by the solver from the problem's
+        #: scale): converged whatever the gradient says
+        self.f_floor = 0.0
         self.max_iter = int(max_iter)
         self.max_time_s = None if max_time_s is None else float(max_time_s)
         self.t0 = None
@@ -146,6 +169,10 @@ class StopPolicy:
     def check(self, result: SolverResult):
         """``(status, message)`` when ``result``'s last iterate stops the run, else None."""
         E, G = result.energies, result.grad_norms
+        if E[-1] <= self.f_floor:
+            # keyframes that differ by rigid motions only: the energy is round-off, and so
+            # is its gradient, which no iteration reduces (500 iterations at 1e-28 before)
+            return "converged", "converged: energy at round-off level"
         if G[-1] <= self.gtol * G[0]:
             return "converged", "converged: gradient norm reduced by gtol"
         if self.ftol > 0 and E.size > FTOL_WINDOW and \
@@ -308,6 +335,7 @@ class NonlinearSplineSolver:
                                                         "finished")
             return self._finish(S0, V0, Vkey, stacklevel)
         g0n = float(np.linalg.norm(g0))
+        stop.f_floor = ROUNDOFF * prob.scale4 * energy_scale(prob.energy, Vkey[0])
         res.record(F0, g0n)
         res.times.append(stop.elapsed())
         if self.callback is not None:
