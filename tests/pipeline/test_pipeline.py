@@ -857,3 +857,24 @@ def test_shapes_do_not_depend_on_where_the_keyframes_sit():
     for a, b in zip(runs[0].V, runs[1].V):
         assert np.abs(rigid_placement(b, a) - a).max() < 1e-5 * diag
     assert runs[1].report["keyframe_alignment"]["max_shift"] > 1.0
+
+
+def test_keyframes_of_a_loop_are_aligned_onto_the_first():
+    # a loop blends its last keyframe with its first: a chain of fits (each keyframe onto
+    # the one before) would carry the turns it picks up from swinging limbs into that gap;
+    # an open sequence chains (a body that turns a corner stays aligned pair by pair)
+    from data_synth import stress
+    from shellspline.pipeline.stages import aligned_keyframes
+    from shellspline.shells.reconstruct import rigid_placement
+
+    d = stress.joint(angles=(0.0, 90.0, 150.0, 60.0), frames=(0, 4, 8, 12), rings=8,
+                     segments=8)
+    V = np.asarray(d["V"], dtype=np.float64)
+    loop, _ = aligned_keyframes(V, d["F"], periodic=True)
+    chain, _ = aligned_keyframes(V, d["F"])
+    for j in range(1, len(V)):
+        np.testing.assert_allclose(loop[j], rigid_placement(V[j], V[0]), atol=1e-12)
+        np.testing.assert_allclose(chain[j], rigid_placement(V[j], chain[j - 1]), atol=1e-12)
+    # the gap that closes the loop: its keyframes sit closer than the chain leaves them
+    gap = [np.abs(X[-1] - X[0]).max() for X in (loop, chain)]
+    assert gap[0] < gap[1]
