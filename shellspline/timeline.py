@@ -23,6 +23,19 @@ MAX_FRAMES = 1_000_000
 """Largest ``K`` accepted (a bound on memory, not on the mathematics)."""
 
 
+_NOT_GIVEN = object()
+
+
+def api_spelling(option: str, value=_NOT_GIVEN) -> str:
+    """How :func:`shellspline.interpolate`'s messages name an option (a backquoted
+    ``transfer``) or a setting (``method='linear'``): the default ``spell`` of the messages
+    that name options (:func:`canonical_frames`,
+    :func:`shellspline.pipeline.options.coarse_target`,
+    :func:`shellspline.pipeline.interpolation.inapplicable_options`), which the CLI and job
+    files replace by their own spelling (``--K``, ``'coarse'``)."""
+    return f"`{option}`" if value is _NOT_GIVEN else f"{option}={value!r}"
+
+
 def canonical_bc(bc) -> str:
     """Return ``bc`` as one of ``'natural'``, ``'periodic'``, ``'hermite'``."""
     if isinstance(bc, str):
@@ -144,7 +157,7 @@ def keyframe_gap(frames, K: int, periodic: bool = False):
     return j0[:-1], j1[:-1]
 
 
-def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
+def canonical_frames(J: int, frames=None, K=None, bc: str = "natural", *, spell=None):
     """Canonical keyframe frames and last frame index ``K`` of a sequence of ``J`` keyframes.
 
     Parameters
@@ -159,6 +172,9 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
     bc : {"natural", "periodic", "hermite"}
         Canonical boundary condition (:func:`canonical_bc`). ``"hermite"`` needs keyframes at
         frames 0, 1, K-1 and K (the poses at 1 and K-1 fix the end velocities).
+    spell : callable(option, value=...) -> str, optional
+        How messages name an option or a setting (the CLI's flags); default
+        :func:`api_spelling` (:func:`shellspline.interpolate`'s keywords).
 
     Returns
     -------
@@ -179,63 +195,68 @@ def canonical_frames(J: int, frames=None, K=None, bc: str = "natural"):
     >>> canonical_frames(3, K=12, bc="periodic")
     (array([0, 4, 8]), 12)
     """
+    o = spell or api_spelling
     periodic = bc == "periodic"
     if frames is None:
         if bc == "hermite":
-            raise ShellsplineError("bc='hermite' needs explicit `frames`: the poses at frames 1 "
-                                   "and K-1 fix the end velocities")
+            raise ShellsplineError(f"{o('bc', 'hermite')} needs explicit {o('frames')}: the "
+                                   "poses at frames 1 and K-1 fix the end velocities")
         if K is None:
             frames = DEFAULT_STEP * np.arange(J)
             K = int(frames[-1] + (DEFAULT_STEP if periodic else 0))
         else:
-            K = _bounded_K(K)
+            K = _bounded_K(K, o)
             if periodic:
                 frames = np.round(np.arange(J) * K / J).astype(np.int64)
             else:
                 frames = np.round(np.linspace(0, K, J)).astype(np.int64)
             if len(np.unique(frames)) != J:
-                raise ShellsplineError(f"`K`={K} is too small for {J} keyframes")
+                raise ShellsplineError(f"{o('K', K)} is too small for {J} keyframes")
     try:
         frames = np.asarray(frames)
     except (TypeError, ValueError):
-        raise ShellsplineError(f"`frames` must be integer frame indices, got {frames!r}") from None
+        raise ShellsplineError(f"{o('frames')} must be integer frame indices, got "
+                               f"{frames!r}") from None
     if frames.dtype == bool or not (np.issubdtype(frames.dtype, np.integer)
                                     or np.issubdtype(frames.dtype, np.floating)):
-        raise ShellsplineError(f"`frames` must be integer frame indices, got "
+        raise ShellsplineError(f"{o('frames')} must be integer frame indices, got "
                                f"{frames.ravel()[:20].tolist()} (dtype {frames.dtype})")
     if frames.ndim != 1 or len(frames) != J:
-        raise ShellsplineError(f"`frames` must have one entry per keyframe ({J}), got "
+        raise ShellsplineError(f"{o('frames')} must have one entry per keyframe ({J}), got "
                                f"{frames.tolist()}")
     if not np.all(np.isfinite(frames)) or not np.all(frames == np.round(frames)):
-        raise ShellsplineError(f"`frames` must be integers, got {frames.tolist()}")
+        raise ShellsplineError(f"{o('frames')} must be integers, got {frames.tolist()}")
     frames = frames.astype(np.int64)
     if np.any(np.diff(frames) <= 0):
-        raise ShellsplineError(f"`frames` must be strictly increasing, got {frames.tolist()}")
+        raise ShellsplineError(f"{o('frames')} must be strictly increasing, got "
+                               f"{frames.tolist()}")
     if frames[0] != 0:
-        raise ShellsplineError(f"`frames` must start at 0, got {frames.tolist()}")
+        raise ShellsplineError(f"{o('frames')} must start at 0, got {frames.tolist()}")
     if K is None:
         K = int(frames[-1] + ((frames[-1] - frames[-2]) if periodic else 0))
-    K = _bounded_K(K)
+    K = _bounded_K(K, o)
     if periodic and frames[-1] >= K:
-        raise ShellsplineError(f"with bc='periodic' the keyframes must lie before `K`={K} (frame K "
-                               f"is frame 0 again), got frames {frames.tolist()}")
+        raise ShellsplineError(f"with {o('bc', 'periodic')} the keyframes must lie before "
+                               f"{o('K', K)} (frame K is frame 0 again), got frames "
+                               f"{frames.tolist()}")
     if frames[-1] > K:
-        raise ShellsplineError(f"`K`={K} is smaller than the last keyframe frame {int(frames[-1])}")
+        raise ShellsplineError(f"{o('K', K)} is smaller than the last keyframe frame "
+                               f"{int(frames[-1])}")
     if bc == "hermite" and (len(frames) < 4 or frames[1] != 1 or frames[-2] != K - 1
                             or frames[-1] != K):
-        raise ShellsplineError("bc='hermite' needs keyframes at frames 0, 1, K-1 and K (the poses "
-                               f"at 1 and K-1 fix the end velocities); got frames "
+        raise ShellsplineError(f"{o('bc', 'hermite')} needs keyframes at frames 0, 1, K-1 and "
+                               "K (the poses at 1 and K-1 fix the end velocities); got frames "
                                f"{frames.tolist()} with K={K}")
     return frames, K
 
 
-def _bounded_K(K) -> int:
+def _bounded_K(K, spell=api_spelling) -> int:
     if isinstance(K, (bool, np.bool_)) or not isinstance(K, numbers.Real) or \
             not np.isfinite(K) or float(K) != int(K):
-        raise ShellsplineError(f"`K` must be an integer (the last frame), got {K!r}")
+        raise ShellsplineError(f"{spell('K')} must be an integer (the last frame), got {K!r}")
     K = int(K)
     if K < 1 or K > MAX_FRAMES:
-        raise ShellsplineError(f"`K` must lie in [1, {MAX_FRAMES}], got {K}")
+        raise ShellsplineError(f"{spell('K')} must lie in [1, {MAX_FRAMES}], got {K}")
     return K
 
 

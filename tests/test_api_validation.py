@@ -73,6 +73,22 @@ def test_non_integer_K_refused(kf, K):
     assert "`K`" in _one_line(e)
 
 
+@pytest.mark.parametrize("kw, message", [
+    ({"K": 1}, "K=1 is too small for 3 keyframes"),
+    ({"bc": "hermite", "frames": None}, "bc='hermite' needs explicit `frames`: "),
+    ({"coarse": 2}, "`coarse` must be 'auto', 'none', a vertex count >= 4 or a fraction in "
+                    "(0, 1), got 2"),
+], ids=str)
+def test_messages_name_the_keywords(kw, message):
+    """The API's messages keep its keywords (the command line says --K, --bc hermite,
+    --coarse: tests/cli/test_cli.py); a bad ``coarse`` names every accepted value."""
+    m = trimesh.creation.icosphere(subdivisions=1)
+    Vs = np.stack([m.vertices, m.vertices * [1.5, 1, 1], m.vertices * [1, 1.5, 1]])
+    with pytest.raises(ShellsplineError) as e:
+        ss.interpolate((Vs, m.faces), **kw)
+    assert _one_line(e).startswith(message), str(e.value)
+
+
 def test_integer_K_accepted(kf):
     assert _problem(kf, K=np.int64(22)).K == 22
     assert _problem(kf, K=22).K == 22
@@ -354,7 +370,7 @@ def test_job_file_keys_are_checked_like_the_command_line(tmp_path):
     assert ss.run_batch(job).exit_code == 0
     rep = json.loads(next((tmp_path / "out").glob("*/report.json")).read_text())
     assert rep["parameters"]["method"] == "linear" and rep["parameters"]["gn_options"] == {}
-    assert rep["parameters"]["spline"] == "continuous"  # not the [defaults] one: unused
+    assert rep["parameters"]["spline"] is None  # not the [defaults] one: linear has none
     for extra, key in (('spline = "discrete"\n', "spline"), ("coarse = 50\n", "coarse")):
         p.write_text(base + extra)
         with pytest.raises(ShellsplineError) as e:

@@ -478,8 +478,14 @@ def _holds(d: Path, root: Path) -> bool:
 
 
 def keyframe_files(d: Path, pattern: str) -> list[Path]:
-    """The files of directory ``d`` matching ``pattern``, in natural sort order."""
-    return sorted((p for p in d.glob(pattern) if p.is_file()), key=_natural_key)
+    """The files of directory ``d`` matching ``pattern``, in natural sort order.
+
+    Hidden files (a name that starts with ``.``) are left out, as
+    :func:`shellspline.io.sequences.frame_files` leaves them out: :meth:`Path.glob` matches
+    them, and macOS writes a ``._pose_01.obj`` resource fork (binary) beside every file on a
+    FAT/exFAT drive or a network share."""
+    return sorted((p for p in d.glob(pattern) if p.is_file() and not p.name.startswith(".")),
+                  key=_natural_key)
 
 
 def _natural_key(p: Path):

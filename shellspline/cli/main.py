@@ -352,7 +352,7 @@ def _interpolate(args) -> int:
     protect = list(args.keyframes) + [p for p in (args.pinned, args.frames, args.topology,
                                                    args.rigid_subset)
                                       if p and Path(p).is_file()]
-    _, K_out = canonical_frames(kf.J, kf.frames, args.K, args.bc)
+    _, K_out = canonical_frames(kf.J, kf.frames, args.K, args.bc, spell=_flag)
     check_output_dir(args.out, n_frames=K_out + 1, n_vertices=kf.n, n_faces=kf.m,
                      fmt=args.format, overwrite=args.overwrite, protect=protect,
                      overwrite_hint="--overwrite")
@@ -376,6 +376,9 @@ def _interpolate(args) -> int:
     if res.source is not None:  # the input's polygons and numbering, written back
         res.report["source_mesh"] = res.source.summary()
     V_out = res.V if res.source is None else res.source.expand(res.V, res.frames, res.K, args.bc)
+    # what was written: the fps only where the format carries time in seconds (_unused_fps)
+    res.report["output"] = {"format": args.format,
+                            "fps": args.fps if args.format in _TIMED_FORMATS else None}
     out = write_sequence(args.out, V_out, res.F, res.report, overwrite=args.overwrite,
                             protect=protect, fmt=args.format, fps=args.fps, source=res.source,
                             up_axis=_usd_up_axis(args.topology or args.keyframes[0]),
@@ -446,12 +449,16 @@ def _refuse_inapplicable(given: dict, args, kf, pinned) -> list:
     return [text for _, text in unused]
 
 
+#: The ``--format`` outputs that carry time in seconds, at ``--fps``.
+_TIMED_FORMATS = ("glb", "mdd", "usd")
+
+
 def _unused_fps(args) -> str:
     """The note for an ``--fps`` given that nothing of the run uses (``""`` otherwise): OBJ
     and PLY frames carry no time, a PC2 cache counts it in frames (start 0, one sample per
     frame); only GLB, MDD and USD outputs and an MDD keyframe cache (``--topology``) have
     seconds. A note, not an error: one set of options serves several formats."""
-    if args.fps is None or args.format in ("glb", "mdd", "usd"):
+    if args.fps is None or args.format in _TIMED_FORMATS:
         return ""
     if args.topology and any(Path(k).suffix.lower() == ".mdd" for k in args.keyframes):
         return ""

@@ -20,6 +20,7 @@ from ..errors import ShellsplineError
 from ..io.sequences import jsonable
 from ..progress import Progress
 from ..timeline import BOUNDARY_CONDITIONS, canonical_frames, linear_blend
+from ..timeline import api_spelling as _api_spelling
 from .options import (DEFAULT_SPLINE, DEFAULT_TRANSFER, METHODS, REFERENCES, RIGID_TRACKS, SPLINES,
                       InterpolationOptions, interpolation_problem, notices)
 from .options import coarse_fraction, coarse_target
@@ -247,6 +248,8 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     report = start_report(opts, prob)
     if prob.n_coarse is None:  # nothing is prolonged: no detail transfer was applied
         report["parameters"]["transfer"] = None
+    for key in UNUSED_PARAMETERS.get(opts.method, ()):  # recorded as not applied
+        report["parameters"][key] = None
     seq = run_method(prob, opts, prog)
     report.update(seq.report)
     report["energies"] = energies_record(seq, prob, opts, prog)
@@ -256,14 +259,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
                                report=jsonable(report, finite=True), Z=Z, source=kf.source)
 
 
-_NOT_GIVEN = object()
-
-
-def _api_spelling(option: str, value=_NOT_GIVEN) -> str:
-    """How :func:`interpolate`'s messages name an option (a backquoted ``transfer``) or a
-    setting (``method='linear'``)."""
-    return f"`{option}`" if value is _NOT_GIVEN else f"{option}={value!r}"
-
+#: The ``report["parameters"]`` that a method does not use, recorded as ``None`` (not at
+#: their defaults, as if applied): the per-vertex blend has no reference meshes, no LΘA
+#: spline, no fade of bending weights and places nothing rigidly.
+UNUSED_PARAMETERS = {"linear": ("reference", "spline", "fade_angle", "rigid_track")}
 
 #: What :func:`inapplicable_options` checks: the options that only some runs use.
 CONDITIONAL_OPTIONS = ("coarse", "fine", "transfer", "reference", "spline", "fade_angle",
@@ -326,7 +325,7 @@ def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
     given = {k: v for k, v in given.items() if k in CONDITIONAL_OPTIONS
              and not (k == "coarse" and _is_auto(v))}
     # coarse="none" (or "off"): full resolution on every mesh, whatever its size
-    full = coarse_target(coarse, sys.maxsize) is None
+    full = coarse_target(coarse, sys.maxsize, spell=spell) is None
     refused, unused = [], []
     for key, value in given.items():
         o = spell(key)
@@ -381,7 +380,7 @@ def inapplicable_options(given: dict, method: str = "lta", coarse="auto", *,
                                  "in each connected part of the mesh; drop it, or pin fewer "
                                  "vertices)"))
         elif key in ("coarse", "fine", "transfer") and not full and n_vertices is not None \
-                and coarse_target(coarse, n_vertices, method) is None:
+                and coarse_target(coarse, n_vertices, method, spell=spell) is None:
             n = n_vertices
             if key == "fine":
                 refused.append((key, f"{o} refines a multiresolution run, and "

@@ -23,7 +23,7 @@ from ..shells.lta_spline import SPLINES, canonical_spline
 from ..shells.nonlinear import nonlinear_spline
 from ..shells.prolong import DEFAULT_TRANSFER, TRANSFERS
 from ..shells.reconstruct import LARGE_MESH, GaussNewton
-from ..timeline import BOUNDARY_CONDITIONS, canonical_bc, canonical_frames
+from ..timeline import BOUNDARY_CONDITIONS, api_spelling, canonical_bc, canonical_frames
 
 __all__ = ["InterpolationOptions", "InterpolationProblem", "interpolation_problem", "notices",
            "coarse_target", "canonical_choice", "METHODS", "REFERENCES", "RIGID_TRACKS",
@@ -479,7 +479,7 @@ def size_mismatch(kf: Keyframes) -> str:
             "different units (e.g. cm and m), scale them to one")
 
 
-def coarse_target(coarse, n: int, method: str = "lta"):
+def coarse_target(coarse, n: int, method: str = "lta", *, spell=None):
     """Canonical coarse vertex count of a mesh with ``n`` vertices, or None for a
     single-resolution run.
 
@@ -490,6 +490,14 @@ def coarse_target(coarse, n: int, method: str = "lta"):
         (above :data:`AUTO_NONLINEAR_ABOVE` with ``method="nonlinear"`` or ``"geodesic"``).
     n : int
     method : str
+    spell : callable(option, value=...) -> str, optional
+        How the message of an invalid ``coarse`` names it (the CLI's ``--coarse``); default
+        :func:`~shellspline.timeline.api_spelling`.
+
+    Raises
+    ------
+    ShellsplineError
+        For a ``coarse`` that is none of these.
 
     Examples
     --------
@@ -500,23 +508,29 @@ def coarse_target(coarse, n: int, method: str = "lta"):
         above = AUTO_NONLINEAR_ABOVE if method in ("nonlinear", "geodesic") \
             else AUTO_COARSE_ABOVE
         return AUTO_COARSE_VERTICES if n > above else None
-    coarse = _coarse_number(coarse)
+    spell = spell or api_spelling
+    given = coarse
+    coarse = _coarse_number(coarse, spell)
     if coarse is None:
         return None
     if isinstance(coarse, bool):
-        raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction, "
-                               f"got {coarse!r}")
+        raise ShellsplineError(_bad_coarse(given, spell))
     if isinstance(coarse, (float, np.floating)) and 0 < coarse < 1:
         target = int(round(coarse * n))
-    elif float(coarse) == int(coarse) and int(coarse) >= 4:
+    elif np.isfinite(float(coarse)) and float(coarse) == int(coarse) and int(coarse) >= 4:
         target = int(coarse)
     else:
-        raise ShellsplineError(f"`coarse` must be a vertex count >= 4 or a fraction in (0, 1), got "
-                               f"{coarse!r}")
+        raise ShellsplineError(_bad_coarse(given, spell))
     return None if target >= n else max(target, 4)
 
 
-def _coarse_number(coarse):
+def _bad_coarse(coarse, spell) -> str:
+    """The message for a ``coarse`` that is none of the values :func:`coarse_target` takes."""
+    return (f"{spell('coarse')} must be 'auto', 'none', a vertex count >= 4 or a fraction in "
+            f"(0, 1), got {coarse!r}")
+
+
+def _coarse_number(coarse, spell=api_spelling):
     """A ``coarse`` other than ``"auto"`` as given, a string read as its number (``"0.1"``,
     ``"700"``, ``"1e3"``: a float where it has a point or an exponent), or None for
     ``"none"``."""
@@ -528,8 +542,7 @@ def _coarse_number(coarse):
     try:
         return float(c) if any(ch in c for ch in ".e") else int(c)
     except ValueError:
-        raise ShellsplineError(f"`coarse` must be 'auto', 'none', a vertex count or a fraction "
-                               f"in (0, 1), got {coarse!r}") from None
+        raise ShellsplineError(_bad_coarse(coarse, spell)) from None
 
 
 def coarse_fraction(coarse):

@@ -164,6 +164,18 @@ def test_glob_never_takes_the_output_root_for_a_sequence(tmp_path, capsys):
     assert sorted(_status(tmp_path / "shots" / "_o2")) == ["ellipsoids_00", "ellipsoids_01"]
 
 
+def test_glob_leaves_out_macos_resource_forks(tmp_path):
+    # macOS writes ._name beside every file on exFAT/network drives: binary, not a keyframe
+    d = data_synth.write_batch("ellipsoids", tmp_path / "shots", 1, 100)[0]
+    poses = sorted(p.name for p in Path(d).glob("pose_*.obj"))
+    for name in poses:
+        (Path(d) / f"._{name}").write_bytes(b"\x00\x05\x16\x07Mac OS X")
+    p = _job(tmp_path, '[job]\noutput = "out"\n[defaults]\nkeyframe_pattern = "*.obj"\n'
+                       '[[sequences]]\nglob = "shots/*"\n')
+    (seq,) = ss.load_job(p).sequences
+    assert [Path(k).name for k in seq.keyframes] == poses
+
+
 def test_output_may_not_replace_an_input(tmp_path, capsys):
     data_synth.write_batch("ellipsoids", tmp_path / "seqs", 1, 100)
     p = _job(tmp_path, '[job]\noutput = "seqs"\n[[sequences]]\nglob = "seqs/*"\n')

@@ -501,3 +501,55 @@ def test_fps_that_the_output_format_does_not_use_is_a_note(ell_dir, tmp_path, ca
     times = np.frombuffer((tmp_path / "fps_30_format_mdd" / "animation.mdd").read_bytes(),
                           ">f4", count=5, offset=8)
     np.testing.assert_allclose(times, np.arange(5) / 30, rtol=1e-6)
+
+
+def test_report_records_the_output_format_and_fps(ell_dir, tmp_path):
+    """report.json says what was written: the format, and the fps where the format carries
+    time in seconds (null for OBJ/PLY frames and a PC2 cache, which count frames)."""
+    base = ["interpolate", *_poses(ell_dir), "--method", "linear", "--K", "4", "-q"]
+    for args, want in ((["--fps", "30", "--format", "mdd"], {"format": "mdd", "fps": 30.0}),
+                       (["--format", "glb"], {"format": "glb", "fps": 24.0}),
+                       (["--fps", "30", "--format", "pc2"], {"format": "pc2", "fps": None}),
+                       ([], {"format": "obj", "fps": None})):
+        out = tmp_path / ("_".join(a.strip("-") for a in args) or "default")
+        assert main([*base, *args, "-o", str(out)]) == 0
+        assert json.loads((out / "report.json").read_text())["output"] == want
+
+
+def test_linear_report_records_unused_parameters_as_null(ell_dir, tmp_path):
+    """--method linear blends per vertex: no reference meshes, no LΘA spline, no fade of
+    bending weights, no rigid placement. report.json listed them at their defaults as if
+    applied; they are null (as transfer is where nothing is prolonged)."""
+    out = tmp_path / "lin"
+    assert main(["interpolate", *_poses(ell_dir), "--method", "linear", "--K", "4", "-q",
+                 "-o", str(out)]) == 0
+    params = json.loads((out / "report.json").read_text())["parameters"]
+    for key in ("reference", "spline", "fade_angle", "rigid_track", "transfer"):
+        assert params[key] is None, key
+    assert params["method"] == "linear" and params["eta"] == 1e-3  # still applied
+    out = tmp_path / "lta"
+    assert main(["interpolate", *_poses(ell_dir), "--K", "4", "-q", "-o", str(out)]) == 0
+    params = json.loads((out / "report.json").read_text())["parameters"]
+    assert (params["reference"], params["rigid_track"]) == ("constant", "fit")
+    assert params["spline"] == "continuous" and params["fade_angle"] == 0.5
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--coarse", "2"], "--coarse must be 'auto', 'none', a vertex count >= 4 or a fraction "
+                        "in (0, 1), got '2'"),
+    (["--coarse", "bogus"], "--coarse must be 'auto', 'none', a vertex count >= 4 or a "
+                            "fraction in (0, 1), got 'bogus'"),
+    (["--bc", "hermite"], "--bc hermite needs explicit --frames: "),
+    (["--K", "1"], "--K 1 is too small for 3 keyframes"),
+    (["--frames", "0,5,10", "--K", "8"], "--K 8 is smaller than the last keyframe frame 10"),
+    (["--bc", "periodic", "--frames", "0,5,10", "--K", "10"],
+     "with --bc periodic the keyframes must lie before --K 10 "),
+], ids=lambda v: " ".join(v) if isinstance(v, list) else None)
+def test_errors_name_the_flags(ell_dir, tmp_path, capsys, extra, message):
+    """The command line's errors name its flags (--coarse, --bc hermite, --K 1), not the
+    Python keywords (`coarse`, bc='hermite', `K`=1); the API keeps its own spelling."""
+    rc = main(["interpolate", *_poses(ell_dir), "-o", str(tmp_path / "o"), "-q", *extra])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith(f"shellspline: error: {message}"), err
+    assert "`" not in err and not (tmp_path / "o").exists()
+    assert not any(f"{k}=" in err.split("got")[0] for k in ("coarse", "bc", "K", "frames"))
