@@ -604,7 +604,7 @@ def _worker_bridge(task):
     :meth:`GapContinuations.bridges_ready`): ``(s, a, b, BridgeResult, before, after)``."""
     _, s, a, b, K, half, gn_options, frames = task
     gn0 = _WORKER["gn"]
-    Z, W_of, Vinit, warm, tube_of = _WORKER["frame_data"]
+    Z, W_of, _, _, tube_of = _WORKER["frame_data"]
     pinned = gn0.pinned if gn0.pinned.size else None
     out = _bridge_seam_checked(GaussNewton(gn0.T, pinned=pinned, **gn_options),
                                frames.__getitem__, K, s, a, b, Z, W_of, half, tube_of, False)
