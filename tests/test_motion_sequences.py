@@ -75,6 +75,18 @@ def test_a_stray_mesh_or_a_frame_written_twice_is_refused_not_read_as_a_frame(
     assert not (tmp_path / "loop").exists()
 
 
+def test_a_version_suffix_after_the_frame_number_is_one_sequence(capsys, tmp_path,
+                                                                 walk_body):
+    """``frame_0001_v2.obj ...`` (a version suffix, as DCC tools export) was refused as one
+    sequence per file (the last digits taken for the frame number); the number that varies
+    is the frame number (:func:`shellspline.io.sequences.frame_files`)."""
+    Vs, F, _ = walk_body
+    a = frame_folder(tmp_path / "a", Vs, F)
+    v = frame_folder(tmp_path / "v", Vs, F, name="frame_{:04d}_v2.obj")
+    code, out, err = run(capsys, "distance", a, v, "--align", "none", "-q")
+    assert code == 0 and float(out) == 0.0, err
+
+
 def test_macos_resource_forks_beside_the_frames_are_left_out(capsys, tmp_path, walk_body):
     """A frame folder copied by macOS to an exFAT drive or a network share holds a binary
     ``._frame_0001.obj`` beside every frame (and a ``.DS_Store``): they were taken for a

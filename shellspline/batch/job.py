@@ -10,6 +10,7 @@ Paths in a job file are relative to the directory of the job file.
 from __future__ import annotations
 
 import dataclasses
+import glob
 import json
 import os
 import re
@@ -339,7 +340,7 @@ class _Entry:
         kfp = self.merged["keyframe_pattern"]
         # the output root (or a folder holding it) is no sequence, unless it holds keyframes:
         # then the job is refused (_check_outputs_do_not_hold_inputs)
-        dirs = sorted((p.resolve() for p in anchor.glob(rel) if p.is_dir() and not (
+        dirs = sorted((p.resolve() for p in visible_glob(anchor, rel) if p.is_dir() and not (
             _holds(p.resolve(), self.output) and not keyframe_files(p, kfp))),
             key=_natural_key)
         if not dirs:
@@ -480,12 +481,24 @@ def _holds(d: Path, root: Path) -> bool:
 def keyframe_files(d: Path, pattern: str) -> list[Path]:
     """The files of directory ``d`` matching ``pattern``, in natural sort order.
 
-    Hidden files (a name that starts with ``.``) are left out, as
-    :func:`shellspline.io.sequences.frame_files` leaves them out: :meth:`Path.glob` matches
-    them, and macOS writes a ``._pose_01.obj`` resource fork (binary) beside every file on a
+    Hidden files (a name that starts with ``.``) are left out unless the pattern starts with
+    ``.`` (:func:`visible_glob`), as :func:`shellspline.io.sequences.frame_files` leaves them
+    out: macOS writes a ``._pose_01.obj`` resource fork (binary) beside every file on a
     FAT/exFAT drive or a network share."""
-    return sorted((p for p in d.glob(pattern) if p.is_file() and not p.name.startswith(".")),
-                  key=_natural_key)
+    return sorted((p for p in visible_glob(d, pattern) if p.is_file()), key=_natural_key)
+
+
+def visible_glob(anchor: Path, pattern: str) -> list[Path]:
+    """The paths matching the glob ``pattern`` (relative to ``anchor``, or absolute), hidden
+    entries left out as a shell leaves them out.
+
+    A name that starts with ``.`` is matched only by a pattern component that starts with
+    ``.`` too: ``shots/*`` leaves out ``shots/.Trashes`` and ``shots/.git``, ``shots/**``
+    every hidden folder below ``shots`` (and what they hold), while ``shots/.cache/*`` and
+    ``shots/.*`` name them. :meth:`Path.glob` matched them all. ``**`` matches any number of
+    folders, as in :meth:`Path.glob`.
+    """
+    return [Path(anchor, m) for m in glob.glob(pattern, root_dir=anchor, recursive=True)]
 
 
 def _natural_key(p: Path):

@@ -54,6 +54,13 @@ def frame_files(folder) -> list[Path]:
     beside every file on a FAT/exFAT drive or a network share, binary data that were read
     as frames or refused as another sequence). Formats may be mixed.
 
+    The frame number is the run of digits that differs between the names, wherever it
+    stands: ``frame_0001_v2.obj, frame_0002_v2.obj ...`` (a version suffix, as DCC tools
+    export) are frames 1, 2 ... (they were refused as one sequence per file, each numbered
+    by its last digits). Where several runs differ, the last one is the frame number and
+    the others must not differ: two takes in one folder (``take1_0001.obj ...
+    take2_0001.obj ...``) are refused as two sequences, not read as one.
+
     Raises
     ------
     MeshError
@@ -66,14 +73,20 @@ def frame_files(folder) -> list[Path]:
 
     files = sorted((f for f in Path(folder).iterdir() if f.suffix.lower() in MESH_EXTENSIONS
                     and not f.name.startswith(".") and f.is_file()),
-                   key=lambda f: natural_key(f.name))
-    patterns: dict = {}  # the name with its last number as '#' (no extension): its files
+                   key=lambda f: (natural_key(f.name), f.name))  # ties: not the listing's
+    number = _frame_number_runs([f.stem for f in files])
+    patterns: dict = {}  # the name with its frame number as '#' (no extension): its files
     numbers = []
     for f in files:
-        m = re.match(r"^(.*?)(\d+)(\D*)$", f.stem)  # the last run of digits
-        patterns.setdefault(f.stem if m is None else f"{m.group(1)}#{m.group(3)}",
-                            []).append(f)
-        numbers.append(None if m is None else int(m.group(2)))
+        parts = re.split(r"(\d+)", f.stem)  # text, digits, text, ..., text
+        i = number[tuple(parts[0::2])]
+        if i is None:
+            patterns.setdefault(f.stem, []).append(f)
+            numbers.append(None)
+        else:
+            patterns.setdefault("".join(parts[:2 * i + 1] + ["#"] + parts[2 * i + 2:]),
+                                []).append(f)
+            numbers.append(int(parts[2 * i + 1]))
     if len(patterns) > 1:
         (_, f0), (_, f1) = sorted(patterns.items(), key=lambda kv: -len(kv[1]))[:2]
         raise MeshError(f"{folder}: the mesh files are not one numbered sequence: "
@@ -84,6 +97,27 @@ def frame_files(folder) -> list[Path]:
             raise MeshError(f"{folder}: two files of frame {numbers[i]}: {files[i - 1].name} "
                             f"and {files[i].name}")
     return files
+
+
+def _frame_number_runs(stems) -> dict:
+    """For each shape of name among ``stems`` (its text between the runs of digits), which
+    run of digits is the frame number (0 the first), or None for a name without digits.
+
+    It is the run whose value differs between the names of that shape, the last one where
+    several differ (the others then name several sequences, which :func:`frame_files`
+    refuses), and the last run where none differs (one file, or one frame written twice).
+    """
+    values: dict = {}  # shape: the set of values of each run
+    for stem in stems:
+        parts = re.split(r"(\d+)", stem)
+        runs = values.setdefault(tuple(parts[0::2]), [set() for _ in parts[1::2]])
+        for seen, digits in zip(runs, parts[1::2]):
+            seen.add(int(digits))
+    out = {}
+    for shape, runs in values.items():
+        varying = [i for i, seen in enumerate(runs) if len(seen) > 1]
+        out[shape] = varying[-1] if varying else (len(runs) - 1 if runs else None)
+    return out
 
 
 # ----------------------------------------------------------------------------------------

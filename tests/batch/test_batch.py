@@ -176,6 +176,37 @@ def test_glob_leaves_out_macos_resource_forks(tmp_path):
     assert [Path(k).name for k in seq.keyframes] == poses
 
 
+def test_glob_leaves_out_hidden_folders_unless_the_pattern_names_them(tmp_path):
+    """``shots/*`` matched ``.Trashes``, ``.git`` and other hidden folders (Path.glob matches
+    hidden names): the job was refused ("'.Trashes' is not usable as a directory name"), and
+    one named otherwise would have become a sequence. A hidden name is matched only by a
+    pattern component that starts with '.', as in a shell."""
+    shots = tmp_path / "shots"
+    real = [Path(d).name for d in data_synth.write_batch("ellipsoids", shots, 2, 100)]
+    hidden = data_synth.write_batch("ellipsoids", tmp_path / "h", 1, 100)[0]
+    shutil.copytree(hidden, shots / ".backup")  # keyframes inside
+    (shots / ".Trashes").mkdir()
+    (shots / ".git" / "objects").mkdir(parents=True)
+    shutil.copytree(hidden, shots / real[0] / ".old")
+
+    def dirs(pattern):
+        p = _job(tmp_path, '[job]\noutput = "out"\n[[sequences]]\n'
+                           f'glob = "{pattern}"\nname = "s{{dir}}"\n')
+        return sorted(Path(s.directory).relative_to(shots).as_posix()
+                      for s in ss.load_job(p).sequences)
+
+    assert dirs("shots/*") == sorted(real)
+    assert dirs(str(shots / "*")) == sorted(real)  # an absolute pattern too
+    assert dirs("shots/**") == [".", *sorted(real)]
+    p = _job(tmp_path, '[job]\noutput = "out"\n[[sequences]]\nglob = "shots/*"\n')
+    assert sorted(s.name for s in ss.load_job(p).sequences) == sorted(real)
+    # named explicitly: matched
+    assert dirs("shots/.*") == [".Trashes", ".backup", ".git"]
+    assert dirs("shots/.backup") == [".backup"]
+    assert dirs("shots/*/.old") == [f"{real[0]}/.old"]
+    assert dirs("shots/.g*/*") == [".git/objects"]
+
+
 def test_output_may_not_replace_an_input(tmp_path, capsys):
     data_synth.write_batch("ellipsoids", tmp_path / "seqs", 1, 100)
     p = _job(tmp_path, '[job]\noutput = "seqs"\n[[sequences]]\nglob = "seqs/*"\n')

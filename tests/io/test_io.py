@@ -12,6 +12,7 @@ import trimesh
 
 from shellspline import io as sio
 from shellspline.errors import MeshError, ShellsplineError
+from shellspline.io.sequences import frame_files
 
 from conftest import raises_mesh_error
 
@@ -613,3 +614,56 @@ def test_read_sequence_errors(tmp_path):
     os.remove(out / "frame_0001.obj")
     raises_mesh_error(lambda: sio.read_sequence(out), "missing [1]")
     raises_mesh_error(lambda: sio.read_sequence(tmp_path / "none"), "not a directory")
+
+
+# ----------------------------------------------------------------------------------------
+# frame folders: which run of digits is the frame number
+# ----------------------------------------------------------------------------------------
+def _frame_folder(d, names):
+    V, F = sphere()
+    d.mkdir()
+    for j, name in enumerate(names):
+        write_obj(d / name, V * (1 + 0.1 * j), F)
+    return d
+
+
+def test_frame_number_is_the_run_of_digits_that_varies(tmp_path):
+    """A version suffix after the frame number (``frame_0001_v2.obj``, as DCC tools export)
+    made every file its own sequence ('frame_0001_v#'): the number that varies is the frame."""
+    frames = [10, 2, 1, 3]  # unpadded numbers too: natural order
+    d = _frame_folder(tmp_path / "v", [f"frame_{k:04d}_v2.obj" for k in frames])
+    assert [f.name for f in frame_files(d)] == \
+        [f"frame_{k:04d}_v2.obj" for k in (1, 2, 3, 10)]
+    u = _frame_folder(tmp_path / "u", [f"shot3_{k}_v12.ply" for k in frames])
+    assert [f.name for f in frame_files(u)] == [f"shot3_{k}_v12.ply" for k in (1, 2, 3, 10)]
+    # the frames read are those of the plain-named folder
+    p = _frame_folder(tmp_path / "p", [f"frame_{k:04d}.obj" for k in frames])
+    Vv = sio.read_keyframes(frame_files(d)).V
+    assert np.array_equal(Vv, sio.read_keyframes(frame_files(p)).V)
+    # today's refusals stay: a stray mesh, one frame twice (each number run compared by value)
+    write_obj(d / "rest.obj", *sphere())
+    raises_mesh_error(lambda: frame_files(d), "not one numbered sequence",
+                      "4 named like frame_0001_v2.obj, 1 like rest.obj")
+    (d / "rest.obj").unlink()
+    write_obj(d / "frame_3_v2.obj", *sphere())
+    raises_mesh_error(lambda: frame_files(d),
+                      "two files of frame 3: frame_0003_v2.obj and frame_3_v2.obj")
+    (d / "frame_3_v2.obj").unlink()
+    # a frame exported again as another version: one version differs, the frame too
+    write_obj(d / "frame_0003_v3.obj", *sphere())
+    raises_mesh_error(lambda: frame_files(d), "not one numbered sequence")
+
+
+def test_two_takes_in_one_folder_are_refused_not_read_as_one(tmp_path):
+    """Where several runs of digits vary (take and frame), the last is the frame number and
+    the takes are separate sequences: refused, as before, not interleaved into one."""
+    names = [f"take{t}_{k:04d}.obj" for t in (1, 2) for k in (1, 2, 3)]
+    d = _frame_folder(tmp_path / "t", names)
+    raises_mesh_error(lambda: frame_files(d), "not one numbered sequence",
+                      "3 named like take1_0001.obj, 3 like take2_0001.obj")
+    # one take's frames with the take number constant: one sequence
+    one = _frame_folder(tmp_path / "one", names[3:])
+    assert [f.name for f in frame_files(one)] == names[3:]
+    # a take number that rises with the frame is no frame number either
+    s = _frame_folder(tmp_path / "s", ["take1_0001.obj", "take2_0002.obj", "take3_0003.obj"])
+    raises_mesh_error(lambda: frame_files(s), "not one numbered sequence")
