@@ -27,11 +27,22 @@ class Progress:
     Parameters
     ----------
     callback : callable(ProgressEvent) -> None, optional
+
+    Attributes
+    ----------
+    timings : dict of str to float
+        Seconds per stage name, summed over the stage's runs.
+    within : dict of str to str
+        The stages run inside another one (``{"reference geodesic": "describe"}``), with
+        the innermost one around them at their first run: their seconds are counted in that
+        stage's too.
     """
 
     def __init__(self, callback: Callable[[ProgressEvent], None] | None = None):
         self.callback = callback
         self.timings: dict[str, float] = {}
+        self.within: dict[str, str] = {}
+        self._open: list[str] = []  # the stages running, innermost last
 
     def _emit(self, **kw) -> None:
         ev = ProgressEvent(**kw)
@@ -43,10 +54,14 @@ class Progress:
     def stage(self, name: str, total: int | None = None):
         """Time a stage: ``with progress.stage("reconstruct", total=K): ...``."""
         t0 = time.perf_counter()
+        if self._open and self._open[-1] != name:
+            self.within.setdefault(name, self._open[-1])
         self._emit(kind="stage_start", stage=name, total=total, done=0)
+        self._open.append(name)
         try:
             yield self
         finally:
+            self._open.pop()
             dt = time.perf_counter() - t0
             self.timings[name] = self.timings.get(name, 0.0) + dt
             self._emit(kind="stage_end", stage=name, seconds=dt, total=total)

@@ -278,7 +278,7 @@ def test_what_this_mesh_leaves_unused_is_a_message_and_recorded_as_applied(kf):
                          progress=lambda ev: ev["kind"] == "message" and said.append(ev["text"]))
     assert said == ["gn_options={'max_iter': 3} is not applied: method='linear' reconstructs "
                     "nothing (no Gauss–Newton)"]
-    assert lin.report["parameters"]["eta"] == 0.5 and lin.report["parameters"]["gn_options"] == {}
+    assert lin.report["parameters"]["eta"] == 0.5 and lin.report["parameters"]["gn_options"] is None
     assert ss.interpolate(kf, pinned=[0], rigid_track="linear").report["parameters"][
         "rigid_track"] == "linear"
 
@@ -369,7 +369,7 @@ def test_job_file_keys_are_checked_like_the_command_line(tmp_path):
     job = ss.load_job(p)
     assert ss.run_batch(job).exit_code == 0
     rep = json.loads(next((tmp_path / "out").glob("*/report.json")).read_text())
-    assert rep["parameters"]["method"] == "linear" and rep["parameters"]["gn_options"] == {}
+    assert rep["parameters"]["method"] == "linear" and rep["parameters"]["gn_options"] is None
     assert rep["parameters"]["spline"] is None  # not the [defaults] one: linear has none
     for extra, key in (('spline = "discrete"\n', "spline"), ("coarse = 50\n", "coarse")):
         p.write_text(base + extra)

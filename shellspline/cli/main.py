@@ -511,6 +511,36 @@ def _usd_up_axis(path) -> str:
     return "z" if conventional_up_axis(path) == "z" else "y"
 
 
+def _time_line(timings: dict, within: dict) -> str:
+    """The summary's ``time:`` line: reading, the interpolation's stages and writing, whose
+    sum is at most the total printed (``timings["total"]``, the interpolation's, plus reading
+    and writing); a stage timed inside another (``within``, e.g. the reference geodesic in
+    describe) is listed in parentheses after it, its name without their common prefix
+    (``coarse describe 1.20s (reference geodesic 1.10s)``), not beside it."""
+    t = dict(timings)
+    total = t.pop("total", 0.0)
+    read, write = t.pop("read", None), t.pop("write", None)
+    inside: dict = {}
+    for name in t:
+        if within.get(name) in t:
+            inside.setdefault(within[name], []).append(name)
+
+    def item(name, parent=""):
+        common = os.path.commonprefix([parent, name])
+        label = name[common.rfind(" ") + 1:] if " " in common else name
+        text = f"{label} {t[name]:.2f}s"
+        if name in inside:
+            text += " (" + ", ".join(item(c, name) for c in inside[name]) + ")"
+        return text
+
+    parts = [item(k) for k in t if within.get(k) not in t]
+    if read is not None:
+        parts.insert(0, f"read {read:.2f}s")
+    if write is not None:
+        parts.append(f"write {write:.2f}s")
+    return f"time: {', '.join(parts)}; total {total + (read or 0.0) + (write or 0.0):.2f}s"
+
+
 def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
     from ..io.sequences import ANIMATION_NAMES
 
@@ -526,12 +556,16 @@ def _summary(res, out: Path, quiet: bool, fmt: str = "obj") -> int:
         lines.append(f"multiresolution: solved on {rep['multires']['coarse_vertices']} coarse "
                      f"vertices, prolonged to {res.V.shape[1]}"
                      + (" and refined at full resolution" if rep["parameters"]["fine"] else ""))
-    t = rep["timings"]
-    lines.append("time: " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
+    lines.append(_time_line(rep["timings"], rep.get("timings_within") or {}))
     if gn:
+        # the frames' kept solves, and all the solves (discarded ones and bridges too)
+        work = gn.get("work")
         line = (f"Gauss–Newton: {gn['converged']}/{gn['frames']} frames converged, "
-                f"{gn['iterations_total']} iterations (median {gn.get('iterations_median', 0):g}"
-                f", max {gn['iterations_max']}), {gn['factorizations_total']} factorizations")
+                f"{gn['iterations_total']} iterations in kept solves (median "
+                f"{gn.get('iterations_median', 0):g}, max {gn['iterations_max']})"
+                + (f", {work['iterations']} in all" if work else "")
+                + f"; {gn['factorizations_total']} factorizations"
+                + (f" ({work['factorizations']} in all)" if work else ""))
         for key, what in (("stalled", "stalled"), ("iteration_limit", "at the iteration limit"),
                           ("resumed", "resumed (still converging at the limit)")):
             if gn.get(key):

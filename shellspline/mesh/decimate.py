@@ -475,8 +475,26 @@ def _face_checks(X, gid, vnormals, hs, us, vs, min_cos, min_quality):
     N = cross(D[[0, 2]], D[[1, 3]])                    # old and new face normal
     nn = norms(N)
     ok = dot(N[0], N[1]) > min_cos * nn[0] * nn[1]
+    import os
+    _exp = os.environ.get("DEC_EXP", "")
     vn = vnormals[np.concatenate([gv, ga, gb])].reshape(3, k, J, 3)
-    ok &= (np.einsum("sxji,xji->sxj", vn, N[1]) > min_cos * nn[1]).all(axis=0)
+    if "nodev" in _exp or _exp == "cluster":
+        if _exp == "cluster":
+            ok &= (np.einsum("sxji,xji->sxj", vn, N[1]) > min_cos * nn[1]).all(axis=0)
+        pass
+    elif "soft" in _exp:
+        thr = np.minimum(min_cos, _WORST[np.concatenate([gv, ga, gb])].reshape(3, k, J))
+        ok &= (np.einsum("sxji,xji->sxj", vn, N[1]) > thr * nn[1]).all(axis=0)
+    elif "clusterx" in _exp or "exempt" in _exp:
+        rel = _RELIABLE[np.concatenate([gv, ga, gb])].reshape(3, k, J)
+        ok &= ((np.einsum("sxji,xji->sxj", vn, N[1]) > min_cos * nn[1]) | ~rel).all(axis=0)
+    elif "reldev" in _exp:
+        vo = vnormals[np.concatenate([gid[us[owner]], ga, gb])].reshape(3, k, J, 3)
+        c1 = np.einsum("sxji,xji->sxj", vn, N[1]).min(axis=0) / np.maximum(nn[1], tol.zero)
+        c0 = np.einsum("sxji,xji->sxj", vo, N[0]).min(axis=0) / np.maximum(nn[0], tol.zero)
+        ok &= (c1 > min_cos) | (c1 >= c0)
+    else:
+        ok &= (np.einsum("sxji,xji->sxj", vn, N[1]) > min_cos * nn[1]).all(axis=0)
     c = 2.0 * math.sqrt(3.0)
     q0 = c * nn[0] / np.maximum(L[0] + L[1] + L[4], tol.zero)
     q1 = c * nn[1] / np.maximum(L[2] + L[3] + L[4], tol.zero)
@@ -701,7 +719,21 @@ def _fine_quadrics(X, T, boundary_weight):
         Q[:, j], vnormals[:, j], a_j = _setup_pose(X[j], T.F, E_b, F_b, boundary_weight, inc,
                                                     incb)
         area += a_j / J
+    global _RAW
+    _RAW = vnormals.copy()
     vnormals = normalized(vnormals)
+    global _RELIABLE
+    p0 = X[:, T.F[:, 0]]
+    Nf = normalized(cross(X[:, T.F[:, 1]] - p0, X[:, T.F[:, 2]] - p0))   # (J,m,3)
+    c = np.einsum("fcji,jfi->fcj", vnormals[T.F], Nf)                    # (m,3,J)
+    worst = np.ones((n, J))
+    for k in range(3):
+        np.minimum.at(worst, T.F[:, k], c[:, k])
+    import os
+    thr = float(os.environ.get("DEC_THR", "0.2"))
+    _RELIABLE = worst > thr
+    global _WORST
+    _WORST = worst
     return Q, vnormals, area
 
 
@@ -767,6 +799,10 @@ def _apply_collapses(st: _CollapseState, us, vs) -> None:
     alive_f = (Fn[:, 0] != Fn[:, 1]) & (Fn[:, 1] != Fn[:, 2]) & (Fn[:, 2] != Fn[:, 0])
     gus, gvs = st.gid[us], st.gid[vs]
     st.Q[gvs] += st.Q[gus]
+    import os
+    if "cluster" in os.environ.get("DEC_EXP", ""):
+        _RAW[gvs] += _RAW[gus]
+        st.vnormals[gvs] = normalized(_RAW[gvs])
     st.Qp[gvs] = st.Q[gvs] + _length_quadrics(st.Xn[gvs], st.lw)
     st.evert[gvs] = _quadric_errors(st.Q, st.M, gvs, gvs)
     st.dirty[:] = False

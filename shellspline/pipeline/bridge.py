@@ -83,13 +83,17 @@ class BridgeResult:
     message: str = ""
     iterations: int = 0
     cg_iterations: int = 0
+    #: numeric factorizations of the frames' blocks (one per window frame each time the
+    #: preconditioner is refactored)
+    factorizations: int = 0
     mu: float = 0.0
     objective: list = field(default_factory=list)
 
     def summary(self) -> dict:
         return {"frames": [int(k) for k in self.frames], "status": self.status,
                 "message": self.message, "iterations": int(self.iterations),
-                "cg_iterations": int(self.cg_iterations), "mu": float(self.mu),
+                "cg_iterations": int(self.cg_iterations),
+                "factorizations": int(self.factorizations), "mu": float(self.mu),
                 "objective_start": float(self.objective[0]) if self.objective else None,
                 "objective_final": float(self.objective[-1]) if self.objective else None}
 
@@ -385,6 +389,7 @@ class SeamBridge:
         g = self.half_gradient(X, terms)
         g0 = float(np.linalg.norm(g))
         self._factors()
+        res.factorizations += nu
         ops = self._ops
         E = self.T.E
         Xe = X[iu[0]].reshape(-1, 3)
@@ -443,6 +448,7 @@ class SeamBridge:
                 # a factor from before a large step preconditions the rotated membrane
                 # poorly (horse: the second step took 78-111 CG iterations instead of ~9)
                 self._factors()
+                res.factorizations += nu
         else:
             res.status = "limit"
             res.message = f"iteration limit ({max_iter}) reached"

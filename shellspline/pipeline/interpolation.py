@@ -27,6 +27,7 @@ from .options import coarse_fraction, coarse_target
 from .placement import pinned_parts, placement_track
 from .report import (POP_LIMIT, energies_record, finish_report, quality_ok, sequence_quality,
                      start_report)
+from .reconstruction import work_record
 from .stages import in_input_units, run_method
 
 __all__ = ["interpolate", "InterpolationResult", "METHODS", "BOUNDARY_CONDITIONS", "REFERENCES",
@@ -219,8 +220,10 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
         ``gn_options`` with ``method="linear"`` are not refused (one set of options may serve
         meshes of every size, or every method): a progress message says so and
         ``report["parameters"]`` records what was applied, ``coarse="none"``,
-        ``transfer=None``, ``gn_options={}`` (``transfer`` is ``None`` in every run that
-        prolongs nothing).
+        ``transfer=None`` (``None`` in every run that prolongs nothing). With
+        ``method="linear"`` every parameter the blend does not use is ``None``
+        (:data:`UNUSED_PARAMETERS`: ``gn_options``, ``coarse``, ``fine``, ``fixpoint``,
+        ``solver_options`` ...).
 
     Examples
     --------
@@ -254,15 +257,20 @@ def interpolate(keyframes, K=None, method: str = "lta", bc: str = "natural", eta
     report.update(seq.report)
     report["energies"] = energies_record(seq, prob, opts, prog)
     V, Z = in_input_units(seq, prob, opts)
-    finish_report(report, V, seq.frame_records, prob, opts, prog, t_start)
+    finish_report(report, V, seq.frame_records, prob, opts, prog, t_start,
+                  gn_work=work_record(seq.gn_work) if seq.gn_work else None)
     return InterpolationResult(V=V, F=prob.T.F, frames=prob.frames,
                                report=jsonable(report, finite=True), Z=Z, source=kf.source)
 
 
 #: The ``report["parameters"]`` that a method does not use, recorded as ``None`` (not at
 #: their defaults, as if applied): the per-vertex blend has no reference meshes, no LΘA
-#: spline, no fade of bending weights and places nothing rigidly.
-UNUSED_PARAMETERS = {"linear": ("reference", "spline", "fade_angle", "rigid_track")}
+#: spline, no fade of bending weights, places nothing rigidly, reconstructs nothing (no
+#: Gauss–Newton, warm starts, worker processes, fixpoint iterations or solver of the
+#: geodesic and nonlinear methods) and is computed at full resolution (no multiresolution).
+UNUSED_PARAMETERS = {"linear": ("reference", "spline", "fade_angle", "rigid_track",
+                                "rigid_subset_vertices", "gn_options", "solver_options",
+                                "warm_start", "workers", "fixpoint", "coarse", "fine")}
 
 #: What :func:`inapplicable_options` checks: the options that only some runs use.
 CONDITIONAL_OPTIONS = ("coarse", "fine", "transfer", "reference", "spline", "fade_angle",

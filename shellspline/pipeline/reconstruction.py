@@ -26,7 +26,7 @@ from ..shells.reconstruct import LARGE_MESH, GaussNewton, rigid_placement
 from ..timeline import keyframe_bracket
 
 __all__ = ["reconstruct_frames", "run_reconstruction", "reconstruction_runs", "continued_runs",
-           "GapContinuations",
+           "GapContinuations", "GaussNewtonWork", "work_record", "WORK_KINDS", "DISCARDED_KINDS",
            "solve_run", "parallel_decode", "safe_init", "single_blas_thread", "seam_jump",
            "seam_records", "bridge_seams", "bridge_kept", "SERIAL_RECONSTRUCT_WORK",
            "SERIAL_DECODE_WORK", "SPLIT_BRIDGE_WORK", "CONTINUE_MARGIN", "SEAM_POP", "SEAM_DETECT",
@@ -54,6 +54,116 @@ POP_DEFECTS = 3
 
 _WORKER: dict = {}
 
+#: The kinds of Gauss–Newton solve that :class:`GaussNewtonWork` counts, in report order.
+WORK_KINDS = ("first_pass", "continued", "resumed", "fixpoint", "bridge", "trial_start",
+              "replaced", "continuation_discarded", "speculative_discarded", "bridge_discarded",
+              "trial_start_discarded")
+#: The kinds whose result was thrown away: no output frame comes from it, directly or as the
+#: start of another solve.
+DISCARDED_KINDS = ("replaced", "continuation_discarded", "speculative_discarded",
+                   "bridge_discarded", "trial_start_discarded")
+_WORK_FIELDS = ("solves", "iterations", "cg_iterations", "factorizations")
+
+
+class GaussNewtonWork:
+    """All the Gauss–Newton work of a reconstruction, by kind of solve: every per-frame solve
+    and every seam bridge's joint solve, whether its result was kept or not (the frame
+    records count only the solve each frame keeps).
+
+    Kinds (:data:`WORK_KINDS`):
+
+    * ``first_pass``, ``continued``: the solve of a frame of a first-pass run, of a
+      continuation run (:func:`continued_runs`), that the frame keeps;
+    * ``resumed``: the rounds of :func:`resume_steady` (added to their frame's record);
+    * ``fixpoint``: the frames of the ``fixpoint`` iterations
+      (:func:`~.stages.fixpoint_iterations`);
+    * ``bridge``: a kept bridge's joint solve (:func:`bridge_seams`; the bridged frames'
+      records still count their own solve);
+    * ``trial_start``: of :func:`~.stages.given_starts`' two solves of a run's first frame,
+      the one the run starts from;
+    * and the discarded ones (:data:`DISCARDED_KINDS`): ``replaced`` (a first-pass frame a
+      continuation replaced), ``continuation_discarded`` (the frame at which a continuation
+      stopped, not lower than the first pass), ``speculative_discarded`` (frames of a
+      speculative continuation that the continuation given its energies from the start does
+      not solve, :meth:`GapContinuations.speculate`: only on a process pool),
+      ``bridge_discarded`` (a bridge not kept), ``trial_start_discarded`` (the other start).
+
+    Plain counts: a pool worker returns its own, which the parent adds (:meth:`merge`), so
+    one worker and several count the same solves the same, but for the speculative ones.
+
+    Examples
+    --------
+    >>> w = GaussNewtonWork()
+    >>> w.add("first_pass", {"nit": 7, "cg_iterations": 30, "factorizations": 2})
+    >>> w.add("first_pass", {"nit": 4, "cg_iterations": 12, "factorizations": 1})
+    >>> w.move({"nit": 4, "cg_iterations": 12, "factorizations": 1}, "first_pass", "replaced")
+    >>> r = w.record()
+    >>> r["iterations"], r["discarded_solves"], r["by_kind"]["replaced"]["iterations"]
+    (11, 1, 4)
+    """
+
+    def __init__(self):
+        self.counts: dict = {}   # kind -> [solves, iterations, cg_iterations, factorizations]
+
+    def add(self, kind: str, rec, solves: int = 1) -> None:
+        """Count ``solves`` solves of ``kind`` whose work is ``rec``: a frame record
+        (``nit``, ``cg_iterations``, ``factorizations``) or a
+        :class:`~.bridge.BridgeResult`'s summary (``iterations`` for ``nit``)."""
+        assert kind in WORK_KINDS, kind
+        row = self.counts.setdefault(kind, [0, 0, 0, 0])
+        for i, v in enumerate((solves, *_work_of(rec))):
+            row[i] += int(v)
+
+    def move(self, rec, src: str, dst: str) -> None:
+        """Count a solve already counted as ``src`` (its work ``rec``) as ``dst`` instead."""
+        nit, cg, facts = _work_of(rec)
+        self.add(src, {"nit": -nit, "cg_iterations": -cg, "factorizations": -facts},
+                 solves=-1)
+        self.add(dst, rec)
+
+    def merge(self, other: "GaussNewtonWork") -> "GaussNewtonWork":
+        """Add ``other``'s counts (a worker's) to these; returns self."""
+        for kind, row in other.counts.items():
+            mine = self.counts.setdefault(kind, [0, 0, 0, 0])
+            for i, v in enumerate(row):
+                mine[i] += v
+        return self
+
+    def totals(self, kinds=WORK_KINDS) -> dict:
+        """``{"solves", "iterations", "cg_iterations", "factorizations"}`` over ``kinds``."""
+        rows = [self.counts[k] for k in kinds if k in self.counts]
+        return {f: int(sum(r[i] for r in rows)) for i, f in enumerate(_WORK_FIELDS)}
+
+    def record(self) -> dict:
+        """The report's record: :meth:`totals`, ``discarded_solves`` and ``by_kind`` (the
+        totals of each kind that has solves, in :data:`WORK_KINDS` order)."""
+        return {**self.totals(),
+                "discarded_solves": self.totals(DISCARDED_KINDS)["solves"],
+                "by_kind": {k: self.totals((k,)) for k in WORK_KINDS
+                            if self.counts.get(k, [0])[0]}}
+
+
+def _work_of(rec) -> tuple:
+    """``(iterations, CG iterations, factorizations)`` of a frame record or a bridge's
+    summary."""
+    return (rec["nit"] if "nit" in rec else rec["iterations"], rec.get("cg_iterations", 0),
+            rec.get("factorizations", 0))
+
+
+def work_record(levels: dict) -> dict:
+    """``report["gauss_newton"]["work"]``: the :meth:`GaussNewtonWork.record` of all the
+    resolutions' work ``levels`` (``{"full": work}``, or ``{"coarse": .., "fine": ..}``)
+    together, with ``by_resolution`` (each one's totals) where there are several."""
+    total = GaussNewtonWork()
+    for w in levels.values():
+        total.merge(w)
+    out = total.record()
+    if len(levels) > 1:
+        out["by_resolution"] = {name: {**w.totals(), "discarded_solves":
+                                       w.totals(DISCARDED_KINDS)["solves"]}
+                                for name, w in levels.items()}
+    return out
+
 
 def single_blas_thread():
     """Limit BLAS thread pools to one thread in this process (our parallelism is the process
@@ -75,7 +185,7 @@ def _worker_init(F, n, pinned, gn_options):
 
 
 def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
-               worse_than=None, tubes=None, gate=None):
+               worse_than=None, tubes=None, gate=None, work=None, kind="first_pass"):
     """Reconstruct a run of consecutive frames, in the run's order (see :func:`reconstruction_runs`).
 
     ``Vanchor`` is the keyframe next to the run's first frame, or a pair of solved frames
@@ -101,8 +211,14 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
     ``worse_than`` from the first frame on (frames already solved that do not beat theirs
     are dropped with all after them): the frames returned are those of the same run given
     ``worse_than`` from the start.
+
+    ``work`` (a :class:`GaussNewtonWork`): every solve is counted there, those of the frames
+    returned as ``kind``; the frame at which ``worse_than`` stops the run as
+    ``"continuation_discarded"``, and frames a gate drops after it as
+    ``"speculative_discarded"``.
     """
     out = []
+    work = GaussNewtonWork() if work is None else work
     gn.reset()  # a run's result does not depend on which runs this solver did before, so
     # one worker and several give the same sequence
     if isinstance(Vanchor, tuple):
@@ -119,6 +235,10 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
                 worse_than, gate = energies, None
                 cut = beaten_prefix(out, worse_than)
                 if cut < len(out):
+                    # the run given worse_than from the start solves frame `cut` and stops
+                    work.move(out[cut][2], kind, "continuation_discarded")
+                    for _, _, rec in out[cut + 1:]:
+                        work.move(rec, kind, "speculative_discarded")
                     del out[cut:]
                     break
         t0 = time.perf_counter()
@@ -127,10 +247,12 @@ def solve_run(gn: GaussNewton, ks, Zs, Ws, Vinit, Vanchor, warm, on_frame=None,
         if warm and prev is not None:
             v = warm_start(gn, z, w, tube, v, prev, prev2, prev_init, warm)
         r = gn.solve(z, w, v, tube)
-        if worse_than is not None and not r.energy < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
-            break
-        prev2, prev, prev_init = prev, r.V, v0
         rec = r.summary()
+        if worse_than is not None and not r.energy < (1.0 - CONTINUE_MARGIN) * worse_than[i]:
+            work.add("continuation_discarded", rec)
+            break
+        work.add(kind, rec)
+        prev2, prev, prev_init = prev, r.V, v0
         if r.status == "limit":   # for resume_steady
             rec["to_go"] = iterations_to_go(r.energies, gn.dtol)
         rec["frame"] = int(k)
@@ -214,7 +336,7 @@ class _FrameStarts:
 
 
 def resume_steady(T, results, Z, W_of, pinned, gn_options, workers, prog, stage_prefix="",
-                  tube_of=None, budget: int = RESUME_ITER):
+                  tube_of=None, budget: int = RESUME_ITER, work=None):
     """Give the frames that stopped at their iteration limit while still converging steadily
     up to ``budget`` more Gauss–Newton iterations, each from where it stopped, after every
     run has been solved: in rounds of :data:`RESUME_ROUND`, a frame taking part in a round
@@ -235,7 +357,8 @@ def resume_steady(T, results, Z, W_of, pinned, gn_options, workers, prog, stage_
 
     Updates ``results`` in place; a resumed frame's record says ``"resumed": true`` and
     counts the iterations, CG iterations, factorizations and seconds of all its solves.
-    Returns the frames resumed.
+    Returns the frames resumed. ``work``: a :class:`GaussNewtonWork` counting the rounds'
+    solves as ``"resumed"``.
     """
     left = int(budget)
     todo = sorted(int(k) for k, (_, rec) in results.items()
@@ -252,7 +375,7 @@ def resume_steady(T, results, Z, W_of, pinned, gn_options, workers, prog, stage_
                                       {**gn_options, "max_iter": step}, workers, prog,
                                       False, stage=stage,
                                       runs=[(np.array([k]), k) for k in todo],
-                                      tube_of=tube_of)
+                                      tube_of=tube_of, work=work, kind="resumed")
         todo = []
         for k, (Vk, rec) in more.items():
             old = results[k][1]
@@ -484,6 +607,20 @@ class GapContinuations:
                 self.record(solved[:beaten_prefix(solved, spec["worse_than"])], progress,
                             spec["key"])
 
+    def count_speculation(self, work) -> None:
+        """Count the frames of the speculative continuations that no frame keeps, once they
+        are all back (their solves were counted as ``"continued"`` by their workers): where
+        the other direction won, all of them (``"speculative_discarded"``); where theirs did,
+        those after the frames that beat the first pass (:meth:`settle`), the first of
+        which the continuation given the energies from the start solves too
+        (``"continuation_discarded"``)."""
+        for spec in self._spec.values():
+            solved = spec["out"] or []
+            cut = beaten_prefix(solved, spec["worse_than"]) if "worse_than" in spec else 0
+            for j, (_, _, rec) in enumerate(solved[cut:]):
+                work.move(rec, "continued", "continuation_discarded"
+                          if j == 0 and "worse_than" in spec else "speculative_discarded")
+
     def record(self, solved, progress, key=None) -> None:
         """Keep the frames ``[(k, V, record), ...]`` of a continuation run (``key``: the
         frames it was given, as a tuple)."""
@@ -572,20 +709,25 @@ def reconstruction_runs(ks, frames, K, periodic):
     return out
 
 
-def _worker_solve(task):
+def _worker_solve(kind, task):
+    """A run on a pool worker (:func:`solve_run`, its solves counted as ``kind``): ``(frames,
+    GaussNewtonWork)``."""
+    work = GaussNewtonWork()
     if isinstance(task, tuple) and len(task) == 4 and task[0] == "inherited":
         # forked worker: the frame data are the parent's arrays, inherited (no copies)
         _, ks, anchor, worse = task
         Z, W_of, Vinit, warm, tube_of = _WORKER["frame_data"]
         return solve_run(_WORKER["gn"], ks, [Z[k] for k in ks], [W_of(k) for k in ks],
-                          [Vinit[k] for k in ks], _anchor(anchor, Vinit), warm,
-                          worse_than=worse, tubes=_tubes(tube_of, ks))
-    return solve_run(_WORKER["gn"], *task)
+                         [Vinit[k] for k in ks], _anchor(anchor, Vinit), warm,
+                         worse_than=worse, tubes=_tubes(tube_of, ks), work=work,
+                         kind=kind), work
+    return solve_run(_WORKER["gn"], *task, work=work, kind=kind), work
 
 
 def _worker_speculate(task):
     """A speculative continuation on a forked worker (:meth:`GapContinuations.speculate`):
-    the run's frames, read from the shared gate of its gap between frames."""
+    the run's frames, read from the shared gate of its gap between frames, and its
+    :class:`GaussNewtonWork` (the frames counted as ``"continued"``)."""
     _, i, ks, anchor = task
     Z, W_of, Vinit, warm, tube_of = _WORKER["frame_data"]
     state, energies = _WORKER["gate"]
@@ -594,9 +736,10 @@ def _worker_speculate(task):
         st = int(state[i])
         return st, (energies[i, :len(ks)].copy() if st == GATE_GO else None)
 
+    work = GaussNewtonWork()
     return solve_run(_WORKER["gn"], ks, [Z[k] for k in ks], [W_of(k) for k in ks],
                      [Vinit[k] for k in ks], anchor, warm, tubes=_tubes(tube_of, ks),
-                     gate=gate)
+                     gate=gate, work=work, kind="continued"), work
 
 
 def _worker_bridge(task):
@@ -652,7 +795,8 @@ def _chunks(idx, n_chunks):
 
 
 def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progress, warm,
-                        stage="reconstruct", runs=None, tube_of=None, follow=None):
+                        stage="reconstruct", runs=None, tube_of=None, follow=None, work=None,
+                        kind="first_pass"):
     """Reconstruct frames ``ks`` (in ``runs``, see :func:`reconstruction_runs`; default one run per frame
     anchored at its predecessor) serially or on ``workers`` processes; ``tube_of(k)``: the
     tube weights of frame ``k`` (see :func:`solve_run`).
@@ -660,7 +804,11 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
     ``follow`` (a :class:`GapContinuations`, process pool only): after each run, the runs it
     returns for the results so far are solved on the same pool, in the time the other
     workers still need for their runs; their results are ``follow.results``.
+
+    ``work`` (a :class:`GaussNewtonWork`): counts every solve, the workers' included, the
+    frames returned as ``kind`` (:func:`solve_run`; ``follow``'s as ``"continued"``).
     """
+    work = GaussNewtonWork() if work is None else work
     results = {}
     total = len(ks)
     if runs is None:
@@ -679,7 +827,7 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                                               lambda i, rec: progress.advance(
                                                   stage, done + i, total,
                                                   text=_frame_text(rec)), worse,
-                                              _tubes(tube_of, run)):
+                                              _tubes(tube_of, run), work=work, kind=kind):
                     results[kk] = (Vk, rec)
         finally:
             if limiter is not None:
@@ -711,8 +859,8 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                 .reshape(ng, longest))
     done = 0
 
-    def submit(ex, c, a, w):
-        return ex.submit(_worker_solve, ("inherited", c, a, w) if method == "fork" else
+    def submit(ex, c, a, w, kind=kind):
+        return ex.submit(_worker_solve, kind, ("inherited", c, a, w) if method == "fork" else
                          (c, Z[c], np.stack([W_of(k) for k in c]), Vinit[c],
                           _anchor(a, Vinit), warm, None, w, _tubes(tube_of, c)))
 
@@ -728,14 +876,17 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in finished:
                     out = fut.result()
-                    if fut in extra:  # a follow-up run or bridge
-                        kind, key = extra.pop(fut)
-                        if kind == "bridge":
-                            follow.record_bridge(out)
-                        elif kind == "speculate":
-                            follow.speculated(key, out)
+                    task = extra.pop(fut, None)
+                    if task is not None and task[0] == "bridge":
+                        follow.record_bridge(out)
+                        continue
+                    out, w = out  # a run and the work its worker counted
+                    work.merge(w)
+                    if task is not None:  # a follow-up run
+                        if task[0] == "speculate":
+                            follow.speculated(task[1], out)
                         else:
-                            follow.record(out, progress, key)
+                            follow.record(out, progress, task[1])
                         continue
                     for kk, Vk, rec in out:
                         results[kk] = (Vk, rec)
@@ -743,7 +894,7 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                         progress.advance(stage, done, total, text=_frame_text(rec))
                 if follow is not None:
                     for r in follow.ready(results):
-                        fut = submit(ex, *r)
+                        fut = submit(ex, *r, kind="continued")
                         extra[fut] = ("continue", tuple(int(k) for k in r[0]))
                         pending.add(fut)
                     follow.settle(progress)
@@ -760,6 +911,8 @@ def run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, progr
                             fut = ex.submit(_worker_bridge, task)
                             extra[fut] = ("bridge", task[1])
                             pending.add(fut)
+        if follow is not None:
+            follow.count_speculation(work)
     finally:
         _WORKER.pop("gn", None)
         _WORKER.pop("frame_data", None)
@@ -791,7 +944,8 @@ def safe_init(blend, Vkey, frames, K, bc, T, min_ratio=1e-3):
 
 def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn_options,
                        workers, warm, prog, stage_prefix="", bridge=True,
-                       pop_defects=POP_DEFECTS, tube_of=None, resume: int = RESUME_ITER):
+                       pop_defects=POP_DEFECTS, tube_of=None, resume: int = RESUME_ITER,
+                       work=None):
     """The reconstruction stage: frames ``ks`` in runs from the keyframes
     (:func:`reconstruction_runs`), then, with ``warm="extrapolate"``, the continuation pass
     of :func:`continued_runs`, then :func:`resume_steady` (``resume`` more iterations for
@@ -829,6 +983,9 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         (:func:`~shellspline.pipeline.describe.tube_weights`).
     resume : int
         Budget of :func:`resume_steady`.
+    work : GaussNewtonWork, optional
+        Counts all the stage's Gauss–Newton solves, kept or not, by kind (the records count
+        each frame's kept solve only).
 
     Returns
     -------
@@ -838,6 +995,7 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         of a gap (:func:`seam_records`) has ``record["seam_jump"]``, the step there over the
         typical step next to it.
     """
+    work = GaussNewtonWork() if work is None else work
     runs = reconstruction_runs(ks, frames, K, periodic)
     stage = stage_prefix + "reconstruct"
     # the continuation of a gap starts on the pool as soon as its two runs are solved
@@ -851,10 +1009,10 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
     with prog.stage(stage, total=len(ks)):
         results = run_reconstruction(T, ks, Z, W_of, Vinit, pinned, gn_options, workers, prog,
                                      warm, stage=stage, runs=runs, tube_of=tube_of,
-                                     follow=follow)
+                                     follow=follow, work=work)
     if warm != "extrapolate":
         resume_steady(T, results, Z, W_of, pinned, gn_options, workers, prog, stage_prefix,
-                      tube_of, resume)
+                      tube_of, resume, work=work)
         return results
     again = [t for t in continued_runs(runs, results, Vinit)
              if tuple(int(k) for k in t[0]) not in follow.submitted]
@@ -863,25 +1021,31 @@ def reconstruct_frames(T, ks, Z, W_of, Vinit, pinned, *, frames, K, periodic, gn
         better = run_reconstruction(T, np.concatenate([r for r, _, _ in again]) if again
                                     else np.zeros(0, int), Z, W_of, Vinit, pinned, gn_options,
                                     workers, prog, warm, stage=stage, runs=again,
-                                    tube_of=tube_of)
+                                    tube_of=tube_of, work=work, kind="continued")
     better = {**follow.results, **better}
     for kk, (Vk, rec) in better.items():
+        work.move(results[kk][1], "first_pass", "replaced")
         rec["continued"] = True
         results[kk] = (Vk, rec)
     resume_steady(T, results, Z, W_of, pinned, gn_options, workers, prog, stage_prefix, tube_of,
-                  resume)
+                  resume, work=work)
     seams = seam_records(runs, results, Vinit, pinned)
     for seam in seams:
         results[seam["frame"]][1]["seam_jump"] = seam["jump"]
+    taken = set()
     if bridge and seams:
-        bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
-                     stage_prefix, workers, pop_defects, tube_of, early=follow.bridged)
+        taken = bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
+                             stage_prefix, workers, pop_defects, tube_of, early=follow.bridged,
+                             work=work)
+    for s, done in follow.bridged.items():
+        if s not in taken and done[3] is not None:  # bridged on the pool, then not used
+            work.add("bridge_discarded", done[3].summary())
     return results
 
 
 def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
                  stage_prefix="", workers=1, pop_defects=POP_DEFECTS, tube_of=None,
-                 early=None):
+                 early=None, work=None) -> set:
     """Re-solve the frames around each seam jointly (:func:`~.bridge.bridge_seam`) and
     replace them in ``results`` (in place) where that removes the jump without a new defect.
 
@@ -898,8 +1062,12 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
     frame on each side of the seam, one seam at a time (horse, 1 instead of 2 frames a side:
     pop 1.35 instead of 1.14). ``early``: ``{s: (s, a, b, BridgeResult, before, after)}``,
     seams already bridged on the reconstruction's pool (:class:`GapContinuations`), taken
-    as they are where the seam and its gap are the same.
+    as they are where the seam and its gap are the same. ``work``: a
+    :class:`GaussNewtonWork` counting each joint solve as ``"bridge"`` or
+    ``"bridge_discarded"`` (not kept). Returns the seam frames of the ``early`` bridges
+    taken.
     """
+    work = GaussNewtonWork() if work is None else work
     from ..parallel import process_pool, start_method
     from .bridge import BRIDGE_HALF
 
@@ -945,6 +1113,7 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
                 if br is None:
                     continue
                 keep = bridge_kept(br, before, after, pop_defects)
+                work.add("bridge" if keep else "bridge_discarded", br.summary())
                 if keep:
                     for k, Vk, e in zip(br.frames, br.V, br.energies):
                         rec = dict(results[int(k)][1])
@@ -965,6 +1134,7 @@ def bridge_seams(T, seams, results, Z, W_of, Vinit, pinned, gn_options, K, prog,
                                   f"{'' if keep else ' (not kept)'}")
     finally:
         _WORKER.pop("bridge", None)
+    return set(early)
 
 
 def bridge_kept(br, before, after, pop_defects: int = POP_DEFECTS) -> bool:

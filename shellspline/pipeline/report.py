@@ -328,10 +328,12 @@ def energies_record(seq, prob, opts, prog) -> dict:
     return out
 
 
-def finish_report(report: dict, V, frame_records, prob, opts, prog, t_start: float) -> dict:
+def finish_report(report: dict, V, frame_records, prob, opts, prog, t_start: float,
+                  gn_work=None) -> dict:
     """Add frame records, quality of the final sequence ``V`` (K+1,n,3) in the input's
-    units, the Gauss–Newton summary, timings and the platform to ``report`` (in place) and
-    return it."""
+    units, the Gauss–Newton summary (with ``gn_work``, the record of all the solves,
+    :func:`~.reconstruction.work_record`), timings and the platform to ``report`` (in place)
+    and return it."""
     report["parameters"]["length_scale"] = float(prob.scale)
     for rec in report.get("fixpoint", []):
         rec["max_vertex_change"] *= prob.scale
@@ -339,7 +341,7 @@ def finish_report(report: dict, V, frame_records, prob, opts, prog, t_start: flo
     with prog.stage("quality"):
         report["quality"] = quality_record(V, prob.T, prob.frames, opts.bc, prob.keyframes.V)
     if frame_records:
-        report["gauss_newton"] = gauss_newton_summary(frame_records)
+        report["gauss_newton"] = gauss_newton_summary(frame_records, gn_work)
         failed = [r["frame"] for r in frame_records if not r["success"]]
         if failed:
             start = "start frames of the nonlinear stage: " if opts.method == "nonlinear" \
@@ -348,14 +350,18 @@ def finish_report(report: dict, V, frame_records, prob, opts, prog, t_start: flo
                          f"{' …' if len(failed) > 10 else ''}")
     report["timings"] = dict(prog.timings)
     report["timings"]["total"] = time.perf_counter() - t_start
+    # stages timed inside another (the reference geodesic inside describe): part of its time
+    report["timings_within"] = dict(prog.within)
     report["platform"] = {"python": platform.python_version(), "cpus": os.cpu_count()}
     return report
 
 
-def gauss_newton_summary(records: list) -> dict:
-    """Totals of the per-frame Gauss–Newton records (``report["gauss_newton"]``)."""
+def gauss_newton_summary(records: list, work: dict | None = None) -> dict:
+    """Totals of the per-frame Gauss–Newton records (``report["gauss_newton"]``): the solves
+    the frames keep. ``work``: all the solves, kept or not
+    (:func:`~.reconstruction.work_record`), added as ``"work"``."""
     nits = [r["nit"] for r in records]
-    return {
+    out = {
         "frames": len(records),
         "converged": int(sum(r["success"] for r in records)),
         "stalled": [int(r["frame"]) for r in records if r.get("status") == "stalled"],
@@ -368,6 +374,9 @@ def gauss_newton_summary(records: list) -> dict:
         "cg_iterations_total": int(sum(r["cg_iterations"] for r in records)),
         "factorizations_total": int(sum(r["factorizations"] for r in records)),
     }
+    if work is not None:
+        out["work"] = work
+    return out
 
 
 def nonlinear_record(nl, n_vertices: int) -> dict:

@@ -17,9 +17,9 @@ from ..shells.lta_spline import lta_spline
 from ..timeline import linear_blend
 from .describe import SplineRows, describe_and_solve
 from .placement import place
-from .reconstruction import (POP_DEFECTS, RESUME_ITER, SEAM_POP, parallel_decode,
-                             reconstruct_frames, resume_steady, run_reconstruction,
-                             safe_init)
+from .reconstruction import (POP_DEFECTS, RESUME_ITER, SEAM_POP, GaussNewtonWork,
+                             parallel_decode, reconstruct_frames, resume_steady,
+                             run_reconstruction, safe_init)
 from .report import fixpoint_change, nonlinear_record
 
 __all__ = ["StageResult", "run_method", "aligned_keyframes", "in_input_units", "linear_stage",
@@ -48,6 +48,10 @@ class StageResult:
     report : dict
         Sections the stage adds to the report (``geodesic``, ``multires``, ``nonlinear``,
         ``fixpoint``).
+    gn_work : dict
+        All the Gauss–Newton solves of the frames, kept or not, per resolution:
+        ``{"full": GaussNewtonWork}``, or ``"coarse"`` and ``"fine"``
+        (:class:`~.reconstruction.GaussNewtonWork`; ``frame_records`` count the kept solves).
     """
 
     V: np.ndarray
@@ -56,6 +60,7 @@ class StageResult:
     frame_records: list = field(default_factory=list)
     energy_source: tuple | None = None
     report: dict = field(default_factory=dict)
+    gn_work: dict = field(default_factory=dict)
 
 
 def run_method(prob, opts, prog) -> StageResult:
@@ -261,11 +266,12 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
     ks = _in_betweens(prob, opts)
     warm = "extrapolate" if opts.warm_start else False
     refine = Vinit is not None  # (a bool: Vinit itself is freed below)
+    work = GaussNewtonWork()
     if Vinit is None:
         Vinit = safe_init(linear_blend(Vkey, frames, K, bc), Vkey, frames, K, bc, T)
     else:
         Vinit, starts = given_starts(np.asarray(Vinit, dtype=np.float64), Vkey, T, ks, tg,
-                                     pinned, prob, opts)
+                                     pinned, prob, opts, work)
         if start_log is not None:
             start_log.update(starts)
     # a refinement (given starts: the guarded prolonged sequence) promises no defect that
@@ -278,7 +284,7 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
                                  stage_prefix=stage_prefix,
                                  pop_defects=1 if refine else POP_DEFECTS,
                                  tube_of=tg.tube_of,
-                                 resume=_resume_budget(opts))
+                                 resume=_resume_budget(opts), work=work)
     del Vinit
     Z = tg.Z[:] if isinstance(tg.Z, SplineRows) else tg.Z
     with prog.stage(stage_prefix + "place"):
@@ -286,18 +292,19 @@ def lta_sequence(Vkey, T, pinned, prob, opts, prog, *, Vinit=None, stage_prefix=
         for k in ks:
             V[k] = results[k][0]
         V = _placed(V, Vkey, T, pinned, prob, opts)
-    seq = StageResult(V=V, Z=Z, W=tg.W_report, frame_records=[results[k][1] for k in ks])
+    seq = StageResult(V=V, Z=Z, W=tg.W_report, frame_records=[results[k][1] for k in ks],
+                      gn_work={stage_prefix.strip() or "full": work})
     seq.report["bending_fade"] = {"fade_angle": opts.fade_angle, "faded_edges": tg.faded_edges,
                                   "interior_edges": int(T.n_interior)}
     if tg.reference is not None:
         seq.report["reference_geodesic"] = tg.reference
     if opts.fixpoint:
         fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix,
-                            fixpoint_log)
+                            fixpoint_log, work=work)
     return seq
 
 
-def given_starts(Vinit, Vkey, T, ks, tg, pinned, prob, opts):
+def given_starts(Vinit, Vkey, T, ks, tg, pinned, prob, opts, work=None):
     """Where a given initial sequence (the prolonged coarse result of ``fine=True``) starts
     the reconstruction: the first frame of each run from a keyframe
     (:func:`~.reconstruction.reconstruction_runs`; later frames extrapolate their solved
@@ -319,6 +326,9 @@ def given_starts(Vinit, Vkey, T, ks, tg, pinned, prob, opts):
         ``Vinit`` with the frames where the blend is better replaced by the blend's.
     record : dict
         ``prolonged`` and ``blend``: the run-starting frames that start from each.
+
+    ``work`` (a :class:`~.reconstruction.GaussNewtonWork`) counts the solves from both starts
+    as ``"trial_start"`` (the one kept) and ``"trial_start_discarded"``.
     """
     from ..shells.descriptors import lta_descriptors
     from ..shells.reconstruct import GaussNewton
@@ -351,6 +361,10 @@ def given_starts(Vinit, Vkey, T, ks, tg, pinned, prob, opts):
             gn.reset()
             r_blend = gn.solve(z, tg.W_of(k), blend[k], tube)
             take_blend = r_blend.energy < r_given.energy
+            if work is not None:
+                kept, other = (r_blend, r_given) if take_blend else (r_given, r_blend)
+                work.add("trial_start", kept.summary())
+                work.add("trial_start_discarded", other.summary())
             rec.setdefault("solved_both", []).append(
                 {"frame": k, "prolonged": float(r_given.energy), "blend": float(r_blend.energy)})
             if V is Vinit:
@@ -381,10 +395,12 @@ def _resume_budget(opts) -> int:
 
 
 def fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix="",
-                        log=None) -> StageResult:
+                        log=None, work=None) -> StageResult:
     """The fixpoint iterations of the LΘA model (paper §9, Fig. 9), on ``seq`` in place:
     reference meshes ← the current result, re-solve the spline, reconstruct from the current
-    result, place; the change of each iteration is appended to ``log``."""
+    result, place; the change of each iteration is appended to ``log``, its solves counted
+    in ``work`` (a :class:`~.reconstruction.GaussNewtonWork`) as ``"fixpoint"`` and
+    ``"resumed"``."""
     frames, K, bc = prob.frames, prob.K, opts.bc
     ks = _in_betweens(prob, opts)
     for it in range(opts.fixpoint):
@@ -397,10 +413,10 @@ def fixpoint_iterations(seq, tg, Vkey, T, pinned, prob, opts, prog, stage_prefix
         with prog.stage(stage, total=len(ks)):
             results = run_reconstruction(T, ks, Znew, lambda k: W_spline[k], seq.V, pinned,
                                          opts.gn_options, opts.workers, prog, False,
-                                         stage=stage)
+                                         stage=stage, work=work, kind="fixpoint")
         resume_steady(T, results, Znew, lambda k: W_spline[k], pinned, opts.gn_options,
                       opts.workers, prog, stage_prefix + f"fixpoint {it + 1} ",
-                      budget=_resume_budget(opts))
+                      budget=_resume_budget(opts), work=work)
         Vnew = linear_blend(Vkey, frames, K, bc)
         for k in ks:
             Vnew[k] = results[k][0]
@@ -435,7 +451,8 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
     copts = replace(opts, gn_options={"max_iter": COARSE_MAX_ITER, **opts.gn_options})
     coarse = lta_sequence(dec.V, Tc, dec.pinned, prob, copts, prog, stage_prefix="coarse ",
                           fixpoint_log=fixpoint_log)
-    out = StageResult(V=coarse.V, report={"multires": multires})
+    out = StageResult(V=coarse.V, report={"multires": multires},
+                      gn_work=dict(coarse.gn_work))
     if "bending_fade" in coarse.report:
         multires["bending_fade"] = coarse.report["bending_fade"]
     if "reference_geodesic" in coarse.report:
@@ -458,6 +475,7 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
             fine.V, coarse.V, T, Tc, dec.collapse_map, frames,
             _placed(V, Vkey, T, pinned, prob, opts), bc=bc)
         out.V, out.Z, out.W, out.frame_records = fine.V, fine.Z, fine.W, fine.frame_records
+        out.gn_work.update(fine.gn_work)
         out.report["bending_fade"] = fine.report.get("bending_fade")
         if "reference_geodesic" in fine.report and \
                 out.report.get("reference_geodesic", {}).get("success", True):

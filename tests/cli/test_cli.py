@@ -429,9 +429,41 @@ def test_options_this_mesh_leaves_unused_are_a_note_and_recorded_as_applied(ell_
         assert notes == ["  note: --max-iter 5 is not applied: --method linear reconstructs "
                          "nothing (no Gauss–Newton)"]
     assert lin["0.5"]["parameters"]["eta"] == 0.5
-    assert lin["0.5"]["parameters"]["gn_options"] == {}  # before: {"max_iter": 5}
+    assert lin["0.5"]["parameters"]["gn_options"] is None  # before: {"max_iter": 5}, then {}
     E = {k: r["energies"]["lta_output_energy_per_frame"] for k, r in lin.items()}
     assert E["0.5"][1] > 10 * E["1e-3"][1]
+
+
+def test_time_line_lists_nested_stages_inside_their_stage(ell_dir, tmp_path, capsys):
+    """The ``time:`` line listed every stage side by side, the reference geodesic beside the
+    describe stage that runs it (its seconds counted twice), and reading and writing after
+    the total that leaves them out: the parts added up to more than the total. Now a stage
+    timed inside another is in parentheses after it, and the top-level parts (reading and
+    writing included) add up to at most the total; report.json keeps its timings keys and
+    says which stage holds which (``timings_within``)."""
+    import re
+
+    out = tmp_path / "geo"
+    assert main(["interpolate", *_poses(ell_dir), "--frames", str(ell_dir / "frames.txt"),
+                 "-o", str(out), "--eta", "0.1", "--reference", "geodesic",
+                 "--coarse", "80"]) == 0
+    (line,) = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("time: ")]
+    rep = json.loads((out / "report.json").read_text())
+    t = rep["timings"]
+    assert rep["timings_within"] == {"coarse reference geodesic": "coarse describe"}
+    assert t["coarse reference geodesic"] <= t["coarse describe"]  # really inside it
+    assert f"coarse describe {t['coarse describe']:.2f}s (reference geodesic " \
+           f"{t['coarse reference geodesic']:.2f}s), " in line
+    body, total = re.fullmatch(r"time: (.*); total (\d+\.\d\d)s", line).groups()
+    top = [m.rsplit(" ", 1) for m in re.sub(r"(\d\ds) \([^()]*\)", r"\1", body).split(", ")]
+    names = [name for name, _ in top]
+    # every stage once, at the top level unless timed inside another
+    assert names[0] == "read" and names[-1] == "write" and "coarse describe" in names
+    assert names[1:-1] == [k for k in t if k not in ("read", "write", "total",
+                                                     "coarse reference geodesic")]
+    assert [float(v.rstrip("s")) for _, v in top] == [round(t[k], 2) for k in names]
+    assert float(total) == round(t["total"] + t["read"] + t["write"], 2)
+    assert sum(t[k] for k in names) <= t["total"] + t["read"] + t["write"]
 
 
 def test_fine_summary_lists_the_coarse_seams_its_quality_line_counts(capsys):
@@ -518,20 +550,31 @@ def test_report_records_the_output_format_and_fps(ell_dir, tmp_path):
 
 def test_linear_report_records_unused_parameters_as_null(ell_dir, tmp_path):
     """--method linear blends per vertex: no reference meshes, no LΘA spline, no fade of
-    bending weights, no rigid placement. report.json listed them at their defaults as if
-    applied; they are null (as transfer is where nothing is prolonged)."""
+    bending weights, no rigid placement, no reconstruction (Gauss–Newton, warm starts,
+    workers, fixpoint iterations, the geodesic/nonlinear solver), no multiresolution.
+    report.json listed them at their defaults as if applied (coarse "auto", fine false,
+    fixpoint 0, solver_options {} ...); they are null (as transfer is where nothing is
+    prolonged)."""
+    unused = ("reference", "spline", "fade_angle", "rigid_track", "transfer", "coarse",
+              "fine", "fixpoint", "solver_options", "gn_options", "warm_start", "workers",
+              "rigid_subset_vertices")
     out = tmp_path / "lin"
     assert main(["interpolate", *_poses(ell_dir), "--method", "linear", "--K", "4", "-q",
                  "-o", str(out)]) == 0
     params = json.loads((out / "report.json").read_text())["parameters"]
-    for key in ("reference", "spline", "fade_angle", "rigid_track", "transfer"):
-        assert params[key] is None, key
+    assert sorted(k for k, v in params.items() if v is None) == sorted(unused)
     assert params["method"] == "linear" and params["eta"] == 1e-3  # still applied
+    assert (params["bc"], params["K"], params["frames"]) == ("natural", 4, [0, 2, 4])
     out = tmp_path / "lta"
     assert main(["interpolate", *_poses(ell_dir), "--K", "4", "-q", "-o", str(out)]) == 0
     params = json.loads((out / "report.json").read_text())["parameters"]
     assert (params["reference"], params["rigid_track"]) == ("constant", "fit")
     assert params["spline"] == "continuous" and params["fade_angle"] == 0.5
+    assert (params["coarse"], params["fine"], params["fixpoint"]) == ("auto", False, 0)
+    assert (params["gn_options"], params["solver_options"]) == ({}, {})
+    assert (params["warm_start"], params["workers"], params["rigid_subset_vertices"]) == \
+        (True, 1, 0)
+    assert [k for k, v in params.items() if v is None] == ["transfer"]  # nothing prolonged
 
 
 @pytest.mark.parametrize("extra, message", [
