@@ -586,7 +586,8 @@ def decimate(Vs, F, target, *, pinned=None, boundary_weight: float = 1.0,
     -------
     Decimation
         ``stats["reached"]`` is ``False`` when no further valid collapse existed before the
-        target (a ``RuntimeWarning`` is issued).
+        target (a ``RuntimeWarning`` is issued); with ``fold_area`` > 0,
+        ``stats["folded_corners"]`` counts the fine vertices where some pose folds over.
 
     Raises
     ------
@@ -862,6 +863,8 @@ def _decimation(st: _CollapseState, Vs, pin, nt, t0) -> Decimation:
     stats = {"rounds": st.rounds, "collapses": st.collapses,
              "seconds": time.perf_counter() - t0, "reached": bool(st.n_cur <= nt),
              "target": nt, "n_vertices": int(kept.shape[0]), "n_faces": int(F_coarse.shape[0])}
+    if st.folded is not None:  # fine vertices where some keyframe folds over (fold_area > 0)
+        stats["folded_corners"] = int(st.folded.any(axis=1).sum())
     return Decimation(kept=kept, F=F_coarse, V=Vs[:, kept], collapse_map=cidx[root],
                       n_fine=n, pinned=pin_c, stats=stats)
 

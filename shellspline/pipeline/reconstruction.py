@@ -57,11 +57,11 @@ _WORKER: dict = {}
 #: The kinds of Gauss–Newton solve that :class:`GaussNewtonWork` counts, in report order.
 WORK_KINDS = ("first_pass", "continued", "resumed", "fixpoint", "bridge", "trial_start",
               "replaced", "continuation_discarded", "speculative_discarded", "bridge_discarded",
-              "trial_start_discarded")
+              "trial_start_discarded", "redecimated_discarded")
 #: The kinds whose result was thrown away: no output frame comes from it, directly or as the
 #: start of another solve.
 DISCARDED_KINDS = ("replaced", "continuation_discarded", "speculative_discarded",
-                   "bridge_discarded", "trial_start_discarded")
+                   "bridge_discarded", "trial_start_discarded", "redecimated_discarded")
 _WORK_FIELDS = ("solves", "iterations", "cg_iterations", "factorizations")
 
 
@@ -86,7 +86,9 @@ class GaussNewtonWork:
       stopped, not lower than the first pass), ``speculative_discarded`` (frames of a
       speculative continuation that the continuation given its energies from the start does
       not solve, :meth:`GapContinuations.speculate`: only on a process pool),
-      ``bridge_discarded`` (a bridge not kept), ``trial_start_discarded`` (the other start).
+      ``bridge_discarded`` (a bridge not kept), ``trial_start_discarded`` (the other start),
+      ``redecimated_discarded`` (every solve of a coarse run given up for another decimation,
+      :func:`~.stages.multires_sequence`).
 
     Plain counts: a pool worker returns its own, which the parent adds (:meth:`merge`), so
     one worker and several count the same solves the same, but for the speculative ones.
@@ -128,6 +130,14 @@ class GaussNewtonWork:
             for i, v in enumerate(row):
                 mine[i] += v
         return self
+
+    def discarded(self, kind: str = "redecimated_discarded") -> "GaussNewtonWork":
+        """All of these counts as one discarded ``kind`` (a new accumulator)."""
+        out = GaussNewtonWork()
+        t = self.totals()
+        out.add(kind, {"nit": t["iterations"], "cg_iterations": t["cg_iterations"],
+                       "factorizations": t["factorizations"]}, solves=t["solves"])
+        return out
 
     def totals(self, kinds=WORK_KINDS) -> dict:
         """``{"solves", "iterations", "cg_iterations", "factorizations"}`` over ``kinds``."""

@@ -1,0 +1,88 @@
+"""A multiresolution run whose coarse frames do not all converge decimates again with the
+keyframes' folds coarsened (shellspline.pipeline.stages.multires_sequence, REFOLD_AREA; see
+shellspline.mesh.decimate.decimate's fold_area) and keeps the run with fewer unconverged
+frames; the work of the other is reported as discarded."""
+import numpy as np
+import data_synth
+import shellspline as ss
+from shellspline.pipeline import stages
+
+
+def _z_fold(nx=61, ny=15, length=3.0, width=0.7, x0=1.2, lam=0.6, lift=0.002, reach=1.5):
+    """A flat strip and the same strip pushed into a Z over [x0, x0 + lam] (its fine faces
+    fold over at the creases), then a third pose between them (three keyframes)."""
+    xs, ys = np.linspace(0.0, length, nx), np.linspace(0.0, width, ny)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    V0 = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], -1)
+    a = np.arange(nx - 1)[:, None] * ny + np.arange(ny - 1)[None, :]
+    F = np.concatenate([np.stack([a, a + ny, a + ny + 1], -1).reshape(-1, 3),
+                        np.stack([a, a + ny + 1, a + 1], -1).reshape(-1, 3)])
+    k = 2.0 * np.pi / lam
+    th = np.clip(k * (V0[:, 0] - x0), 0.0, 2.0 * np.pi)
+    V1 = V0.copy()
+    V1[:, 0] -= reach / k * np.sin(th)
+    V1[:, 2] = lift * (1.0 - np.cos(th))
+    return np.stack([V0, V1, V0]), F
+
+
+def _forced(monkeypatch, first_unconverged):
+    """Make the first coarse run count ``first_unconverged`` unconverged frames (the real
+    count afterwards): the retry's plumbing on a mesh small enough for a test."""
+    real = stages._unconverged
+    calls = []
+
+    def fake(records):
+        calls.append(len(records))
+        return first_unconverged if len(calls) == 1 else real(records)
+    monkeypatch.setattr(stages, "_unconverged", fake)
+    return calls
+
+
+def test_an_unconverged_coarse_run_is_decimated_again_with_the_folds_coarsened(monkeypatch):
+    Vs, F = _z_fold()
+    plain = ss.interpolate((Vs, F), frames=[0, 4, 8], coarse=120, workers=1)
+    assert "refolded" not in plain.report["multires"]          # every coarse frame converged
+    _forced(monkeypatch, 3)
+    res = ss.interpolate((Vs, F), frames=[0, 4, 8], coarse=120, workers=1)
+    m = res.report["multires"]
+    assert m["refolded"] == {"fold_area": stages.REFOLD_AREA, "unconverged_before": 3,
+                             "unconverged_after": 0, "kept": True}
+    # the coarse mesh is another one: decimated with the folds coarsened
+    assert m["decimation"]["folded_corners"] > 0
+    assert m["coarse_faces"] == m["decimation"]["n_faces"] != m["first_decimation"]["n_faces"]
+    assert m["first_decimation"] == {k: v for k, v in plain.report["multires"]["decimation"]
+                                     .items()} | {"seconds": m["first_decimation"]["seconds"]}
+    # the first coarse run's solves are reported as discarded work, all of them
+    work = res.report["gauss_newton"]["work"]
+    first = plain.report["gauss_newton"]["work"]
+    assert work["by_kind"]["redecimated_discarded"] == {
+        k: first[k] for k in ("solves", "iterations", "cg_iterations", "factorizations")}
+    assert work["discarded_solves"] >= first["solves"]
+    for j, f in enumerate([0, 4, 8]):
+        assert np.array_equal(res.V[f], Vs[j])
+
+
+def test_the_first_run_stays_when_the_second_is_no_better(monkeypatch):
+    Vs, F = _z_fold()
+    plain = ss.interpolate((Vs, F), frames=[0, 4, 8], coarse=120, workers=1)
+    calls = []
+
+    def fake(records):   # the second run counts as worse: the first is kept
+        calls.append(1)
+        return 2 if len(calls) == 1 else 5
+    monkeypatch.setattr(stages, "_unconverged", fake)
+    res = ss.interpolate((Vs, F), frames=[0, 4, 8], coarse=120, workers=1)
+    m = res.report["multires"]
+    assert m["refolded"]["kept"] is False and "first_decimation" not in m
+    assert np.array_equal(res.V, plain.V)
+    assert res.report["gauss_newton"]["work"]["by_kind"]["redecimated_discarded"]["solves"] > 0
+
+
+def test_no_retry_without_folds(monkeypatch):
+    """A mesh whose keyframes nowhere fold over decimates the same with fold_area: no second
+    run even when frames did not converge."""
+    d = data_synth.generate("ellipsoids", n_vertices=300)
+    _forced(monkeypatch, 2)
+    res = ss.interpolate((d["V"], d["F"]), frames=list(d["frames"]), coarse=100, workers=1)
+    assert "refolded" not in res.report["multires"]
+    assert "redecimated_discarded" not in res.report["gauss_newton"]["work"]["by_kind"]
