@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["joint", "fold_over", "slivers", "dense_slivers", "squeezed_face", "tube"]
+__all__ = ["joint", "fold_over", "slivers", "dense_slivers", "squeezed_face", "tube", "z_fold"]
 
 
 def tube(rings: int = 24, segments: int = 16, length: float = 2.0, radius: float = 0.2,
@@ -185,4 +185,37 @@ def squeezed_face(height: float = 0.02, frames=(0, 2, 12), subdivisions: int = 2
     Vmid = V.copy()
     Vmid[a] = (1.0 - height) * (0.5 * (V[b] + V[c])) + height * V[a]
     return {"V": np.stack([V, Vmid, V]), "F": F, "frames": np.asarray(frames, dtype=np.int64),
+            "pinned": np.zeros(0, dtype=np.int64)}
+
+
+def z_fold(nx: int = 151, ny: int = 36, length: float = 3.0, width: float = 0.7,
+           x0: float = 1.2, lam: float = 0.6, lift: float = 0.002, reach: float = 1.5,
+           frames=(0, 10)) -> dict:
+    """A dense flat strip (``nx × ny`` grid) and the same strip with a skin fold: over
+    ``[x0, x0 + lam]`` the strip is pushed together into a Z (``x → x − reach/k sin θ``,
+    ``z = lift (1 − cos θ)``, ``θ = k (x − x0)``, ``k = 2π/lam``), so it runs back, forward
+    and back again, the three layers ``lift`` apart: the fine faces fold over at the two
+    creases and the two turns, and are squeezed next to the turns (a keyframe folding over
+    where the other does not, as skin at a joint; see ``decimate``'s ``fold_area``). With
+    three ``frames`` the third pose is flat again. Nothing pinned.
+
+    Examples
+    --------
+    >>> d = z_fold(nx=31, ny=8)
+    >>> d["V"].shape, d["F"].shape
+    ((2, 248, 3), (420, 3))
+    """
+    xs, ys = np.linspace(0.0, length, nx), np.linspace(0.0, width, ny)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    V0 = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], -1)
+    a = np.arange(nx - 1)[:, None] * ny + np.arange(ny - 1)[None, :]
+    F = np.concatenate([np.stack([a, a + ny, a + ny + 1], -1).reshape(-1, 3),
+                        np.stack([a, a + ny + 1, a + 1], -1).reshape(-1, 3)])
+    k = 2.0 * np.pi / lam
+    th = np.clip(k * (V0[:, 0] - x0), 0.0, 2.0 * np.pi)
+    V1 = V0.copy()
+    V1[:, 0] -= reach / k * np.sin(th)
+    V1[:, 2] = lift * (1.0 - np.cos(th))
+    poses = [V0, V1, V0][:len(frames)]
+    return {"V": np.stack(poses), "F": F, "frames": np.asarray(frames, dtype=np.int64),
             "pinned": np.zeros(0, dtype=np.int64)}

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import data_synth
+import data_synth.stress as stress
 from shellspline import MeshError, topology
 from shellspline.mesh.decimate import (Decimation, canonical_target, decimate, decimate_replay,
                                   hausdorff_fine_to_coarse)
@@ -256,24 +257,10 @@ def test_horse_keyframes_decimate_to_1000():
     assert (np.linalg.norm(Nc, axis=-1) > 0).all()
 
 
-def _z_fold(nx=151, ny=36, length=3.0, width=0.7, x0=1.2, lam=0.6, lift=0.002, reach=1.5):
-    """A dense flat strip (``nx × ny`` grid) and the same strip with a skin fold: over
-    ``[x0, x0 + lam]`` the strip is pushed together into a Z (``x → x − reach/k sin θ``,
-    ``z = lift (1 − cos θ)``, ``θ = k (x − x0)``, ``k = 2π/lam``), so it runs back, forward
-    and back again, the three layers ``lift`` apart: the fine faces fold over at the two
-    creases and the two turns, and are squeezed next to the turns."""
-    xs, ys = np.linspace(0.0, length, nx), np.linspace(0.0, width, ny)
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    V0 = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], -1)
-    a = np.arange(nx - 1)[:, None] * ny + np.arange(ny - 1)[None, :]
-    F = np.concatenate([np.stack([a, a + ny, a + ny + 1], -1).reshape(-1, 3),
-                        np.stack([a, a + ny + 1, a + 1], -1).reshape(-1, 3)])
-    k = 2.0 * np.pi / lam
-    th = np.clip(k * (V0[:, 0] - x0), 0.0, 2.0 * np.pi)
-    V1 = V0.copy()
-    V1[:, 0] -= reach / k * np.sin(th)
-    V1[:, 2] = lift * (1.0 - np.cos(th))
-    return np.stack([V0, V1]), F
+def _z_fold(**kw):
+    """:func:`data_synth.stress.z_fold`'s two poses and faces."""
+    d = stress.z_fold(**kw)
+    return d["V"], d["F"]
 
 
 def _quality(V, F):

@@ -4,25 +4,16 @@ shellspline.mesh.decimate.decimate's fold_area) and keeps the run with fewer unc
 frames; the work of the other is reported as discarded."""
 import numpy as np
 import data_synth
+import data_synth.stress as stress
 import shellspline as ss
 from shellspline.pipeline import stages
 
 
-def _z_fold(nx=61, ny=15, length=3.0, width=0.7, x0=1.2, lam=0.6, lift=0.002, reach=1.5):
-    """A flat strip and the same strip pushed into a Z over [x0, x0 + lam] (its fine faces
-    fold over at the creases), then a third pose between them (three keyframes)."""
-    xs, ys = np.linspace(0.0, length, nx), np.linspace(0.0, width, ny)
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    V0 = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], -1)
-    a = np.arange(nx - 1)[:, None] * ny + np.arange(ny - 1)[None, :]
-    F = np.concatenate([np.stack([a, a + ny, a + ny + 1], -1).reshape(-1, 3),
-                        np.stack([a, a + ny + 1, a + 1], -1).reshape(-1, 3)])
-    k = 2.0 * np.pi / lam
-    th = np.clip(k * (V0[:, 0] - x0), 0.0, 2.0 * np.pi)
-    V1 = V0.copy()
-    V1[:, 0] -= reach / k * np.sin(th)
-    V1[:, 2] = lift * (1.0 - np.cos(th))
-    return np.stack([V0, V1, V0]), F
+def _z_fold():
+    """A strip folding into a Z at the middle keyframe (data_synth.stress.z_fold): its fine
+    faces fold over there."""
+    d = stress.z_fold(nx=61, ny=15, frames=(0, 4, 8))
+    return d["V"], d["F"]
 
 
 def _forced(monkeypatch, first_unconverged):
