@@ -460,8 +460,9 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
         again = decimated(prob, prog, fold_area=REFOLD_AREA)
         if again is not None:
             dec2, Tc2, multires2 = again
+            log2 = None if fixpoint_log is None else []  # the kept run's fixpoint records
             coarse2 = lta_sequence(dec2.V, Tc2, dec2.pinned, prob, copts, prog,
-                                   stage_prefix="coarse ", fixpoint_log=fixpoint_log)
+                                   stage_prefix="coarse ", fixpoint_log=log2)
             after = _unconverged(coarse2.frame_records)
             multires2["refolded"] = {"fold_area": REFOLD_AREA, "unconverged_before": before,
                                      "unconverged_after": after, "kept": after < before}
@@ -470,6 +471,8 @@ def multires_sequence(prob, opts, prog, fixpoint_log=None) -> StageResult:
                          f"{REFOLD_AREA:g}): {after} did not converge, "
                          f"{'kept' if after < before else 'not kept'}")
             if after < before:
+                if fixpoint_log is not None:
+                    fixpoint_log[:] = log2
                 discarded, coarse = coarse, coarse2
                 dec, Tc, multires2["first_decimation"] = dec2, Tc2, multires["decimation"]
                 multires = multires2

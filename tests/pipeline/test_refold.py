@@ -77,3 +77,13 @@ def test_no_retry_without_folds(monkeypatch):
     res = ss.interpolate((d["V"], d["F"]), frames=list(d["frames"]), coarse=100, workers=1)
     assert "refolded" not in res.report["multires"]
     assert "redecimated_discarded" not in res.report["gauss_newton"]["work"]["by_kind"]
+
+
+def test_the_kept_runs_fixpoint_records_only(monkeypatch):
+    """With fixpoint iterations, the report lists those of the run that was kept (the
+    discarded run's were listed too before)."""
+    Vs, F = _z_fold()
+    _forced(monkeypatch, 3)
+    res = ss.interpolate((Vs, F), frames=[0, 4, 8], coarse=120, workers=1, fixpoint=1)
+    assert res.report["multires"]["refolded"]["kept"] is True
+    assert len(res.report["fixpoint"]) == 1
