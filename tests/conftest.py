@@ -85,3 +85,30 @@ def sphere():
 @pytest.fixture
 def sheet():
     return grid_sheet()
+
+
+@pytest.fixture
+def gated_run():
+    """``run(**kw)``: :func:`~shellspline.pipeline.reconstruction.solve_run` over frames 1–7
+    of a joint flexing 90° between keyframes 0 and 8 (frames started from the vertex blend,
+    targets the descriptors blended linearly: not those of a mesh, so every frame has an
+    energy); the keyword arguments go to ``solve_run`` (``worse_than``, ``gate``, ``work``)."""
+    import shellspline as ss
+    from data_synth import stress
+    from shellspline.shells.descriptors import lta_descriptors, lta_weights
+    from shellspline.pipeline.reconstruction import solve_run
+    from shellspline.shells.reconstruct import GaussNewton
+
+    d = stress.joint(angles=(0.0, 90.0), frames=(0, 8), rings=8, segments=8)
+    V0, V1 = d["V"]
+    T = ss.topology(d["F"])
+    t = np.linspace(0.0, 1.0, 9)[:, None, None]
+    blend = (1 - t) * V0 + t * V1
+    Z = (1 - t[:, :, 0]) * lta_descriptors(V0, T) + t[:, :, 0] * lta_descriptors(V1, T)
+    w = lta_weights(V0, T)
+    gn = GaussNewton(T)
+    ks = np.arange(1, 8)
+
+    def run(**kw):
+        return solve_run(gn, ks, Z[ks], [w] * len(ks), blend[ks], V0, "extrapolate", **kw)
+    return run

@@ -268,28 +268,11 @@ def test_speculative_continuations_change_no_frame(monkeypatch):
         [{k: v for k, v in f.items() if k not in drop} for f in plain.report["frames"]]
 
 
-def test_gated_run_keeps_what_the_run_given_its_energies_keeps():
+def test_gated_run_keeps_what_the_run_given_its_energies_keeps(gated_run):
     """solve_run with a gate: energies not known for the first frames, then known (GO): the
     frames kept are those of the same run given worse_than from the start, also where
     frames already solved must be dropped; ABORT stops it."""
-    import shellspline as ss
-    from data_synth import stress
-    from shellspline.shells.descriptors import lta_descriptors, lta_weights
-    from shellspline.shells.reconstruct import GaussNewton
-
-    d = stress.joint(angles=(0.0, 90.0), frames=(0, 8), rings=8, segments=8)
-    V0, V1 = d["V"]
-    T = ss.topology(d["F"])
-    t = np.linspace(0.0, 1.0, 9)[:, None, None]
-    blend = (1 - t) * V0 + t * V1
-    # descriptors blended linearly: not those of a mesh, so every frame has an energy
-    Z = (1 - t[:, :, 0]) * lta_descriptors(V0, T) + t[:, :, 0] * lta_descriptors(V1, T)
-    w = lta_weights(V0, T)
-    gn = GaussNewton(T)
-    ks = np.arange(1, 8)
-
-    def run(**kw):
-        return R.solve_run(gn, ks, Z[ks], [w] * len(ks), blend[ks], V0, "extrapolate", **kw)
+    run = gated_run
 
     free = run()
     e = np.array([rec["energy_final"] for _, _, rec in free])
@@ -309,3 +292,4 @@ def test_gated_run_keeps_what_the_run_given_its_energies_keeps():
         assert all(np.array_equal(a[1], b[1]) for a, b in zip(gated, given))
     stopped = run(gate=lambda: (R.GATE_ABORT, None))
     assert stopped == []
+

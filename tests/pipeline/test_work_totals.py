@@ -184,22 +184,12 @@ def test_speculative_continuations_count_the_frames_no_run_keeps():
     assert work.record()["solves"] == 6 and work.record()["discarded_solves"] == 4
 
 
-def test_gated_run_counts_its_dropped_frames():
+def test_gated_run_counts_its_dropped_frames(gated_run):
     """solve_run with a gate that opens after three frames with energies that only the first
     beats: the frames kept and the frame the run given the energies would stop at are
     counted as such, the third as speculation; every solve is counted once."""
-    from shellspline.shells.descriptors import lta_descriptors, lta_weights
-
-    d = stress.joint(angles=(0.0, 90.0), frames=(0, 8), rings=8, segments=8)
-    V0, V1 = d["V"]
-    T = ss.topology(d["F"])
-    t = np.linspace(0.0, 1.0, 9)[:, None, None]
-    blend = (1 - t) * V0 + t * V1
-    Z = (1 - t[:, :, 0]) * lta_descriptors(V0, T) + t[:, :, 0] * lta_descriptors(V1, T)
-    w = lta_weights(V0, T)
-    gn = reconstruct.GaussNewton(T)
-    ks = np.arange(1, 8)
-    free = R.solve_run(gn, ks, Z[ks], [w] * len(ks), blend[ks], V0, "extrapolate")
+    run = gated_run
+    free = run()
     e = np.array([rec["energy_final"] for _, _, rec in free])
     worse = e * 0.5
     worse[0] = e[0] * 2.0          # only the first frame beats its energy
@@ -210,8 +200,7 @@ def test_gated_run_counts_its_dropped_frames():
         return (R.GATE_WAIT, None) if len(calls) <= 3 else (R.GATE_GO, worse)
 
     work = R.GaussNewtonWork()
-    kept = R.solve_run(gn, ks, Z[ks], [w] * len(ks), blend[ks], V0, "extrapolate",
-                       gate=gate, work=work, kind="continued")
+    kept = run(gate=gate, work=work, kind="continued")
     by = work.record()["by_kind"]
     assert len(kept) == 1 and by["continued"]["solves"] == 1
     assert by["continuation_discarded"]["solves"] == 1
